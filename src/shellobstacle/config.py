@@ -1,0 +1,391 @@
+"""TOML configuration → validated objects, with errors that name the key and the fix.
+
+The schema below is the single source of truth: the loader validates against it
+and ``shellobstacle config-reference`` prints it, so documentation cannot drift.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from shellobstacle.domains import DomainSpec
+from shellobstacle.expressions import ExpressionError
+from shellobstacle.model import Load, Material, Obstacle, Shell
+from shellobstacle.problem import PENALTY_QUADRATURES, TRANSVERSE, Discretization
+from shellobstacle.solvers.newton import NewtonOptions
+from shellobstacle.surface import SURFACE_KINDS, Surface
+
+__all__ = [
+    "SCHEMA",
+    "Config",
+    "ConfigError",
+    "PenaltySpec",
+    "load_config",
+    "parse_config",
+    "reference_text",
+    "to_toml",
+]
+
+
+class ConfigError(ValueError):
+    """A configuration problem the user can fix; the message names file, key and fix."""
+
+
+@dataclass(frozen=True)
+class Key:
+    """One configuration key: its type, default (``REQUIRED`` if none) and meaning."""
+
+    type: str  # "float", "int", "str", "bool", "float[n]", "str|float[3]", "table", "points"
+    default: Any
+    help: str
+    choices: tuple[str, ...] = ()
+
+
+REQUIRED = object()
+OPTIONAL = None
+
+SCHEMA: dict[str, dict[str, Key]] = {
+    "surface": {
+        "kind": Key("str", REQUIRED, "built-in surface or 'expression'", SURFACE_KINDS),
+        "radius": Key("float", OPTIONAL, "spherical_cap: sphere radius R"),
+        "offset": Key("float", OPTIONAL, "spherical_cap/ellipsoid_cap: downward shift of θ_3"),
+        "semi_axes": Key("float[3]", OPTIONAL, "ellipsoid_cap: semi-axes (A, B, C)"),
+        "height": Key("float", OPTIONAL, "elliptic_paraboloid: apex height"),
+        "curvatures": Key("float[2]", OPTIONAL, "elliptic_paraboloid: apex curvatures (k1, k2)"),
+        "theta": Key("str[3]", OPTIONAL, "expression: θ(y1, y2) as three SymPy strings"),
+    },
+    "domain": {
+        "kind": Key("str", REQUIRED, "shape of ω", ("disk", "ellipse", "polygon", "rectangle", "file")),
+        "h": Key("float", OPTIONAL, "target mesh size (gmsh); the h obtained is reported"),
+        "radius": Key("float", 0.5, "disk: radius"),
+        "center": Key("float[2]", (0.0, 0.0), "disk/ellipse: centre"),
+        "semi_axes": Key("float[2]", OPTIONAL, "ellipse: semi-axes"),
+        "vertices": Key("points", OPTIONAL, "polygon: list of [y1, y2] vertices"),
+        "corners": Key("points", OPTIONAL, "rectangle: [[y1_min, y2_min], [y1_max, y2_max]]"),
+        "path": Key("str", OPTIONAL, "file: a gmsh .msh file of triangles (relative to the config)"),
+        "refinements": Key("int", 0, "uniform refinements after meshing (nested meshes)"),
+        "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
+        "central_radius": Key("float", OPTIONAL, "disk/ellipse: radius of the finer region"),
+    },
+    "material": {
+        "epsilon": Key("float", REQUIRED, "half-thickness ε > 0"),
+        "lambda": Key("float", REQUIRED, "Lamé constant λ ≥ 0"),
+        "mu": Key("float", REQUIRED, "Lamé constant μ > 0"),
+    },
+    "load": {
+        "p": Key("str|float[3]", REQUIRED, "contravariant force density p^i(y1, y2, r)"),
+        "parameters": Key("table", {}, "named numbers the load may use (sweepable)"),
+    },
+    "obstacle": {
+        "q": Key("float[3]", (0.0, 0.0, 1.0), "normal of the plane; H = {x·q ≥ 0}"),
+    },
+    "penalty": {
+        "kappa": Key("float", OPTIONAL, "penalty parameter κ > 0"),
+        "exponent": Key("float", OPTIONAL, "κ = h^exponent (the paper's coupling)"),
+        "continuation": Key("bool", True, "reach κ through a ladder of larger κ (warm starts)"),
+    },
+    "discretization": {
+        "degree": Key("int", 1, "Lagrange degree of all components (1 or 2)"),
+        "transverse": Key("str", "clamped", "boundary condition of ζ_3", TRANSVERSE),
+        "penalty_quadrature": Key("str", "gauss", "where the penalty is integrated", PENALTY_QUADRATURES),
+        "quadrature_degree": Key("int", OPTIONAL, "quadrature degree (default 2·degree + 2)"),
+    },
+    "solver": {
+        "method": Key("str", "newton", "nonlinear solver", ("newton",)),
+        "linear_solver": Key("str", "direct", "MUMPS LU or CG + GAMG", ("direct", "iterative")),
+        "rtol": Key("float", 1e-10, "relative residual tolerance"),
+        "stol": Key("float", 1e-12, "relative Newton-correction tolerance"),
+        "max_iterations": Key("int", 100, "Newton iterations per κ"),
+    },
+    "output": {
+        "paraview": Key("bool", True, "write VTX (.bp) files for ParaView"),
+        "figures": Key("bool", True, "write PNG figures"),
+    },
+}
+
+REQUIRED_SECTIONS = ("surface", "domain", "material", "load")
+
+
+@dataclass(frozen=True)
+class PenaltySpec:
+    """``κ`` given directly or as ``h^exponent``, and whether to continue from larger κ."""
+
+    kappa: float | None = None
+    exponent: float | None = None
+    continuation: bool = True
+
+    def target(self, h: float) -> float:
+        """The κ to solve for on a mesh of size ``h``."""
+        return self.kappa if self.kappa is not None else h ** float(self.exponent)  # type: ignore[arg-type]
+
+    def ladder(self, h: float) -> list[float]:
+        """The continuation path ending at :meth:`target` (just the target if disabled)."""
+        target = self.target(h)
+        if not self.continuation:
+            return [target]
+        if self.exponent is not None:
+            qs = [0.5 * k for k in range(1, int(2 * self.exponent) + 1) if 0.5 * k < self.exponent]
+            path = [h**qq for qq in qs]
+        else:
+            path = [10.0**-k for k in range(0, 40) if 10.0**-k > target]
+        return [*path, target]
+
+
+@dataclass(frozen=True)
+class Config:
+    """A validated configuration: the physical shell and every numerical choice."""
+
+    shell: Shell
+    domain: DomainSpec
+    discretization: Discretization
+    penalty: PenaltySpec
+    solver: NewtonOptions
+    method: str
+    output: Mapping[str, bool]
+    resolved: Mapping[str, Mapping[str, Any]]
+    source: str
+
+
+def _suggest(name: str, options: list[str]) -> str:
+    close = difflib.get_close_matches(name, options, n=1, cutoff=0.5)
+    return f"; did you mean {close[0]!r}?" if close else f"; valid keys: {', '.join(options)}"
+
+
+def _coerce(value: Any, key: Key, where: str) -> Any:
+    """Check and convert one value to the key's type."""
+
+    def number(v: Any, what: str) -> float:
+        if isinstance(v, bool) or not isinstance(v, int | float):
+            raise ConfigError(f"{what} must be a number, got {v!r}")
+        if not math.isfinite(v):
+            raise ConfigError(f"{what} must be finite, got {v!r}")
+        return float(v)
+
+    t = key.type
+    if t == "float":
+        return number(value, where)
+    if t == "int":
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"{where} must be an integer, got {value!r}")
+        return value
+    if t == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{where} must be true or false, got {value!r}")
+        return value
+    if t == "str":
+        if not isinstance(value, str):
+            raise ConfigError(f"{where} must be a string, got {value!r}")
+        if key.choices and value not in key.choices:
+            raise ConfigError(
+                f"{where} = {value!r} is not one of {', '.join(map(repr, key.choices))}"
+                + _suggest(value, list(key.choices)).replace("valid keys", "choices")
+            )
+        return value
+    if t.startswith(("float[", "str[", "str|float[")):
+        n = int(t[t.index("[") + 1 : -1])
+        if not isinstance(value, list | tuple) or len(value) != n:
+            raise ConfigError(f"{where} must be a list of {n} values, got {value!r}")
+        if t.startswith("float"):
+            return tuple(number(v, f"{where}[{i + 1}]") for i, v in enumerate(value))
+        out = []
+        for i, v in enumerate(value):
+            if isinstance(v, str) or (t.startswith("str|") and not isinstance(v, bool)
+                                      and isinstance(v, int | float)):
+                out.append(v if isinstance(v, str) else repr(float(v)))
+            else:
+                raise ConfigError(f"{where}[{i + 1}] must be a string expression, got {v!r}")
+        return tuple(out)
+    if t == "points":
+        if not isinstance(value, list) or not all(
+            isinstance(p, list | tuple) and len(p) == 2 for p in value
+        ):
+            raise ConfigError(f"{where} must be a list of [y1, y2] pairs, got {value!r}")
+        return tuple(
+            (number(p[0], f"{where}[{i + 1}][1]"), number(p[1], f"{where}[{i + 1}][2]"))
+            for i, p in enumerate(value)
+        )
+    if t == "table":
+        if not isinstance(value, dict):
+            raise ConfigError(f"{where} must be a table of name = number, got {value!r}")
+        return {k: number(v, f"{where}.{k}") for k, v in value.items()}
+    raise AssertionError(t)
+
+
+def parse_config(data: Mapping[str, Any], source: str = "<config>") -> Config:
+    """Validate a parsed TOML document and build a :class:`Config`.
+
+    Raises:
+        ConfigError: naming ``source``, the section, the key and the fix.
+    """
+    resolved: dict[str, dict[str, Any]] = {}
+    for section in data:
+        if section not in SCHEMA:
+            raise ConfigError(f"{source}: unknown section [{section}]" + _suggest(section, list(SCHEMA)))
+        if not isinstance(data[section], dict):
+            raise ConfigError(f"{source}: [{section}] must be a table of keys")
+    for section in REQUIRED_SECTIONS:
+        if section not in data:
+            raise ConfigError(f"{source}: missing section [{section}]")
+    for section, keys in SCHEMA.items():
+        given = dict(data.get(section, {}))
+        for name in given:
+            if name not in keys:
+                raise ConfigError(
+                    f"{source}: unknown key '{name}' in [{section}]" + _suggest(name, list(keys))
+                )
+        out: dict[str, Any] = {}
+        for name, key in keys.items():
+            where = f"{source}: {section}.{name}"
+            if name in given:
+                out[name] = _coerce(given[name], key, where)
+            elif key.default is REQUIRED:
+                raise ConfigError(f"{source}: missing key '{name}' in [{section}] ({key.help})")
+            elif key.default is not None:
+                out[name] = key.default
+        resolved[section] = out
+    try:
+        return _build(resolved, source)
+    except ConfigError:
+        raise
+    except (ValueError, ExpressionError) as err:
+        raise ConfigError(f"{source}: {err}") from None
+
+
+def _need(sec: Mapping[str, Any], section: str, names: tuple[str, ...], why: str, source: str) -> None:
+    for n in names:
+        if n not in sec:
+            raise ConfigError(f"{source}: [{section}] needs '{n}' for {why}")
+
+
+def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
+    s = r["surface"]
+    kind = s["kind"]
+    if kind == "spherical_cap":
+        _need(s, "surface", ("radius", "offset"), "kind = 'spherical_cap'", source)
+        surface = Surface.spherical_cap(s["radius"], s["offset"])
+    elif kind == "ellipsoid_cap":
+        _need(s, "surface", ("semi_axes", "offset"), "kind = 'ellipsoid_cap'", source)
+        surface = Surface.ellipsoid_cap(s["semi_axes"], s["offset"])
+    elif kind == "elliptic_paraboloid":
+        _need(s, "surface", ("height", "curvatures"), "kind = 'elliptic_paraboloid'", source)
+        surface = Surface.elliptic_paraboloid(s["height"], s["curvatures"])
+    else:
+        _need(s, "surface", ("theta",), "kind = 'expression'", source)
+        surface = Surface.from_strings(s["theta"])
+
+    m = r["material"]
+    material = Material(m["epsilon"], m["lambda"], m["mu"])
+    load = Load(tuple(r["load"]["p"]), dict(r["load"].get("parameters", {})))
+    shell = Shell(surface, material, load, Obstacle(tuple(r["obstacle"]["q"])))
+    shell.load_expressions()  # parse now: errors name the key
+
+    d = dict(r["domain"])
+    if d["kind"] != "file" and d["kind"] != "rectangle" and "h" not in d:
+        raise ConfigError(f"{source}: [domain] needs 'h' (target mesh size) for kind = '{d['kind']}'")
+    if "h" in d and not d["h"] > 0:
+        raise ConfigError(f"{source}: domain.h must be > 0, got {d['h']}")
+    if "path" in d and not Path(d["path"]).is_absolute():
+        base = Path(source).parent if source not in ("<config>", "") else Path(".")
+        d["path"] = str((base / d["path"]).resolve())
+    if d["refinements"] < 0:
+        raise ConfigError(f"{source}: domain.refinements must be >= 0, got {d['refinements']}")
+    domain = DomainSpec(**d)
+
+    disc = Discretization(**r["discretization"])
+
+    p = r.get("penalty", {})
+    if "kappa" in p and "exponent" in p:
+        raise ConfigError(f"{source}: give either penalty.kappa or penalty.exponent, not both")
+    if "kappa" not in p and "exponent" not in p:
+        raise ConfigError(
+            f"{source}: [penalty] needs 'kappa' (a number) or 'exponent' (κ = h^exponent)"
+        )
+    if "kappa" in p and not p["kappa"] > 0:
+        raise ConfigError(f"{source}: penalty.kappa must be > 0, got {p['kappa']}")
+    if "exponent" in p and not p["exponent"] > 0:
+        raise ConfigError(f"{source}: penalty.exponent must be > 0, got {p['exponent']}")
+    penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
+
+    sv = r["solver"]
+    solver = NewtonOptions(
+        rtol=sv["rtol"], stol=sv["stol"], max_iterations=sv["max_iterations"],
+        linear_solver=sv["linear_solver"],
+    )
+    return Config(shell, domain, disc, penalty, solver, sv["method"], dict(r["output"]), r, source)
+
+
+def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
+    """Read a TOML file, apply ``section.key=value`` overrides, validate.
+
+    Raises:
+        ConfigError: for a missing or malformed file and every validation problem.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} does not exist")
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from None
+    for item in overrides or []:
+        apply_override(data, item, str(path))
+    return parse_config(data, str(path))
+
+
+def apply_override(data: dict[str, Any], item: str, source: str = "--set") -> None:
+    """Apply ``section.key=value`` (value in TOML syntax; bare words are strings)."""
+    if "=" not in item or "." not in item.split("=", 1)[0]:
+        raise ConfigError(f"--set {item!r}: expected section.key=value, e.g. domain.h=0.01")
+    lhs, rhs = item.split("=", 1)
+    section, key = lhs.strip().split(".", 1)
+    try:
+        value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = rhs.strip()
+    data.setdefault(section, {})[key] = value
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {v!r} to TOML")
+
+
+def to_toml(resolved: Mapping[str, Mapping[str, Any]]) -> str:
+    """Serialize a resolved configuration (what was used, defaults included)."""
+    parts = []
+    for section, keys in resolved.items():
+        if not keys:
+            continue
+        parts.append(f"[{section}]")
+        parts += [f"{k} = {_toml_value(v)}" for k, v in keys.items()]
+        parts.append("")
+    return "\n".join(parts)
+
+
+def reference_text() -> str:
+    """The configuration reference (Markdown), generated from :data:`SCHEMA`."""
+    lines = ["# Configuration reference", ""]
+    for section, keys in SCHEMA.items():
+        req = " (required section)" if section in REQUIRED_SECTIONS else ""
+        lines += [f"## [{section}]{req}", "", "| key | type | default | meaning |", "|---|---|---|---|"]
+        for name, k in keys.items():
+            default = "required" if k.default is REQUIRED else ("—" if k.default is None else repr(k.default))
+            meaning = k.help + (f" (one of {', '.join(k.choices)})" if k.choices else "")
+            lines.append(f"| `{name}` | {k.type} | {default} | {meaning} |")
+        lines.append("")
+    return "\n".join(lines)

@@ -1,0 +1,278 @@
+"""User expressions: safe SymPy parsing, and translation to UFL and to NumPy.
+
+Surfaces ``θ(y)`` and loads ``p^{i,ε}(y)`` are written by users as strings in
+SymPy syntax. They are parsed against a whitelist of names (no arbitrary code is
+evaluated), differentiated symbolically where needed, and then either translated
+into UFL (exact values at quadrature points) or into NumPy functions (values at
+mesh nodes for checks and post-processing).
+"""
+
+from __future__ import annotations
+
+import keyword
+import re
+import tokenize
+from collections.abc import Callable, Mapping
+from io import StringIO
+from typing import Any
+
+import numpy as np
+import sympy as sp
+from sympy.parsing.sympy_parser import (
+    convert_xor,
+    parse_expr,
+    standard_transformations,
+)
+
+__all__ = [
+    "FUNCTIONS",
+    "ExpressionError",
+    "parse",
+    "to_numpy",
+    "to_ufl",
+    "is_safe_name",
+    "y1",
+    "y2",
+]
+
+y1, y2 = sp.symbols("y1 y2", real=True)
+
+#: Functions and constants a user expression may call.
+FUNCTIONS: dict[str, Any] = {
+    "sqrt": sp.sqrt,
+    "exp": sp.exp,
+    "log": sp.log,
+    "sin": sp.sin,
+    "cos": sp.cos,
+    "tan": sp.tan,
+    "asin": sp.asin,
+    "acos": sp.acos,
+    "atan": sp.atan,
+    "atan2": sp.atan2,
+    "sinh": sp.sinh,
+    "cosh": sp.cosh,
+    "tanh": sp.tanh,
+    "abs": sp.Abs,
+    "Abs": sp.Abs,
+    "Piecewise": sp.Piecewise,
+    "Min": sp.Min,
+    "Max": sp.Max,
+    "And": sp.And,
+    "Or": sp.Or,
+    "pi": sp.pi,
+    "E": sp.E,
+}
+
+_SYMPY_INTERNALS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}
+_SAFE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+class ExpressionError(ValueError):
+    """A user expression that cannot be parsed or uses names it may not use."""
+
+
+def _rename_keywords(text: str, what: str) -> tuple[str, dict[str, str]]:
+    """Rename Python keywords used as names (``lambda``) so the parser accepts them."""
+    renamed: dict[str, str] = {}
+    out = []
+    try:
+        tokens = list(tokenize.generate_tokens(StringIO(text).readline))
+    except (tokenize.TokenError, IndentationError) as err:
+        raise ExpressionError(f"{what}: cannot read {text!r}: {err}") from None
+    for tok in tokens:
+        if tok.type == tokenize.NAME and tok.string in ("True", "False"):
+            out.append((tok.type, tok.string))
+        elif tok.type == tokenize.NAME and keyword.iskeyword(tok.string):
+            if tok.string in ("and", "or", "not", "if", "else"):
+                raise ExpressionError(
+                    f"{what}: {text!r}: Python's {tok.string!r} is not allowed; "
+                    "use Piecewise((value, condition), (other, True)), And(...), Or(...)"
+                )
+            new = f"{tok.string}_"
+            renamed[new] = tok.string
+            out.append((tok.type, new))
+        else:
+            out.append((tok.type, tok.string))
+    return tokenize.untokenize(out), renamed
+
+
+def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expression") -> sp.Expr:
+    """Parse ``text`` (SymPy syntax) allowing only ``names`` and :data:`FUNCTIONS`.
+
+    Args:
+        text: the expression, e.g. ``"sqrt(1 - y1**2 - y2**2) - 0.85"``; numbers pass.
+        names: the symbols or values the expression may use (``y1``, ``epsilon``, ...).
+        what: how to call the expression in error messages (``"load.p[3]"``).
+
+    Raises:
+        ExpressionError: for syntax errors, unknown names and unsafe input.
+    """
+    if isinstance(text, bool):
+        raise ExpressionError(f"{what}: expected an expression, got the boolean {text}")
+    if isinstance(text, int | float):
+        return sp.Float(text) if isinstance(text, float) else sp.Integer(text)
+    if not isinstance(text, str):
+        raise ExpressionError(f"{what}: expected a string expression, got {type(text).__name__}")
+    if "__" in text or any(c in text for c in ";`$\\"):
+        raise ExpressionError(f"{what}: {text!r} contains characters that are not allowed")
+    if not text.strip():
+        raise ExpressionError(f"{what}: the expression is empty")
+    code, renamed = _rename_keywords(text, what)
+    local: dict[str, Any] = {}
+    for name, value in names.items():
+        key = f"{name}_" if keyword.iskeyword(name) else name
+        local[key] = value
+    allowed = set(local) | set(FUNCTIONS) | {"True", "False"}
+    for tok in tokenize.generate_tokens(StringIO(code).readline):
+        if tok.type == tokenize.NAME and tok.string not in allowed:
+            known = ", ".join(sorted(str(n) for n in names))
+            raise ExpressionError(
+                f"{what}: unknown name {renamed.get(tok.string, tok.string)!r} in {text!r}; "
+                f"allowed are {known} and the functions {', '.join(sorted(FUNCTIONS))}"
+            )
+    global_dict = {"__builtins__": {}, **FUNCTIONS, **_SYMPY_INTERNALS}
+    try:
+        expr = parse_expr(
+            code,
+            local_dict=local,
+            global_dict=global_dict,
+            transformations=(*standard_transformations, convert_xor),
+            evaluate=True,
+        )
+    except Exception as err:  # SymPy raises many types for malformed input
+        raise ExpressionError(f"{what}: cannot parse {text!r}: {err}") from None
+    if not isinstance(expr, sp.Expr):
+        raise ExpressionError(f"{what}: {text!r} is not a scalar expression")
+    return expr
+
+
+def _ufl_relational(expr: sp.Basic, rec: Callable[[sp.Basic], Any]) -> Any:
+    import ufl
+
+    ops = {
+        sp.StrictLessThan: ufl.lt,
+        sp.LessThan: ufl.le,
+        sp.StrictGreaterThan: ufl.gt,
+        sp.GreaterThan: ufl.ge,
+        sp.Equality: ufl.eq,
+        sp.Unequality: ufl.ne,
+    }
+    if isinstance(expr, sp.And | sp.Or):
+        combine = ufl.And if isinstance(expr, sp.And) else ufl.Or
+        conds = [_ufl_relational(a, rec) for a in expr.args]
+        out = conds[0]
+        for c in conds[1:]:
+            out = combine(out, c)
+        return out
+    if isinstance(expr, sp.Not):
+        return ufl.Not(_ufl_relational(expr.args[0], rec))
+    for cls, op in ops.items():
+        if isinstance(expr, cls):
+            return op(rec(expr.lhs), rec(expr.rhs))
+    raise ExpressionError(f"cannot translate the condition {expr} to UFL")
+
+
+def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
+    """Translate a SymPy expression into a UFL expression.
+
+    Args:
+        expr: the expression.
+        symbols: UFL values for its free symbols (``y1 -> x[0]``, ``ell -> Constant``).
+    """
+    import ufl
+
+    unary = {
+        sp.exp: ufl.exp,
+        sp.log: ufl.ln,
+        sp.sin: ufl.sin,
+        sp.cos: ufl.cos,
+        sp.tan: ufl.tan,
+        sp.asin: ufl.asin,
+        sp.acos: ufl.acos,
+        sp.atan: ufl.atan,
+        sp.sinh: ufl.sinh,
+        sp.cosh: ufl.cosh,
+        sp.tanh: ufl.tanh,
+        sp.Abs: abs,
+        sp.sign: ufl.sign,
+    }
+    cache: dict[sp.Basic, Any] = {}
+
+    def rec(e: sp.Basic) -> Any:
+        if e in cache:
+            return cache[e]
+        out = _translate(e)
+        cache[e] = out
+        return out
+
+    def _translate(e: sp.Basic) -> Any:
+        if e in symbols:
+            return symbols[e]
+        if e.is_Number or e in (sp.pi, sp.E):
+            return float(e)
+        if isinstance(e, sp.Symbol):
+            raise ExpressionError(f"no value for the symbol {e} in {expr}")
+        if isinstance(e, sp.Add):
+            terms = [rec(a) for a in e.args]
+            out = terms[0]
+            for t in terms[1:]:
+                out = out + t
+            return out
+        if isinstance(e, sp.Mul):
+            factors = [rec(a) for a in e.args]
+            out = factors[0]
+            for f in factors[1:]:
+                out = out * f
+            return out
+        if isinstance(e, sp.Pow):
+            base, ex = e.args
+            if ex == sp.Rational(1, 2):
+                return ufl.sqrt(rec(base))
+            if ex == -sp.Rational(1, 2):
+                return 1.0 / ufl.sqrt(rec(base))
+            if ex.is_Integer and ex < 0:
+                return 1.0 / rec(base) ** int(-ex)
+            if ex.is_Integer:
+                return rec(base) ** int(ex)
+            return rec(base) ** rec(ex)
+        if e.func in unary:
+            return unary[e.func](rec(e.args[0]))
+        if isinstance(e, sp.atan2):
+            return ufl.atan2(rec(e.args[0]), rec(e.args[1]))
+        if isinstance(e, sp.Min | sp.Max):
+            fn = ufl.min_value if isinstance(e, sp.Min) else ufl.max_value
+            out = rec(e.args[0])
+            for a in e.args[1:]:
+                out = fn(out, rec(a))
+            return out
+        if isinstance(e, sp.Piecewise):
+            out = None
+            for value, cond in reversed(e.args):
+                if cond == sp.true:
+                    out = rec(value)
+                elif out is None:
+                    raise ExpressionError(
+                        f"Piecewise {e} must end with a (value, True) branch to be defined everywhere"
+                    )
+                else:
+                    out = ufl.conditional(_ufl_relational(cond, rec), rec(value), out)
+            return out
+        raise ExpressionError(f"cannot translate {e.func.__name__} in {expr} to UFL")
+
+    return rec(sp.sympify(expr))
+
+
+def to_numpy(expr: sp.Expr, args: tuple[sp.Symbol, ...] = (y1, y2)) -> Callable[..., np.ndarray]:
+    """A vectorized NumPy function of ``args`` evaluating ``expr`` (broadcast to the input shape)."""
+    fn = sp.lambdify(args, expr, modules="numpy")
+
+    def evaluate(*values: np.ndarray) -> np.ndarray:
+        out = np.asarray(fn(*values), dtype=float)
+        return np.broadcast_to(out, np.broadcast(*values).shape).copy()
+
+    return evaluate
+
+
+def is_safe_name(name: str) -> bool:
+    """Whether ``name`` may be used as a user parameter name in expressions."""
+    return bool(_SAFE_NAME.match(name)) and name not in FUNCTIONS and "__" not in name

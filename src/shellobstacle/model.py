@@ -1,0 +1,121 @@
+"""The physical data of a shell obstacle problem: surface, material, load, obstacle (MODEL.md §2–3).
+
+These small frozen dataclasses are the Python API that mirrors the config file;
+they know nothing about meshes or finite elements.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import sympy as sp
+
+from shellobstacle.expressions import ExpressionError, is_safe_name, parse, y1, y2
+from shellobstacle.surface import Surface
+
+__all__ = ["Load", "Material", "Obstacle", "Shell"]
+
+
+@dataclass(frozen=True)
+class Material:
+    """Half-thickness ``ε > 0`` and Lamé constants ``λ ≥ 0``, ``μ > 0``."""
+
+    epsilon: float
+    lam: float
+    mu: float
+
+    def __post_init__(self) -> None:
+        if not self.epsilon > 0:
+            raise ValueError(f"material.epsilon must be > 0 (half-thickness), got {self.epsilon}")
+        if not self.lam >= 0:
+            raise ValueError(f"material.lambda must be >= 0 (Lamé constant), got {self.lam}")
+        if not self.mu > 0:
+            raise ValueError(f"material.mu must be > 0 (Lamé constant), got {self.mu}")
+
+    @property
+    def symbols(self) -> dict[str, float]:
+        """Names under which load expressions see the material constants."""
+        return {"epsilon": self.epsilon, "lambda": self.lam, "mu": self.mu}
+
+
+@dataclass(frozen=True)
+class Load:
+    """Contravariant force density ``p^{i,ε}(y)`` as three SymPy-syntax expressions.
+
+    Expressions may use ``y1, y2, r = √(y1² + y2²)``, the material constants by
+    name (``epsilon``, ``lambda``, ``mu``) and the names in ``parameters``, which
+    become ``dolfinx.fem.Constant``s so a sweep over them reuses one compiled
+    problem.
+    """
+
+    p: tuple[str, str, str]
+    parameters: Mapping[str, float] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if len(self.p) != 3:
+            raise ValueError(f"load.p needs three components (p^1, p^2, p^3), got {len(self.p)}")
+        for name in self.parameters:
+            if not is_safe_name(name) or name in ("y1", "y2", "r", "epsilon", "lambda", "mu"):
+                raise ValueError(f"load.parameters: {name!r} cannot be used as a parameter name")
+
+    def expressions(self, material: Material) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
+        """The three components as SymPy expressions in ``y1, y2`` and the parameter symbols."""
+        names: dict[str, Any] = {"y1": y1, "y2": y2, "r": sp.sqrt(y1**2 + y2**2)}
+        names |= {k: sp.Float(v) for k, v in material.symbols.items()}
+        names |= {k: sp.Symbol(k, real=True) for k in self.parameters}
+        out = tuple(parse(t, names, f"load.p[{i + 1}]") for i, t in enumerate(self.p))
+        return out  # type: ignore[return-value]
+
+    @staticmethod
+    def uniform_normal_pressure(p: float) -> Load:
+        """``p^{i,ε} = (0, 0, p)``: a pressure along ``a^3``."""
+        return Load(("0", "0", repr(float(p))))
+
+
+@dataclass(frozen=True)
+class Obstacle:
+    """The half-space ``H = {x : x·q ≥ 0}``; ``q`` is normalized (with a warning if needed)."""
+
+    q: tuple[float, float, float] = (0.0, 0.0, 1.0)
+
+    def __post_init__(self) -> None:
+        q = np.asarray(self.q, dtype=float)
+        if q.shape != (3,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"obstacle.q must be three finite numbers, got {self.q!r}")
+        norm = float(np.linalg.norm(q))
+        if norm == 0.0:
+            raise ValueError("obstacle.q = (0, 0, 0) defines no half-space: give a nonzero normal")
+        if abs(norm - 1.0) > 1e-12:
+            warnings.warn(
+                f"obstacle.q = {tuple(self.q)} has norm {norm:.6g}; using q/|q|",
+                stacklevel=3,
+            )
+        object.__setattr__(self, "q", tuple(float(v) for v in q / norm))
+
+
+@dataclass(frozen=True)
+class Shell:
+    """Everything physical: the middle surface, the material, the load and the obstacle."""
+
+    surface: Surface
+    material: Material
+    load: Load
+    obstacle: Obstacle = field(default_factory=Obstacle)
+
+    def load_expressions(self) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
+        """``p^{i,ε}`` as SymPy expressions (see :meth:`Load.expressions`)."""
+        try:
+            return self.load.expressions(self.material)
+        except ExpressionError:
+            raise
+        except Exception as err:  # pragma: no cover - defensive
+            raise ExpressionError(f"load.p: {err}") from err
+
+
+def load_from_strings(p: Sequence[str], **parameters: float) -> Load:
+    """Convenience: ``Load(tuple(p), parameters)``."""
+    return Load(tuple(str(v) for v in p), dict(parameters))  # type: ignore[arg-type]

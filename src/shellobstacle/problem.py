@@ -1,0 +1,203 @@
+"""The discrete penalized problem P_{M,κ}^{ε,h} (MODEL.md §4–5) as compiled DOLFINx forms.
+
+One :class:`PenalizedProblem` is compiled once per mesh; ``κ`` and the load
+parameters are ``dolfinx.fem.Constant``s, so a sweep over them reuses it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from shellobstacle import compat  # noqa: F401  (MPI/PETSc import order)
+import dolfinx  # noqa: I001
+import dolfinx.fem.petsc
+import ufl
+from petsc4py import PETSc
+
+from shellobstacle.expressions import to_ufl, y1, y2
+from shellobstacle.membrane import elastic_product, gap, strain
+from shellobstacle.model import Shell
+
+__all__ = ["Discretization", "PenalizedProblem"]
+
+TRANSVERSE = ("clamped", "free")
+PENALTY_QUADRATURES = ("gauss", "vertex")
+
+
+@dataclass(frozen=True)
+class Discretization:
+    """Finite-element choices (MODEL.md §5).
+
+    Attributes:
+        degree: Lagrange degree of all three components (1 or 2).
+        transverse: ``"clamped"`` (ζ_3 = 0 on γ, the paper's numerics) or ``"free"`` (ζ_3 ∈ L²).
+        penalty_quadrature: ``"gauss"`` (the paper's) or ``"vertex"`` (nodal, mass-lumped; P1).
+        quadrature_degree: for the membrane and load integrals (default ``2 * degree + 2``).
+    """
+
+    degree: int = 1
+    transverse: str = "clamped"
+    penalty_quadrature: str = "gauss"
+    quadrature_degree: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.degree not in (1, 2):
+            raise ValueError(f"discretization.degree must be 1 or 2, got {self.degree}")
+        if self.transverse not in TRANSVERSE:
+            raise ValueError(
+                f"discretization.transverse must be one of {TRANSVERSE}, got {self.transverse!r}"
+            )
+        if self.penalty_quadrature not in PENALTY_QUADRATURES:
+            raise ValueError(
+                "discretization.penalty_quadrature must be one of "
+                f"{PENALTY_QUADRATURES}, got {self.penalty_quadrature!r}"
+            )
+        if self.penalty_quadrature == "vertex" and self.degree != 1:
+            raise ValueError(
+                "discretization.penalty_quadrature = 'vertex' is the nodal constraint of P1; "
+                "use degree = 1, or penalty_quadrature = 'gauss' with degree = 2"
+            )
+        if self.quadrature_degree is not None and not 1 <= self.quadrature_degree <= 20:
+            raise ValueError(
+                f"discretization.quadrature_degree must be in 1..20, got {self.quadrature_degree}"
+            )
+
+    @property
+    def qdegree(self) -> int:
+        """Quadrature degree actually used for the membrane and load integrals."""
+        return self.quadrature_degree or 2 * self.degree + 2
+
+
+class PenalizedProblem:
+    """Compiled forms of the penalized membrane problem on one mesh (MODEL.md §4–5).
+
+    The energy is ``J_κ(η) = (ε/2) ∫ a^{αβστ} γ_στ(η) γ_αβ(η) √a dy − ∫ p^{i,ε} η_i √a dy
+    + (ε/(2κ)) ∫ ({g(η)}^-)² / |c| dy``; its derivative is the penalized equation of §4 and its
+    (generalized) Hessian the symmetric positive definite Jacobian.
+
+    Attributes:
+        zeta: the unknown ``ζ_κ^h`` (covariant components), a vector Lagrange function.
+        kappa: the penalty parameter, a ``Constant``.
+        parameters: the load parameters, ``Constant``s by name.
+    """
+
+    def __init__(
+        self,
+        shell: Shell,
+        mesh: dolfinx.mesh.Mesh,
+        discretization: Discretization | None = None,
+        kappa: float = 1.0,
+    ) -> None:
+        self.shell = shell
+        self.mesh = mesh
+        self.disc = disc = discretization or Discretization()
+        self.q = np.asarray(shell.obstacle.q, dtype=float)
+        mat = shell.material
+        self.V = dolfinx.fem.functionspace(mesh, ("Lagrange", disc.degree, (3,)))
+        self.zeta = dolfinx.fem.Function(self.V, name="zeta")
+        self.kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(kappa))
+        self.parameters = {
+            k: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v))
+            for k, v in shell.load.parameters.items()
+        }
+
+        self.G = G = shell.surface.geometry_ufl(mesh)
+        x = ufl.SpatialCoordinate(mesh)
+        import sympy as sp
+
+        symbols: dict[sp.Symbol, Any] = {y1: x[0], y2: x[1]}
+        symbols |= {sp.Symbol(k, real=True): c for k, c in self.parameters.items()}
+        self.p = [to_ufl(e, symbols) for e in shell.load_expressions()]
+
+        self.dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
+        if disc.penalty_quadrature == "vertex":
+            self.dx_penalty = ufl.Measure(
+                "dx", domain=mesh, metadata={"quadrature_rule": "vertex", "quadrature_degree": 1}
+            )
+        else:
+            self.dx_penalty = self.dx
+
+        eps, lam, mu = mat.epsilon, mat.lam, mat.mu
+        zeta, v, du = self.zeta, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
+        gam = self.strain_of(zeta)
+        self.c = G.c(self.q)
+        self.c_norm = G.c_norm(self.q)
+        self.g = gap(G, [zeta[i] for i in range(3)], self.q)  # g(ζ)
+        g_minus = ufl.conditional(ufl.lt(self.g, 0), self.g, 0)  # −{g}^-
+        sqrt_a = G.sqrt_a
+
+        elastic = 0.5 * eps * elastic_product(G, lam, mu, gam, gam) * sqrt_a * self.dx
+        work = sum(self.p[i] * zeta[i] for i in range(3)) * sqrt_a * self.dx
+        penalty = (eps / (2 * self.kappa)) * g_minus**2 / self.c_norm * self.dx_penalty
+        energy = elastic - work + penalty
+        residual = ufl.derivative(energy, zeta, v)
+        jacobian = ufl.derivative(residual, zeta, du)
+        load = sum(self.p[i] * v[i] for i in range(3)) * sqrt_a * self.dx
+        # Size of the terms whose cancellation makes g(ζ) = θ·q + ζ_j c_j: the round-off in the
+        # penalty residual is about machine epsilon times this vector (used by the solver).
+        theta_q = sum(G.theta[k] * self.q[k] for k in range(3))
+        g_terms = abs(theta_q) + sum(abs(zeta[j] * self.c[j]) for j in range(3))
+        active = ufl.conditional(ufl.lt(self.g, 0), 1.0, 0.0)
+        c_v = sum(self.c[j] * v[j] for j in range(3))
+        penalty_scale = (eps / self.kappa) * active * g_terms * c_v / self.c_norm * self.dx_penalty
+
+        self.forms = {
+            "residual": dolfinx.fem.form(residual),
+            "jacobian": dolfinx.fem.form(jacobian),
+            "load": dolfinx.fem.form(load),
+            "penalty_scale": dolfinx.fem.form(penalty_scale),
+            "elastic_energy": dolfinx.fem.form(elastic),
+            "work": dolfinx.fem.form(work),
+            "penalty_energy": dolfinx.fem.form(penalty),
+        }
+        self.bcs = self._boundary_conditions()
+
+    def strain_of(self, eta: Any) -> list[list[Any]]:
+        """``γ_αβ(η)`` of a UFL vector (covariant components)."""
+        grad = ufl.grad(eta)
+        return strain(self.G, [eta[i] for i in range(3)], [[grad[i, a] for a in range(2)] for i in range(3)])
+
+    def _boundary_conditions(self) -> list[dolfinx.fem.DirichletBC]:
+        """Homogeneous Dirichlet conditions: ζ_α = 0 on γ, and ζ_3 = 0 if clamped."""
+        mesh = self.mesh
+        tdim = mesh.topology.dim
+        mesh.topology.create_connectivity(tdim - 1, tdim)
+        facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+        comps = [0, 1] + ([2] if self.disc.transverse == "clamped" else [])
+        bcs = []
+        for i in comps:
+            Vi = self.V.sub(i)
+            dofs = dolfinx.fem.locate_dofs_topological(Vi, tdim - 1, facets)
+            bcs.append(dolfinx.fem.dirichletbc(PETSc.ScalarType(0), dofs, Vi))
+        return bcs
+
+    @property
+    def num_dofs(self) -> int:
+        """Global number of degrees of freedom (all three components)."""
+        im = self.V.dofmap.index_map
+        return im.size_global * self.V.dofmap.index_map_bs
+
+    def set_kappa(self, kappa: float) -> None:
+        """Change ``κ`` without recompiling."""
+        if not kappa > 0:
+            raise ValueError(f"the penalty parameter kappa must be > 0, got {kappa}")
+        self.kappa.value = kappa
+
+    def set_parameter(self, name: str, value: float) -> None:
+        """Change a load parameter without recompiling."""
+        if name not in self.parameters:
+            raise KeyError(f"no load parameter {name!r}; the load has {sorted(self.parameters)}")
+        self.parameters[name].value = value
+
+    def scalar(self, name: str) -> float:
+        """Assemble one of the energy forms (global value, all ranks)."""
+        local = dolfinx.fem.assemble_scalar(self.forms[name])
+        return float(self.mesh.comm.allreduce(local))
+
+    def energies(self) -> dict[str, float]:
+        """``J(ζ)``, the penalty term and ``J_κ(ζ)`` at the current ``ζ``."""
+        el, w, pen = (self.scalar(k) for k in ("elastic_energy", "work", "penalty_energy"))
+        return {"energy": el - w, "penalty_energy": pen, "penalized_energy": el - w + pen}

@@ -1,0 +1,81 @@
+"""Write a solve's result folder: summary.json, ParaView files, the cross-section figure."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from mpi4py import MPI
+
+from shellobstacle.checks import format_checks
+from shellobstacle.results import versions, write_json
+
+__all__ = ["write_solution"]
+
+
+def write_solution(
+    result: Any,
+    cfg: Any,
+    folder: Path,
+    say: Callable[[str], Any],
+    warnings_seen: list[str] | None = None,
+) -> dict[str, Any]:
+    """Write ``summary.json`` (always, also after a failure), ParaView files and figures.
+
+    Returns:
+        The summary dictionary.
+    """
+    from shellobstacle.output import write_paraview
+    from shellobstacle.plotting import plot_cross_section
+    from shellobstacle.postprocess import Postprocessor, cross_section
+
+    problem = result.problem
+    t = time.perf_counter()
+    post = Postprocessor(problem)
+    quantities = post.summary()
+    timings = dict(result.timings)
+    timings["postprocess"] = time.perf_counter() - t
+    last = result.steps[-1].newton if result.steps else None
+    summary: dict[str, Any] = {
+        "converged": result.converged,
+        "error": result.error,
+        "iterations": result.iterations,
+        "iterations_last_kappa": last.iterations if last else 0,
+        "dofs": problem.num_dofs,
+        "h": result.h,
+        "kappa": float(problem.kappa.value),
+        "kappa_target": result.kappa,
+        **quantities,
+        "residual_history": last.residual_norms if last else [],
+        "continuation": [s.as_dict() for s in result.steps],
+        "checks": [
+            {"name": c.name, "quantity": c.quantity, "value": c.value, "where": c.where,
+             "requirement": c.requirement, "passed": c.passed}
+            for c in result.checks
+        ],
+        "warnings": warnings_seen or [],
+        "surface": cfg.shell.surface.description,
+        "timings": timings,
+        "versions": versions(),
+    }
+    output = cfg.output
+    t = time.perf_counter()
+    files: list[str] = []
+    if output.get("paraview", True):
+        files += [str(p.relative_to(folder)) for p in write_paraview(problem, post, folder)]
+    if output.get("figures", True):
+        section = cross_section(problem)
+        png = folder / "cross_section.png"
+        if MPI.COMM_WORLD.rank == 0:
+            label = f"κ = {summary['kappa']:.2e}" + ("" if result.converged else " (NOT converged)")
+            plot_cross_section([(label, section)], problem.q, png)
+        files.append(png.name)
+    timings["output"] = time.perf_counter() - t
+    summary["files"] = files
+    write_json(folder / "summary.json", summary)
+    if MPI.COMM_WORLD.rank == 0:
+        (folder / "checks.txt").write_text(format_checks(result.checks) + "\n")
+    say(f"wrote summary.json and {len(files)} other file(s)")
+    return summary

@@ -1,0 +1,183 @@
+"""One solve of the penalized obstacle problem: mesh → checks → compile → continuation in κ.
+
+This is what ``shellobstacle solve`` runs, and the Python API's entry point.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from shellobstacle import compat  # noqa: F401
+import dolfinx  # noqa: I001
+
+from shellobstacle.checks import Check, check_assumptions, require
+from shellobstacle.config import Config, ConfigError, PenaltySpec
+from shellobstacle.domains import DomainSpec, create_mesh, mesh_size
+from shellobstacle.model import Shell
+from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.solvers.newton import ConvergenceError, NewtonOptions, NewtonResult, NewtonSolver
+
+__all__ = ["KappaStep", "SolveResult", "continuation", "make_mesh", "solve", "solve_config"]
+
+Progress = Callable[[str], Any]
+
+
+@dataclass
+class KappaStep:
+    """One κ of a continuation: its Newton statistics and time."""
+
+    kappa: float
+    newton: NewtonResult
+    seconds: float
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly record."""
+        r = self.newton
+        return {
+            "kappa": self.kappa,
+            "converged": r.converged,
+            "iterations": r.iterations,
+            "reason": r.reason,
+            "relative_residual": r.relative_residual,
+            "line_search_evaluations": r.line_search_evaluations,
+            "step_lengths": r.step_lengths,
+            "seconds": self.seconds,
+        }
+
+
+@dataclass
+class SolveResult:
+    """A finished (or failed) solve: the problem holding ζ, steps, checks and timings."""
+
+    problem: PenalizedProblem
+    h: float
+    kappa: float
+    steps: list[KappaStep]
+    checks: list[Check]
+    timings: dict[str, float] = field(default_factory=dict)
+    converged: bool = True
+    error: str | None = None
+
+    @property
+    def iterations(self) -> int:
+        """Newton iterations summed over the continuation."""
+        return sum(s.newton.iterations for s in self.steps)
+
+
+def make_mesh(domain: DomainSpec) -> dolfinx.mesh.Mesh:
+    """Mesh ω; a bad domain description becomes a :class:`ConfigError` naming it."""
+    try:
+        return create_mesh(domain)
+    except (ValueError, FileNotFoundError) as err:
+        raise ConfigError(f"[domain]: {err}") from None
+
+
+def continuation(
+    problem: PenalizedProblem,
+    solver: NewtonSolver,
+    kappas: list[float],
+    progress: Progress | None = None,
+) -> list[KappaStep]:
+    """Solve for each κ in turn, warm-starting from the previous solution.
+
+    Raises:
+        ConvergenceError: from the first κ that fails (earlier steps are in ``err.steps``).
+    """
+    steps: list[KappaStep] = []
+    for k, kappa in enumerate(kappas):
+        problem.set_kappa(kappa)
+        t0 = time.perf_counter()
+        try:
+            result = solver.solve()
+        except ConvergenceError as err:
+            err.steps = steps  # type: ignore[attr-defined]
+            raise
+        steps.append(KappaStep(kappa, result, time.perf_counter() - t0))
+        if progress is not None:
+            progress(
+                f"κ {k + 1}/{len(kappas)} = {kappa:.3e}: {result.iterations} Newton steps, "
+                f"relative residual {result.relative_residual:.1e}"
+            )
+    return steps
+
+
+def solve(
+    shell: Shell,
+    domain: DomainSpec | dolfinx.mesh.Mesh,
+    penalty: PenaltySpec,
+    discretization: Discretization | None = None,
+    options: NewtonOptions | None = None,
+    force: bool = False,
+    progress: Progress | None = None,
+) -> SolveResult:
+    """Solve P_{M,κ}^{ε,h} for the shell on a domain (or a ready mesh).
+
+    Args:
+        shell: surface, material, load and obstacle.
+        domain: a :class:`DomainSpec` to mesh, or a DOLFINx mesh.
+        penalty: κ (or ``h^exponent``) and whether to continue from larger κ.
+        discretization: element degree, boundary condition of ζ_3, penalty quadrature.
+        options: Newton tolerances and linear solver.
+        force: proceed (with a warning) when the theory's assumptions fail.
+        progress: called with one-line progress messages.
+
+    Raises:
+        AssumptionError: the data violate MODEL.md §3 (unless ``force``).
+    """
+    say = progress or (lambda _msg: None)
+    timings: dict[str, float] = {}
+    t = time.perf_counter()
+    if isinstance(domain, DomainSpec):
+        say(f"meshing {domain.kind} (target h = {domain.h})")
+        mesh = make_mesh(domain)
+    else:
+        mesh = domain
+    h = mesh_size(mesh)
+    timings["mesh"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    checks = check_assumptions(shell, mesh)
+    timings["checks"] = time.perf_counter() - t
+    if force:
+        failed = [c.name for c in checks if not c.passed]
+        if failed:
+            warnings.warn(f"proceeding although assumptions fail: {', '.join(failed)}", stacklevel=2)
+    else:
+        require(checks)
+
+    t = time.perf_counter()
+    kappas = penalty.ladder(h)
+    problem = PenalizedProblem(shell, mesh, discretization, kappa=kappas[0])
+    solver = NewtonSolver(problem, options)
+    timings["compile"] = time.perf_counter() - t
+    say(f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ")
+
+    t = time.perf_counter()
+    result = SolveResult(problem, h, kappas[-1], [], checks, timings)
+    try:
+        result.steps = continuation(problem, solver, kappas, progress)
+    except ConvergenceError as err:
+        result.steps = err.steps  # type: ignore[attr-defined]
+        result.steps.append(KappaStep(float(problem.kappa.value), err.result, float("nan")))
+        result.converged, result.error = False, str(err)
+    timings["solve"] = time.perf_counter() - t
+    for key, value in solver.timings.items():
+        timings[f"solve.{key}"] = value
+    return result
+
+
+def solve_config(config: Config, force: bool = False, progress: Progress | None = None) -> SolveResult:
+    """:func:`solve` with everything taken from a validated :class:`Config`."""
+    return solve(
+        config.shell,
+        config.domain,
+        config.penalty,
+        config.discretization,
+        config.solver,
+        force=force,
+        progress=progress,
+    )

@@ -1,0 +1,278 @@
+"""Semismooth Newton for the penalized problem, globalized by an exact line search (MODEL.md §4).
+
+``J_κ`` is strictly convex, C¹ and piecewise quadratic, so along a Newton
+direction ``δ`` the function ``φ(t) = J_κ(ζ + tδ)`` is convex and piecewise
+quadratic and ``φ'(t) = R(ζ + tδ)·δ`` is monotone and piecewise linear. The step
+length is the root of ``φ'`` (found by safeguarded secant steps, exact once the
+active set along the segment is fixed), which makes every step decrease the
+energy and the iteration globally convergent from any start.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from shellobstacle import compat  # noqa: F401
+import dolfinx  # noqa: I001
+import dolfinx.fem.petsc
+from petsc4py import PETSc
+
+from shellobstacle.problem import PenalizedProblem
+
+__all__ = ["ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
+
+
+@dataclass(frozen=True)
+class NewtonOptions:
+    """Stopping rules and linear solver of :class:`NewtonSolver`.
+
+    Attributes:
+        rtol: stop when ``‖R(ζ)‖ ≤ rtol ‖R(0)‖`` (``R(0) = −`` load vector).
+        atol: stop when ``‖R(ζ)‖ ≤ atol``.
+        stol: stop when the Newton correction is smaller than ``stol ‖ζ‖`` (max norms).
+        floor_factor: the residual is at its round-off floor when ``‖R‖ ≤ floor_factor · u ·
+            (‖L‖ + ‖S‖)``, ``u`` the machine epsilon, ``L`` the load vector and ``S`` the penalty
+            residual built from the magnitudes of the terms of ``g = θ·q + ζ_j c_j``; with
+            ``ε/κ`` large this floor is far above ``rtol ‖L‖``, and iterating further only
+            stirs round-off.
+        max_iterations: give up (and raise) after this many Newton steps.
+        linear_solver: ``"direct"`` (MUMPS LU) or ``"iterative"`` (CG + GAMG).
+        linear_rtol: relative tolerance of the iterative linear solver.
+    """
+
+    rtol: float = 1e-10
+    atol: float = 1e-30
+    stol: float = 1e-12
+    floor_factor: float = 100.0
+    max_iterations: int = 100
+    linear_solver: str = "direct"
+    linear_rtol: float = 1e-12
+
+    def __post_init__(self) -> None:
+        if self.linear_solver not in ("direct", "iterative"):
+            raise ValueError(
+                f"solver.linear_solver must be 'direct' or 'iterative', got {self.linear_solver!r}"
+            )
+        if self.max_iterations < 1:
+            raise ValueError(f"solver.max_iterations must be >= 1, got {self.max_iterations}")
+
+
+@dataclass
+class NewtonResult:
+    """What a Newton solve did: iterations, residual history, step lengths, times."""
+
+    converged: bool
+    iterations: int
+    reason: str
+    residual_norms: list[float] = field(default_factory=list)
+    step_lengths: list[float] = field(default_factory=list)
+    linear_iterations: list[int] = field(default_factory=list)
+    line_search_evaluations: int = 0
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def relative_residual(self) -> float:
+        """Final ``‖R‖ / ‖R(0)‖``."""
+        return self.residual_norms[-1] / self.residual_norms[0] if self.residual_norms else math.nan
+
+
+class ConvergenceError(RuntimeError):
+    """Newton did not converge; ``result`` holds the history, the iterate is left in place."""
+
+    def __init__(self, message: str, result: NewtonResult) -> None:
+        super().__init__(message)
+        self.result = result
+
+
+class NewtonSolver:
+    """Newton's method for one :class:`PenalizedProblem`, reusable across ``κ`` values."""
+
+    def __init__(self, problem: PenalizedProblem, options: NewtonOptions | None = None) -> None:
+        self.problem = problem
+        self.options = opts = options or NewtonOptions()
+        comm = problem.mesh.comm
+        self.A = dolfinx.fem.petsc.create_matrix(problem.forms["jacobian"])
+        self.R = dolfinx.fem.petsc.create_vector(problem.V)
+        self.dz = dolfinx.fem.petsc.create_vector(problem.V)
+        self.trial = dolfinx.fem.Function(problem.V)  # ζ + tδ for line-search evaluations
+        self.ksp = PETSc.KSP().create(comm)
+        self.ksp.setOperators(self.A)
+        prefix = f"shellobstacle_{id(self)}_"
+        self.ksp.setOptionsPrefix(prefix)
+        pc = self.ksp.getPC()
+        if opts.linear_solver == "direct":
+            self.ksp.setType("preonly")
+            pc.setType("lu")
+            pc.setFactorSolverType("mumps")
+        else:
+            self.ksp.setType("cg")
+            pc.setType("gamg")
+            self.ksp.setTolerances(rtol=opts.linear_rtol, atol=1e-50, max_it=2000)
+        self.ksp.setFromOptions()
+        self.timings: dict[str, float] = {"assemble": 0.0, "solve": 0.0, "line_search": 0.0}
+
+    # -- assembly ---------------------------------------------------------------------------
+    def _residual(self, u: dolfinx.fem.Function, b: PETSc.Vec) -> None:
+        """``b ← R(u)`` with zero rows at Dirichlet dofs (``u`` satisfies the homogeneous bcs)."""
+        with b.localForm() as loc:
+            loc.set(0.0)
+        if u is not self.problem.zeta:
+            raise RuntimeError("residual forms are tied to problem.zeta")
+        dolfinx.fem.petsc.assemble_vector(b, self.problem.forms["residual"])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
+
+    def _jacobian(self) -> None:
+        self.A.zeroEntries()
+        dolfinx.fem.petsc.assemble_matrix(self.A, self.problem.forms["jacobian"], bcs=self.problem.bcs)
+        self.A.assemble()
+
+    def _norm_of(self, name: str) -> float:
+        """Norm of an assembled linear form of the problem (Dirichlet rows zeroed)."""
+        b = dolfinx.fem.petsc.assemble_vector(self.problem.forms[name])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
+        norm = b.norm()
+        b.destroy()
+        return norm
+
+    def _floor(self, load_norm: float) -> float:
+        """Estimated round-off floor of ``‖R(ζ)‖`` at the current iterate."""
+        u = np.finfo(PETSc.ScalarType).eps
+        return self.options.floor_factor * u * (load_norm + self._norm_of("penalty_scale"))
+
+    # -- line search --------------------------------------------------------------------------
+    def _slope(self, t: float, z0: np.ndarray) -> float:
+        """``φ'(t) = R(ζ_0 + tδ)·δ`` (sets ``problem.zeta`` to ``ζ_0 + tδ``)."""
+        zeta = self.problem.zeta
+        zeta.x.array[:] = z0 + t * self._dz_local
+        zeta.x.scatter_forward()
+        self._residual(zeta, self.R)
+        return self.R.dot(self.dz)
+
+    def _line_search(self, z0: np.ndarray, slope0: float, noise: float) -> tuple[float, int]:
+        """Root of the monotone piecewise-linear ``φ'`` on ``[0, ∞)`` (full step if ``φ'(1) ≤ 0``)."""
+        lo, f_lo = 0.0, slope0
+        hi, f_hi = 1.0, self._slope(1.0, z0)
+        evals = 1
+        tol = max(1e-10 * abs(slope0), noise)
+        if f_hi <= tol:  # the minimizer lies at or beyond the full step: take it
+            return 1.0, evals
+        t = hi
+        side = 0
+        for _ in range(60):
+            # secant (Illinois variant of regula falsi keeps the bracket shrinking on both ends)
+            t = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
+            if not lo < t < hi:
+                t = 0.5 * (lo + hi)
+            f = self._slope(t, z0)
+            evals += 1
+            if abs(f) <= tol:
+                break
+            if f < 0:
+                lo, f_lo = t, f
+                if side == -1:
+                    f_hi *= 0.5
+                side = -1
+            else:
+                hi, f_hi = t, f
+                if side == 1:
+                    f_lo *= 0.5
+                side = 1
+            if hi - lo <= 1e-14 * hi:
+                break
+        return t, evals
+
+    # -- Newton -------------------------------------------------------------------------------
+    def solve(self, progress: Callable[[int, float], Any] | None = None) -> NewtonResult:
+        """Solve the penalized problem for the current ``κ``, starting from ``problem.zeta``.
+
+        Returns:
+            The :class:`NewtonResult` (``problem.zeta`` holds the solution).
+
+        Raises:
+            ConvergenceError: after ``max_iterations``, on a failed linear solve or on NaN; the
+                last iterate is left in ``problem.zeta`` and the history in ``err.result``.
+        """
+        opts, problem = self.options, self.problem
+        zeta = problem.zeta
+        t_start = time.perf_counter()
+        dolfinx.fem.petsc.set_bc(zeta.x.petsc_vec, problem.bcs)  # homogeneous bcs on the start
+        zeta.x.scatter_forward()
+        ref = self._norm_of("load")
+        result = NewtonResult(False, 0, "")
+        ta = time.perf_counter()
+        self._residual(zeta, self.R)
+        self.timings["assemble"] += time.perf_counter() - ta
+        rnorm = self.R.norm()
+        result.residual_norms.append(rnorm)
+        scale = ref if ref > 0.0 else 1.0
+        for it in range(1, opts.max_iterations + 1):
+            if not math.isfinite(rnorm):
+                result.reason = "residual is not finite (NaN/Inf)"
+                break
+            if rnorm <= max(opts.atol, opts.rtol * scale):
+                result.converged, result.reason = True, "relative residual below rtol"
+                break
+            floor = self._floor(ref)
+            if rnorm <= floor:
+                result.converged, result.reason = True, "residual at its round-off floor"
+                break
+            ta = time.perf_counter()
+            self._jacobian()
+            self.timings["assemble"] += time.perf_counter() - ta
+            ts = time.perf_counter()
+            self.R.scale(-1.0)
+            self.ksp.solve(self.R, self.dz)
+            self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            self.timings["solve"] += time.perf_counter() - ts
+            result.linear_iterations.append(self.ksp.getIterationNumber())
+            if self.ksp.getConvergedReason() < 0:
+                result.reason = f"linear solver failed (PETSc reason {self.ksp.getConvergedReason()})"
+                break
+            slope0 = -self.R.dot(self.dz)  # R·δ = −δᵀAδ < 0
+            tl = time.perf_counter()
+            with self.dz.localForm() as dz_loc:
+                self._dz_local = np.array(dz_loc.array_r)
+            z0 = zeta.x.array.copy()
+            step = self.dz.norm(PETSc.NormType.NORM_INFINITY)
+            unorm = zeta.x.petsc_vec.norm(PETSc.NormType.NORM_INFINITY)
+            if step <= opts.stol * unorm:
+                result.converged, result.reason = True, "Newton correction below stol"
+                break
+            if slope0 >= 0 or not math.isfinite(slope0):
+                result.reason = f"not a descent direction (R·δ = {slope0:.3e})"
+                break
+            noise = floor * self.dz.norm()  # |round-off in φ'(t)| ≲ ‖R_floor‖ ‖δ‖
+            t, evals = self._line_search(z0, slope0, noise)
+            # leave ζ = ζ_0 + tδ and R(ζ) in place (the last line-search evaluation may differ)
+            zeta.x.array[:] = z0 + t * self._dz_local
+            zeta.x.scatter_forward()
+            self._residual(zeta, self.R)
+            self.timings["line_search"] += time.perf_counter() - tl
+            result.line_search_evaluations += evals
+            result.step_lengths.append(t)
+            result.iterations = it
+            rnorm = self.R.norm()
+            result.residual_norms.append(rnorm)
+            if progress is not None:
+                progress(it, rnorm / scale)
+        else:
+            result.reason = f"no convergence in {opts.max_iterations} Newton iterations"
+        result.timings = {"total": time.perf_counter() - t_start}
+        if not result.converged:
+            if not result.reason:
+                result.reason = "stopped"
+            raise ConvergenceError(
+                f"Newton did not converge for kappa = {float(problem.kappa.value):.3e}: "
+                f"{result.reason}; relative residual {rnorm / scale:.3e} after "
+                f"{result.iterations} iterations",
+                result,
+            )
+        return result
