@@ -9,11 +9,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import dolfinx
 import numpy as np
 
 from shellobstacle import compat  # noqa: F401
-import dolfinx  # noqa: I001
-
 from shellobstacle.model import Shell
 
 __all__ = ["AssumptionError", "Check", "check_assumptions", "format_checks", "sample_points"]
@@ -41,14 +40,14 @@ class AssumptionError(ValueError):
 
 
 def sample_points(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
-    """Owned-or-ghost vertex coordinates and edge midpoints of the local mesh part (n × 2)."""
+    """Geometry nodes and edge midpoints of the local mesh part (n × 2)."""
     x = mesh.geometry.x[:, :2]
-    mesh.topology.create_connectivity(1, 0)
-    e2v = mesh.topology.connectivity(1, 0).array.reshape(-1, 2)
-    # geometry nodes of P1 meshes coincide with vertices; map vertices to nodes
-    num_v = mesh.topology.index_map(0).size_local + mesh.topology.index_map(0).num_ghosts
-    v2n = dolfinx.mesh.entities_to_geometry(mesh, 0, np.arange(num_v, dtype=np.int32)).ravel()
-    mids = 0.5 * (x[v2n[e2v[:, 0]]] + x[v2n[e2v[:, 1]]])
+    tdim = mesh.topology.dim
+    mesh.topology.create_entities(1)
+    mesh.topology.create_connectivity(1, tdim)
+    num_edges = mesh.topology.index_map(1).size_local + mesh.topology.index_map(1).num_ghosts
+    nodes = dolfinx.mesh.entities_to_geometry(mesh, 1, np.arange(num_edges, dtype=np.int32))
+    mids = 0.5 * (x[nodes[:, 0]] + x[nodes[:, 1]])
     return np.vstack([x, mids])
 
 
@@ -88,19 +87,49 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
         kmax = np.abs(H) + np.sqrt(np.maximum(H * H - K, 0.0))
         thin = eps * kmax
     rows = [
-        ("immersion", "a = det(a_αβ)", det_a, "min", "min a > 0",
-         "θ must be an immersion: a_1, a_2 linearly independent (is θ real and smooth on ω̄?)"),
-        ("elliptic", "K (Gaussian curvature)", K, "min", "min K > 0",
-         "the theory needs an elliptic surface (K ≥ K0 > 0): flat or saddle shells are not "
-         "elliptic membrane shells"),
-        ("inside half-space", "θ·q", theta_q, "min", "min θ·q > 0",
-         "the reference shell must lie strictly inside {x·q > 0}: raise the offset or move "
-         "the plane (Lemma 3.1)"),
-        ("normal towards obstacle", "a³·q", a3_q, "min", "min a³·q > 0",
-         "a^3·q must stay positive (Theorem 4.3, Lemma 5.1): the shell must not turn its "
-         "back on the plane"),
-        ("thin shell", "ε·max|κ_principal|", thin, "max", "max ε|κ| < 1",
-         "the half-thickness is too large for the curvature: reduce epsilon"),
+        (
+            "immersion",
+            "a = det(a_αβ)",
+            det_a,
+            "min",
+            "min a > 0",
+            "θ must be an immersion: a_1, a_2 linearly independent (is θ real and smooth on ω̄?)",
+        ),
+        (
+            "elliptic",
+            "K (Gaussian curvature)",
+            K,
+            "min",
+            "min K > 0",
+            "the theory needs an elliptic surface (K ≥ K0 > 0): flat or saddle shells are not "
+            "elliptic membrane shells",
+        ),
+        (
+            "inside half-space",
+            "θ·q",
+            theta_q,
+            "min",
+            "min θ·q > 0",
+            "the reference shell must lie strictly inside {x·q > 0}: raise the offset or move "
+            "the plane (Lemma 3.1)",
+        ),
+        (
+            "normal towards obstacle",
+            "a³·q",
+            a3_q,
+            "min",
+            "min a³·q > 0",
+            "a^3·q must stay positive (Theorem 4.3, Lemma 5.1): the shell must not turn its "
+            "back on the plane",
+        ),
+        (
+            "thin shell",
+            "ε·max|κ_principal|",
+            thin,
+            "max",
+            "max ε|κ| < 1",
+            "the half-thickness is too large for the curvature: reduce epsilon",
+        ),
     ]
     checks = []
     for name, quantity, values, kind, requirement, hint in rows:

@@ -57,31 +57,56 @@ def _parser() -> argparse.ArgumentParser:
         epilog="example: shellobstacle solve examples/paper.toml --set domain.h=0.02 -o out",
         formatter_class=fmt,
     )
-    p.add_argument("--version", action="version", version=f"shellobstacle {shellobstacle.__version__}")
+    p.add_argument(
+        "--version", action="version", version=f"shellobstacle {shellobstacle.__version__}"
+    )
     sub = p.add_subparsers(dest="command", required=True)
 
     def common(sp: argparse.ArgumentParser) -> None:
         sp.add_argument("config", help="TOML configuration file")
-        sp.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                        help="override a config value (TOML syntax), repeatable")
+        sp.add_argument(
+            "--set",
+            action="append",
+            default=[],
+            metavar="SECTION.KEY=VALUE",
+            help="override a config value (TOML syntax), repeatable",
+        )
         sp.add_argument("-q", "--quiet", action="store_true", help="print only errors")
 
-    s = sub.add_parser("solve", help="solve one penalized problem and write a result folder",
-                       formatter_class=fmt,
-                       epilog="example: shellobstacle solve examples/paper.toml -o paper-run")
+    s = sub.add_parser(
+        "solve",
+        help="solve one penalized problem and write a result folder",
+        formatter_class=fmt,
+        epilog="example: shellobstacle solve examples/paper.toml -o paper-run",
+    )
     common(s)
-    s.add_argument("-o", "--output", default=None,
-                   help="result folder (default: a new folder named after the config)")
+    s.add_argument(
+        "-o",
+        "--output",
+        default=None,
+        help="result folder (default: a new folder named after the config)",
+    )
     s.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty -o")
-    s.add_argument("--force", action="store_true",
-                   help="proceed although the theory's assumptions fail (recorded in the results)")
+    s.add_argument(
+        "--force",
+        action="store_true",
+        help="proceed although the theory's assumptions fail (recorded in the results)",
+    )
 
-    c = sub.add_parser("check", help="evaluate the theory's assumptions on the data and mesh",
-                       formatter_class=fmt, epilog="example: shellobstacle check examples/paper.toml")
+    c = sub.add_parser(
+        "check",
+        help="evaluate the theory's assumptions on the data and mesh",
+        formatter_class=fmt,
+        epilog="example: shellobstacle check examples/paper.toml",
+    )
     common(c)
 
-    r = sub.add_parser("reproduce", help="the paper's section 10 problem, with a report",
-                       formatter_class=fmt, epilog="example: shellobstacle reproduce -o paper")
+    r = sub.add_parser(
+        "reproduce",
+        help="the paper's section 10 problem, with a report",
+        formatter_class=fmt,
+        epilog="example: shellobstacle reproduce -o paper",
+    )
     r.add_argument("-o", "--output", default=None, help="result folder")
     r.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty -o")
     r.add_argument("--full", action="store_true", help="the paper's mesh size h ≈ 0.0078")
@@ -118,8 +143,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Exception:
         if MPI.COMM_WORLD.rank == 0:
             traceback.print_exc()
-            print("shellobstacle: internal error (a bug): please report it with the traceback "
-                  "above and your config file", file=sys.stderr)
+            print(
+                "shellobstacle: internal error (a bug): please report it with the traceback "
+                "above and your config file",
+                file=sys.stderr,
+            )
         return EXIT_FAILED
     return EXIT_USAGE
 
@@ -133,7 +161,10 @@ def _check(args: argparse.Namespace) -> int:
     mesh = make_mesh(cfg.domain)
     checks = check_assumptions(cfg.shell, mesh)
     if MPI.COMM_WORLD.rank == 0:
-        print(f"{cfg.shell.surface.description}; q = {cfg.shell.obstacle.q}; ε = {cfg.shell.material.epsilon}")
+        print(
+            f"{cfg.shell.surface.description}; q = {cfg.shell.obstacle.q}; "
+            f"ε = {cfg.shell.material.epsilon}"
+        )
         print(format_checks(checks))
     return EXIT_OK if all(c.passed for c in checks) else EXIT_USAGE
 
@@ -143,11 +174,14 @@ def _solve(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config, args.set)
     default = f"{Path(args.config).stem}-results"
-    return run_and_write(cfg, args.output, default, args.overwrite, args.force, Reporter(args.quiet))
+    return run_and_write(
+        cfg, args.output, default, args.overwrite, args.force, Reporter(args.quiet)
+    )
 
 
-def run_and_write(cfg: Any, output: str | None, default: str, overwrite: bool, force: bool,
-                  report: Reporter) -> int:
+def run_and_write(
+    cfg: Any, output: str | None, default: str, overwrite: bool, force: bool, report: Reporter
+) -> int:
     """Solve a config and write its result folder; returns the exit code."""
     from shellobstacle.config import to_toml
     from shellobstacle.report import write_solution
@@ -178,8 +212,9 @@ def _reproduce(args: argparse.Namespace) -> int:
 
     overrides = [] if args.full else ["domain.h=0.02"]
     cfg = load_config(PAPER_CONFIG, overrides)
-    return run_and_write(cfg, args.output, "paper-results", args.overwrite, False,
-                         Reporter(args.quiet))
+    return run_and_write(
+        cfg, args.output, "paper-results", args.overwrite, False, Reporter(args.quiet)
+    )
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -61,14 +61,18 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "theta": Key("str[3]", OPTIONAL, "expression: θ(y1, y2) as three SymPy strings"),
     },
     "domain": {
-        "kind": Key("str", REQUIRED, "shape of ω", ("disk", "ellipse", "polygon", "rectangle", "file")),
+        "kind": Key(
+            "str", REQUIRED, "shape of ω", ("disk", "ellipse", "polygon", "rectangle", "file")
+        ),
         "h": Key("float", OPTIONAL, "target mesh size (gmsh); the h obtained is reported"),
         "radius": Key("float", 0.5, "disk: radius"),
         "center": Key("float[2]", (0.0, 0.0), "disk/ellipse: centre"),
         "semi_axes": Key("float[2]", OPTIONAL, "ellipse: semi-axes"),
         "vertices": Key("points", OPTIONAL, "polygon: list of [y1, y2] vertices"),
         "corners": Key("points", OPTIONAL, "rectangle: [[y1_min, y2_min], [y1_max, y2_max]]"),
-        "path": Key("str", OPTIONAL, "file: a gmsh .msh file of triangles (relative to the config)"),
+        "path": Key(
+            "str", OPTIONAL, "file: a gmsh .msh file of triangles (relative to the config)"
+        ),
         "refinements": Key("int", 0, "uniform refinements after meshing (nested meshes)"),
         "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
         "central_radius": Key("float", OPTIONAL, "disk/ellipse: radius of the finer region"),
@@ -93,7 +97,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "discretization": {
         "degree": Key("int", 1, "Lagrange degree of all components (1 or 2)"),
         "transverse": Key("str", "clamped", "boundary condition of ζ_3", TRANSVERSE),
-        "penalty_quadrature": Key("str", "gauss", "where the penalty is integrated", PENALTY_QUADRATURES),
+        "penalty_quadrature": Key(
+            "str", "gauss", "where the penalty is integrated", PENALTY_QUADRATURES
+        ),
         "quadrature_degree": Key("int", OPTIONAL, "quadrature degree (default 2·degree + 2)"),
     },
     "solver": {
@@ -195,8 +201,9 @@ def _coerce(value: Any, key: Key, where: str) -> Any:
             return tuple(number(v, f"{where}[{i + 1}]") for i, v in enumerate(value))
         out = []
         for i, v in enumerate(value):
-            if isinstance(v, str) or (t.startswith("str|") and not isinstance(v, bool)
-                                      and isinstance(v, int | float)):
+            if isinstance(v, str) or (
+                t.startswith("str|") and not isinstance(v, bool) and isinstance(v, int | float)
+            ):
                 out.append(v if isinstance(v, str) else repr(float(v)))
             else:
                 raise ConfigError(f"{where}[{i + 1}] must be a string expression, got {v!r}")
@@ -226,7 +233,9 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>") -> Config:
     resolved: dict[str, dict[str, Any]] = {}
     for section in data:
         if section not in SCHEMA:
-            raise ConfigError(f"{source}: unknown section [{section}]" + _suggest(section, list(SCHEMA)))
+            raise ConfigError(
+                f"{source}: unknown section [{section}]" + _suggest(section, list(SCHEMA))
+            )
         if not isinstance(data[section], dict):
             raise ConfigError(f"{source}: [{section}] must be a table of keys")
     for section in REQUIRED_SECTIONS:
@@ -257,7 +266,9 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>") -> Config:
         raise ConfigError(f"{source}: {err}") from None
 
 
-def _need(sec: Mapping[str, Any], section: str, names: tuple[str, ...], why: str, source: str) -> None:
+def _need(
+    sec: Mapping[str, Any], section: str, names: tuple[str, ...], why: str, source: str
+) -> None:
     for n in names:
         if n not in sec:
             raise ConfigError(f"{source}: [{section}] needs '{n}' for {why}")
@@ -287,7 +298,9 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
 
     d = dict(r["domain"])
     if d["kind"] != "file" and d["kind"] != "rectangle" and "h" not in d:
-        raise ConfigError(f"{source}: [domain] needs 'h' (target mesh size) for kind = '{d['kind']}'")
+        raise ConfigError(
+            f"{source}: [domain] needs 'h' (target mesh size) for kind = '{d['kind']}'"
+        )
     if "h" in d and not d["h"] > 0:
         raise ConfigError(f"{source}: domain.h must be > 0, got {d['h']}")
     if "path" in d and not Path(d["path"]).is_absolute():
@@ -314,7 +327,9 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
 
     sv = r["solver"]
     solver = NewtonOptions(
-        rtol=sv["rtol"], stol=sv["stol"], max_iterations=sv["max_iterations"],
+        rtol=sv["rtol"],
+        stol=sv["stol"],
+        max_iterations=sv["max_iterations"],
         linear_solver=sv["linear_solver"],
     )
     return Config(shell, domain, disc, penalty, solver, sv["method"], dict(r["output"]), r, source)
@@ -382,9 +397,18 @@ def reference_text() -> str:
     lines = ["# Configuration reference", ""]
     for section, keys in SCHEMA.items():
         req = " (required section)" if section in REQUIRED_SECTIONS else ""
-        lines += [f"## [{section}]{req}", "", "| key | type | default | meaning |", "|---|---|---|---|"]
+        lines += [
+            f"## [{section}]{req}",
+            "",
+            "| key | type | default | meaning |",
+            "|---|---|---|---|",
+        ]
         for name, k in keys.items():
-            default = "required" if k.default is REQUIRED else ("—" if k.default is None else repr(k.default))
+            default = (
+                "required"
+                if k.default is REQUIRED
+                else ("—" if k.default is None else repr(k.default))
+            )
             meaning = k.help + (f" (one of {', '.join(k.choices)})" if k.choices else "")
             lines.append(f"| `{name}` | {k.type} | {default} | {meaning} |")
         lines.append("")

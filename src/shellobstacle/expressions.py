@@ -27,10 +27,10 @@ from sympy.parsing.sympy_parser import (
 __all__ = [
     "FUNCTIONS",
     "ExpressionError",
+    "is_safe_name",
     "parse",
     "to_numpy",
     "to_ufl",
-    "is_safe_name",
     "y1",
     "y2",
 ]
@@ -252,7 +252,7 @@ def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
                     out = rec(value)
                 elif out is None:
                     raise ExpressionError(
-                        f"Piecewise {e} must end with a (value, True) branch to be defined everywhere"
+                        f"Piecewise {e} needs a final (value, True) branch to be defined everywhere"
                     )
                 else:
                     out = ufl.conditional(_ufl_relational(cond, rec), rec(value), out)
@@ -263,7 +263,7 @@ def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
 
 
 def to_numpy(expr: sp.Expr, args: tuple[sp.Symbol, ...] = (y1, y2)) -> Callable[..., np.ndarray]:
-    """A vectorized NumPy function of ``args`` evaluating ``expr`` (broadcast to the input shape)."""
+    """A vectorized NumPy function of ``args`` evaluating ``expr`` (broadcast to the inputs)."""
     fn = sp.lambdify(args, expr, modules="numpy")
 
     def evaluate(*values: np.ndarray) -> np.ndarray:

@@ -81,7 +81,7 @@ def elastic_product(G: Geometry, lam: Any, mu: Any, gamma_s: Tensor2, gamma_t: T
 
 
 def stress_divergence(G: Geometry, n: Tensor2, dn: Sequence[Sequence[Sequence[Any]]]) -> list[Any]:
-    """Covariant divergence ``n^{αβ}|_β = ∂_β n^{αβ} + Γ^α_βτ n^{βτ} + Γ^β_βτ n^{ατ}`` (strong form (8)).
+    """Covariant divergence ``n^{αβ}|_β = ∂_β n^{αβ} + Γ^α_βτ n^{βτ} + Γ^β_βτ n^{ατ}`` (8).
 
     ``dn[α][β][σ] = ∂_σ n^{αβ}``.
     """

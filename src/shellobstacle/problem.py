@@ -9,14 +9,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
-from shellobstacle import compat  # noqa: F401  (MPI/PETSc import order)
-import dolfinx  # noqa: I001
+import dolfinx
 import dolfinx.fem.petsc
+import numpy as np
 import ufl
 from petsc4py import PETSc
 
+from shellobstacle import compat  # noqa: F401  (MPI/PETSc import order)
 from shellobstacle.expressions import to_ufl, y1, y2
 from shellobstacle.membrane import elastic_product, gap, strain
 from shellobstacle.model import Shell
@@ -158,7 +157,9 @@ class PenalizedProblem:
     def strain_of(self, eta: Any) -> list[list[Any]]:
         """``γ_αβ(η)`` of a UFL vector (covariant components)."""
         grad = ufl.grad(eta)
-        return strain(self.G, [eta[i] for i in range(3)], [[grad[i, a] for a in range(2)] for i in range(3)])
+        return strain(
+            self.G, [eta[i] for i in range(3)], [[grad[i, a] for a in range(2)] for i in range(3)]
+        )
 
     def _boundary_conditions(self) -> list[dolfinx.fem.DirichletBC]:
         """Homogeneous Dirichlet conditions: ζ_α = 0 on γ, and ζ_3 = 0 if clamped."""

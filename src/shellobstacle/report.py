@@ -29,7 +29,7 @@ def write_solution(
     """
     from shellobstacle.output import write_paraview
     from shellobstacle.plotting import plot_cross_section
-    from shellobstacle.postprocess import Postprocessor, cross_section
+    from shellobstacle.postprocess import Postprocessor
 
     problem = result.problem
     t = time.perf_counter()
@@ -51,8 +51,14 @@ def write_solution(
         "residual_history": last.residual_norms if last else [],
         "continuation": [s.as_dict() for s in result.steps],
         "checks": [
-            {"name": c.name, "quantity": c.quantity, "value": c.value, "where": c.where,
-             "requirement": c.requirement, "passed": c.passed}
+            {
+                "name": c.name,
+                "quantity": c.quantity,
+                "value": c.value,
+                "where": c.where,
+                "requirement": c.requirement,
+                "passed": c.passed,
+            }
             for c in result.checks
         ],
         "warnings": warnings_seen or [],
@@ -66,11 +72,10 @@ def write_solution(
     if output.get("paraview", True):
         files += [str(p.relative_to(folder)) for p in write_paraview(problem, post, folder)]
     if output.get("figures", True):
-        section = cross_section(problem)
+        section = post.cross_section()
         png = folder / "cross_section.png"
-        if MPI.COMM_WORLD.rank == 0:
-            label = f"κ = {summary['kappa']:.2e}" + ("" if result.converged else " (NOT converged)")
-            plot_cross_section([(label, section)], problem.q, png)
+        label = f"κ = {summary['kappa']:.2e}" + ("" if result.converged else " (NOT converged)")
+        plot_cross_section([(label, section)], problem.q, png)
         files.append(png.name)
     timings["output"] = time.perf_counter() - t
     summary["files"] = files

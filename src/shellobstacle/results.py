@@ -21,7 +21,9 @@ class ResultsError(ValueError):
     """The output folder cannot be used as asked (it exists and holds results)."""
 
 
-def prepare_folder(out: str | Path | None, default: str, overwrite: bool, comm=MPI.COMM_WORLD) -> Path:
+def prepare_folder(
+    out: str | Path | None, default: str, overwrite: bool, comm=MPI.COMM_WORLD
+) -> Path:
     """Create the result folder (rank 0) and return it on every rank.
 
     With ``out=None`` a new folder ``default``, ``default-2``, ... is chosen so earlier

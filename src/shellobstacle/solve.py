@@ -11,9 +11,9 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from shellobstacle import compat  # noqa: F401
-import dolfinx  # noqa: I001
+import dolfinx
 
+from shellobstacle import compat  # noqa: F401
 from shellobstacle.checks import Check, check_assumptions, require
 from shellobstacle.config import Config, ConfigError, PenaltySpec
 from shellobstacle.domains import DomainSpec, create_mesh, mesh_size
@@ -44,6 +44,7 @@ class KappaStep:
             "reason": r.reason,
             "relative_residual": r.relative_residual,
             "line_search_evaluations": r.line_search_evaluations,
+            "linear_iterations": r.linear_iterations,
             "step_lengths": r.step_lengths,
             "seconds": self.seconds,
         }
@@ -145,7 +146,9 @@ def solve(
     if force:
         failed = [c.name for c in checks if not c.passed]
         if failed:
-            warnings.warn(f"proceeding although assumptions fail: {', '.join(failed)}", stacklevel=2)
+            warnings.warn(
+                f"proceeding although assumptions fail: {', '.join(failed)}", stacklevel=2
+            )
     else:
         require(checks)
 
@@ -170,7 +173,9 @@ def solve(
     return result
 
 
-def solve_config(config: Config, force: bool = False, progress: Progress | None = None) -> SolveResult:
+def solve_config(
+    config: Config, force: bool = False, progress: Progress | None = None
+) -> SolveResult:
     """:func:`solve` with everything taken from a validated :class:`Config`."""
     return solve(
         config.shell,

@@ -63,7 +63,10 @@ class Geometry:
         self.a_lower = [[dot(self.a_cov[al], self.a_cov[be]) for be in range(2)] for al in range(2)]
         (a11, a12), (_, a22) = self.a_lower
         self.det_a = a11 * a22 - a12 * a12
-        self.a_upper = [[a22 / self.det_a, -a12 / self.det_a], [-a12 / self.det_a, a11 / self.det_a]]
+        self.a_upper = [
+            [a22 / self.det_a, -a12 / self.det_a],
+            [-a12 / self.det_a, a11 / self.det_a],
+        ]
         # contravariant basis a^α = a^{αβ} a_β, a^3 = a_3
         self.a_contra: list[Vec] = [
             [self.a_upper[al][0] * a1[i] + self.a_upper[al][1] * a2[i] for i in range(3)]
@@ -182,6 +185,7 @@ class Surface:
 
         x = ufl.SpatialCoordinate(mesh)
         sym = {y1: x[0], y2: x[1]}
+
         def tr(e: sp.Expr) -> Any:
             return to_ufl(e, sym)
 
@@ -198,4 +202,3 @@ class Surface:
             d1 = [[to_numpy(e)(Y1, Y2) for e in row] for row in self.d1]
             d2 = [[[to_numpy(e)(Y1, Y2) for e in col] for col in row] for row in self.d2]
         return Geometry(ev, d1, d2, np.sqrt)
-

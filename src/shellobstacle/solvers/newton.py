@@ -16,13 +16,12 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
-
-from shellobstacle import compat  # noqa: F401
-import dolfinx  # noqa: I001
+import dolfinx
 import dolfinx.fem.petsc
+import numpy as np
 from petsc4py import PETSc
 
+from shellobstacle import compat  # noqa: F401
 from shellobstacle.problem import PenalizedProblem
 
 __all__ = ["ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
@@ -130,7 +129,9 @@ class NewtonSolver:
 
     def _jacobian(self) -> None:
         self.A.zeroEntries()
-        dolfinx.fem.petsc.assemble_matrix(self.A, self.problem.forms["jacobian"], bcs=self.problem.bcs)
+        dolfinx.fem.petsc.assemble_matrix(
+            self.A, self.problem.forms["jacobian"], bcs=self.problem.bcs
+        )
         self.A.assemble()
 
     def _norm_of(self, name: str) -> float:
@@ -147,6 +148,11 @@ class NewtonSolver:
         u = np.finfo(PETSc.ScalarType).eps
         return self.options.floor_factor * u * (load_norm + self._norm_of("penalty_scale"))
 
+    def _direction(self) -> None:
+        """``δ ← A⁻¹ (−R)`` (``self.R`` holds ``−R``)."""
+        self.ksp.solve(self.R, self.dz)
+        self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
     # -- line search --------------------------------------------------------------------------
     def _slope(self, t: float, z0: np.ndarray) -> float:
         """``φ'(t) = R(ζ_0 + tδ)·δ`` (sets ``problem.zeta`` to ``ζ_0 + tδ``)."""
@@ -157,7 +163,7 @@ class NewtonSolver:
         return self.R.dot(self.dz)
 
     def _line_search(self, z0: np.ndarray, slope0: float, noise: float) -> tuple[float, int]:
-        """Root of the monotone piecewise-linear ``φ'`` on ``[0, ∞)`` (full step if ``φ'(1) ≤ 0``)."""
+        """Root of the monotone, piecewise-linear ``φ'`` (the full step if ``φ'(1) ≤ 0``)."""
         lo, f_lo = 0.0, slope0
         hi, f_hi = 1.0, self._slope(1.0, z0)
         evals = 1
@@ -229,12 +235,13 @@ class NewtonSolver:
             self.timings["assemble"] += time.perf_counter() - ta
             ts = time.perf_counter()
             self.R.scale(-1.0)
-            self.ksp.solve(self.R, self.dz)
-            self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            self._direction()
             self.timings["solve"] += time.perf_counter() - ts
             result.linear_iterations.append(self.ksp.getIterationNumber())
             if self.ksp.getConvergedReason() < 0:
-                result.reason = f"linear solver failed (PETSc reason {self.ksp.getConvergedReason()})"
+                result.reason = (
+                    f"linear solver failed (PETSc reason {self.ksp.getConvergedReason()})"
+                )
                 break
             slope0 = -self.R.dot(self.dz)  # R·δ = −δᵀAδ < 0
             tl = time.perf_counter()
@@ -243,14 +250,21 @@ class NewtonSolver:
             z0 = zeta.x.array.copy()
             step = self.dz.norm(PETSc.NormType.NORM_INFINITY)
             unorm = zeta.x.petsc_vec.norm(PETSc.NormType.NORM_INFINITY)
-            if step <= opts.stol * unorm:
-                result.converged, result.reason = True, "Newton correction below stol"
-                break
-            if slope0 >= 0 or not math.isfinite(slope0):
+            small_step = step <= opts.stol * unorm
+            if small_step:  # take the (tiny) full step, then stop: nothing left to gain
+                t, evals = 1.0, 0
+            elif slope0 >= 0 or not math.isfinite(slope0):
                 result.reason = f"not a descent direction (R·δ = {slope0:.3e})"
                 break
-            noise = floor * self.dz.norm()  # |round-off in φ'(t)| ≲ ‖R_floor‖ ‖δ‖
-            t, evals = self._line_search(z0, slope0, noise)
+            else:
+                noise = floor * self.dz.norm()  # |round-off in φ'(t)| ≲ ‖R_floor‖ ‖δ‖
+                if -slope0 <= noise:
+                    # The Newton decrement δᵀAδ is below the round-off of φ': no step can be
+                    # verified to decrease J_κ. ζ is the solution to working precision.
+                    result.converged = True
+                    result.reason = "Newton decrement below the round-off of the energy slope"
+                    break
+                t, evals = self._line_search(z0, slope0, noise)
             # leave ζ = ζ_0 + tδ and R(ζ) in place (the last line-search evaluation may differ)
             zeta.x.array[:] = z0 + t * self._dz_local
             zeta.x.scatter_forward()
@@ -263,6 +277,9 @@ class NewtonSolver:
             result.residual_norms.append(rnorm)
             if progress is not None:
                 progress(it, rnorm / scale)
+            if small_step:
+                result.converged, result.reason = True, "Newton correction below stol"
+                break
         else:
             result.reason = f"no convergence in {opts.max_iterations} Newton iterations"
         result.timings = {"total": time.perf_counter() - t_start}

@@ -1,0 +1,192 @@
+"""ParaView output (ADIOS2 VTX ``.bp``) of a solved penalized problem (MODEL.md §1, §4, §7).
+
+:func:`write_paraview` writes, into one folder:
+
+* ``parameter_domain.bp``: the flat parameter mesh ω with P1 (vertex) fields ``zeta``
+  (covariant components ζ_i), ``U`` (Cartesian displacement ζ_i a^i), ``position`` (θ),
+  ``deformed_position`` (θ + U), ``gap`` (g(ζ)) and ``contact`` (1 on contact vertices).
+* ``parameter_domain_p2.bp`` (only for P2 ζ): ``zeta``, ``U``, ``position`` and
+  ``deformed_position`` in the P2 space of ζ (VTX needs one element per file).
+* ``surface.bp``: the middle surface θ(ω) itself as a triangulated 3D surface (node
+  coordinates θ(y)) with the same P1 fields. In ParaView: open it, then *Filters → Warp By
+  Vector* with vector ``U`` (scale factor 1, or larger to exaggerate) shows the deformed
+  shell; colour by ``gap`` or ``contact``.
+* ``deformed_surface.bp``: the deformed middle surface (node coordinates θ(y) + U(y)),
+  ready to view as is, with ``U``, ``gap`` and ``contact``.
+
+ParaView (5.10 or newer) opens the ``.bp`` folders with its ADIOS2 VTX reader. The 3D
+surface meshes are built with :func:`dolfinx.mesh.create_mesh` from the owned cells of each
+rank, kept on that rank, so this works on any number of MPI ranks.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py)
+
+# isort: split
+import basix.ufl
+import dolfinx
+import dolfinx.fem
+import dolfinx.graph
+import dolfinx.io
+import dolfinx.mesh
+import numpy as np
+import ufl
+from mpi4py import MPI
+
+from shellobstacle.postprocess import Postprocessor
+from shellobstacle.problem import PenalizedProblem
+
+__all__ = ["SurfaceMesh", "surface_mesh", "write_paraview"]
+
+
+def _check_affine(mesh: dolfinx.mesh.Mesh) -> None:
+    if mesh.geometry.cmaps[0].degree != 1:
+        raise NotImplementedError("ParaView surface output needs an affine (degree-1) mesh")
+
+
+def _node_values(f: dolfinx.fem.Function) -> np.ndarray:
+    """Values of a P1 Function at the geometry nodes (owned and ghost) of its affine mesh.
+
+    Returns:
+        Array of shape ``(num local nodes, block size)``.
+    """
+    V = f.function_space
+    mesh = V.mesh
+    bs = V.dofmap.index_map_bs
+    geo = mesh.geometry.dofmaps[0]
+    out = np.zeros((mesh.geometry.x.shape[0], bs))
+    # in a P1 space on an affine mesh, cell dof k and geometry node k are the same vertex
+    out[geo.ravel()] = f.x.array.reshape(-1, bs)[V.dofmap.list.ravel()]
+    return out
+
+
+def _keep_local(comm: MPI.Comm):
+    """A cell partitioner that keeps every cell on the rank that passes it (no ghosts)."""
+
+    def partitioner(_comm, _nparts, _cell_types, cells):
+        num = sum(len(c) for c in cells) // 3
+        dest = np.full(num, comm.rank, dtype=np.int32)
+        return dolfinx.graph.adjacencylist(dest, np.arange(num + 1, dtype=np.int32))._cpp_object
+
+    return partitioner
+
+
+class SurfaceMesh:
+    """A 3D triangulated surface with the cells of an affine 2D mesh and given node coordinates.
+
+    Node ``j`` of the new mesh is node ``node[j]`` (local index) of the 2D mesh, so nodal
+    values of the 2D mesh transfer exactly (:meth:`transfer`).
+    """
+
+    def __init__(self, mesh2d: dolfinx.mesh.Mesh, coordinates: np.ndarray) -> None:
+        _check_affine(mesh2d)
+        comm = mesh2d.comm
+        nodes = mesh2d.geometry.index_map()
+        n_nodes = nodes.size_local + nodes.num_ghosts
+        l2g = nodes.local_to_global(np.arange(n_nodes, dtype=np.int32))
+        n_cells = mesh2d.topology.index_map(mesh2d.topology.dim).size_local
+        cells = l2g[mesh2d.geometry.dofmaps[0][:n_cells]]
+        x = np.ascontiguousarray(coordinates[: nodes.size_local, :3], dtype=float)
+        element = basix.ufl.element("Lagrange", mesh2d.basix_cell(), 1, shape=(3,))
+        self.mesh = dolfinx.mesh.create_mesh(
+            comm, cells, ufl.Mesh(element), x, partitioner=_keep_local(comm)
+        )
+        # new node j ↔ global node of the 2D mesh ↔ local node of the 2D mesh (owned or ghost)
+        order = np.argsort(l2g)
+        pos = np.searchsorted(l2g[order], self.mesh.geometry.input_global_indices)
+        self.node = order[pos]
+        self.P1 = dolfinx.fem.functionspace(self.mesh, ("Lagrange", 1))
+        self.P1v = dolfinx.fem.functionspace(self.mesh, ("Lagrange", 1, (3,)))
+
+    def transfer(self, f: dolfinx.fem.Function) -> dolfinx.fem.Function:
+        """The P1 Function ``f`` of the 2D mesh as a P1 Function on the surface (same name)."""
+        values = _node_values(f)
+        bs = values.shape[1]
+        space = self.P1 if bs == 1 else self.P1v
+        out = dolfinx.fem.Function(space, name=f.name)
+        geo = self.mesh.geometry.dofmaps[0]
+        out.x.array.reshape(-1, bs)[space.dofmap.list.ravel()] = values[self.node[geo.ravel()]]
+        return out
+
+
+def surface_mesh(mesh2d: dolfinx.mesh.Mesh, coordinates: np.ndarray) -> dolfinx.mesh.Mesh:
+    """A 3D surface mesh with the cells of ``mesh2d`` and node ``i`` at ``coordinates[i]``.
+
+    Args:
+        mesh2d: Affine triangle mesh of ω (distributed).
+        coordinates: Array ``(num local geometry nodes, 3)`` (at least the owned nodes), e.g.
+            ``θ`` at ``mesh2d.geometry.x``.
+
+    Returns:
+        The mesh (geometric dimension 3); each rank keeps its owned cells.
+    """
+    return SurfaceMesh(mesh2d, coordinates).mesh
+
+
+def _write(comm: MPI.Comm, path: Path, functions: list[dolfinx.fem.Function]) -> Path:
+    with dolfinx.io.VTXWriter(comm, path, functions, engine="BP4") as writer:
+        writer.write(0.0)
+    return path
+
+
+def write_paraview(problem: PenalizedProblem, post: Postprocessor, folder: Path) -> list[Path]:
+    """Write the current solution ``problem.zeta`` for ParaView (see the module docstring).
+
+    Args:
+        problem: The solved problem.
+        post: Its :class:`~shellobstacle.postprocess.Postprocessor`.
+        folder: Output folder (created if needed).
+
+    Returns:
+        The paths of the written ``.bp`` folders (the same list on every rank).
+    """
+    folder = Path(folder)
+    comm = problem.mesh.comm
+    if comm.rank == 0:
+        folder.mkdir(parents=True, exist_ok=True)
+    comm.barrier()
+
+    # fields in the space of ζ: ζ, U, θ, θ + U (θ interpolated exactly at the dofs)
+    V = problem.V
+    U = post.cartesian_displacement()
+    points = V.tabulate_dof_coordinates()
+    G = problem.shell.surface.geometry_numpy(points)
+    n = len(points)
+    theta = np.column_stack([np.broadcast_to(np.asarray(t, float), (n,)) for t in G.theta])
+    position = dolfinx.fem.Function(V, name="position")
+    position.x.array[:] = theta.ravel()
+    deformed = dolfinx.fem.Function(V, name="deformed_position")
+    deformed.x.array[:] = position.x.array + U.x.array
+    zeta = dolfinx.fem.Function(V, name="zeta")
+    zeta.x.array[:] = problem.zeta.x.array
+    vectors = [zeta, U, position, deformed]
+
+    gap = post.nodal_gap()
+    contact = post.indicator()
+    paths: list[Path] = []
+    if problem.disc.degree == 1:
+        p1_vectors = vectors
+    else:
+        paths.append(_write(comm, folder / "parameter_domain_p2.bp", vectors))
+        W = dolfinx.fem.functionspace(problem.mesh, ("Lagrange", 1, (3,)))
+        p1_vectors = []
+        for f in vectors:
+            g = dolfinx.fem.Function(W, name=f.name)
+            g.interpolate(f)  # vertex values of the P2 field
+            p1_vectors.append(g)
+    flat = [*p1_vectors, gap, contact]
+    paths.insert(0, _write(comm, folder / "parameter_domain.bp", flat))
+
+    # the reference and the deformed middle surface as 3D meshes
+    pos_nodes = _node_values(p1_vectors[2])
+    disp_nodes = _node_values(p1_vectors[1])
+    reference = SurfaceMesh(problem.mesh, pos_nodes)
+    surface_fields = [reference.transfer(f) for f in (p1_vectors[0], p1_vectors[1], gap, contact)]
+    paths.append(_write(comm, folder / "surface.bp", surface_fields))
+    current = SurfaceMesh(problem.mesh, pos_nodes + disp_nodes)
+    deformed_fields = [current.transfer(f) for f in (p1_vectors[1], gap, contact)]
+    paths.append(_write(comm, folder / "deformed_surface.bp", deformed_fields))
+    return paths

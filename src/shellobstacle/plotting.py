@@ -1,0 +1,119 @@
+"""Matplotlib figures (Agg backend, PNG): cross-sections of the deformed shell (MODEL.md §7).
+
+Only rank 0 draws: pass the same data on every rank (as
+:func:`~shellobstacle.postprocess.cross_section` returns it) and call from all ranks.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt
+import numpy as np
+from mpi4py import MPI
+
+from shellobstacle.postprocess import CrossSection, horizontal_direction
+
+__all__ = ["plot_cross_section"]
+
+
+def _draw(ax, sections, t, ref_label: bool) -> None:
+    """Plane, reference shell and deformed curves on one axes."""
+    first = sections[0][1]
+    ax.axhline(0.0, color="0.45", lw=3.0, zorder=1)
+    ax.axhspan(-1e3, 0.0, facecolor="0.92", edgecolor="0.6", hatch="///", lw=0.0, zorder=0)
+    ax.plot(
+        first.reference @ t,
+        first.height_reference,
+        ls="--",
+        color="0.25",
+        lw=1.2,
+        label="reference shell θ" if ref_label else None,
+        zorder=2,
+    )
+    colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(len(sections), 1)))
+    for (label, sec), color in zip(sections, colors, strict=False):
+        ax.plot(sec.deformed @ t, sec.height_deformed, color=color, lw=1.6, label=label, zorder=3)
+
+
+def plot_cross_section(
+    sections: Sequence[tuple[str, CrossSection]],
+    q: Sequence[float],
+    path: str | Path,
+    *,
+    title: str | None = None,
+    zoom: float | None = 0.15,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+) -> Path:
+    """Plot cross-sections of the deformed shell ``θ + ζ_i a^i`` over the plane ``x·q = 0``.
+
+    The horizontal axis is the coordinate of the deformed point along the direction of the
+    plane closest to the sampling axis (``x_1`` for ``q = (0, 0, 1)`` and a section along
+    ``y1``), the vertical axis its height ``x·q`` above the plane. The plane is the thick grey
+    line (hatched below), the reference shell θ is dashed (drawn from the first section), and
+    each section is one curve. A second panel zooms onto ``|x_1| < zoom`` near the contact zone.
+
+    Args:
+        sections: ``(label, section)`` pairs, e.g. one per load level ℓ.
+        q: Unit normal of the plane.
+        path: PNG file to write (150 dpi).
+        title: Figure title (a default one otherwise).
+        zoom: Half-width of the zoom panel; ``None`` for a single panel.
+        comm: Communicator whose rank 0 draws.
+
+    Returns:
+        The path (the file is written by rank 0 only; call it from every rank).
+    """
+    path = Path(path)
+    if not sections:
+        raise ValueError("plot_cross_section needs at least one (label, section) pair")
+    if comm.rank != 0:
+        return path
+    first = sections[0][1]
+    t = horizontal_direction(q, first.axis)
+    other = "y2" if first.axis == "y1" else "y1"
+    xlabel = "horizontal position x₁" if np.allclose(t, [1, 0, 0]) else "horizontal position x·t"
+    if np.allclose(t, [0, 1, 0]):
+        xlabel = "horizontal position x₂"
+
+    panels = 2 if zoom else 1
+    fig, axes = plt.subplots(
+        1, panels, figsize=(6.4 * panels, 4.6), squeeze=False, constrained_layout=True
+    )
+    ax = axes[0, 0]
+    _draw(ax, sections, t, True)
+    top = max(float(np.nanmax(s.height_reference)) for _, s in sections)
+    bottom = min(0.0, *(float(np.nanmin(s.height_deformed)) for _, s in sections))
+    ax.set_ylim(bottom - 0.08 * top, 1.12 * top)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("height above the plane x·q")
+    ats = {(sec.axis, sec.at) for _, sec in sections}
+    ax.set_title(f"section {other} = {first.at:g}" if len(ats) == 1 else "sections")
+    ax.grid(alpha=0.3)
+    ax.legend(loc="best", fontsize=8, framealpha=0.9)
+
+    if zoom:
+        zax = axes[0, 1]
+        _draw(zax, sections, t, False)
+        near = [s.height_deformed[np.abs(s.deformed @ t) < zoom] for _, s in sections]
+        near = [h for h in near if h.size]
+        hmax = max((float(h.max()) for h in near), default=top)
+        hmin = min((float(h.min()) for h in near), default=0.0)
+        span = max(hmax - min(hmin, 0.0), 1e-12)
+        zax.set_xlim(-zoom, zoom)
+        zax.set_ylim(min(hmin, 0.0) - 0.1 * span, hmax + 0.1 * span)
+        zax.set_xlabel(xlabel)
+        zax.set_ylabel("height above the plane x·q")
+        zax.set_title(f"zoom |{xlabel.split()[-1]}| < {zoom:g}: contact zone")
+        zax.grid(alpha=0.3)
+
+    fig.suptitle(title or "Deformed middle surface θ + ζᵢ aⁱ over the obstacle plane")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return path
