@@ -6,6 +6,7 @@ they know nothing about meshes or finite elements.
 
 from __future__ import annotations
 
+import functools
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -64,16 +65,23 @@ class Load:
 
     def expressions(self, material: Material) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
         """The three components as SymPy expressions in ``y1, y2`` and the parameter symbols."""
-        names: dict[str, Any] = {"y1": y1, "y2": y2, "r": sp.sqrt(y1**2 + y2**2)}
-        names |= {k: sp.Float(v) for k, v in material.symbols.items()}
-        names |= {k: sp.Symbol(k, real=True) for k in self.parameters}
-        out = tuple(parse(t, names, f"load.p[{i + 1}]") for i, t in enumerate(self.p))
-        return out  # type: ignore[return-value]
+        return _parse_load(tuple(self.p), tuple(sorted(self.parameters)), material)
 
     @staticmethod
     def uniform_normal_pressure(p: float) -> Load:
         """``p^{i,ε} = (0, 0, p)``: a pressure along ``a^3``."""
         return Load(("0", "0", repr(float(p))))
+
+
+@functools.lru_cache(maxsize=32)
+def _parse_load(
+    p: tuple[str, ...], parameters: tuple[str, ...], material: Material
+) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
+    """Parse the load once per (strings, parameter names, material): long strings are slow."""
+    names: dict[str, Any] = {"y1": y1, "y2": y2, "r": sp.sqrt(y1**2 + y2**2)}
+    names |= {k: sp.Float(v) for k, v in material.symbols.items()}
+    names |= {k: sp.Symbol(k, real=True) for k in parameters}
+    return tuple(parse(t, names, f"load.p[{i + 1}]") for i, t in enumerate(p))  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)

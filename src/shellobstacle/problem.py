@@ -109,7 +109,9 @@ class PenalizedProblem:
 
         symbols: dict[sp.Symbol, Any] = {y1: x[0], y2: x[1]}
         symbols |= {sp.Symbol(k, real=True): c for k, c in self.parameters.items()}
-        self.p = [to_ufl(e, symbols) for e in shell.load_expressions()]
+        # a component that is identically 0 stays a Constant so that UFL keeps the load forms
+        zero = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0))
+        self.p = [zero if e == 0 else to_ufl(e, symbols) for e in shell.load_expressions()]
 
         self.dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
         if disc.penalty_quadrature == "vertex":

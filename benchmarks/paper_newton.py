@@ -1,0 +1,83 @@
+"""Newton on the paper's problem (MODEL.md §7): κ = h^q, q = 0.5, 1.0, …, q_max, warm-started.
+
+Prints one JSON line per κ (Newton steps, line-search evaluations, stop reason, relative
+residual, seconds, contact area) and one line of phase timings, for each penalty quadrature.
+
+    .venv/bin/python benchmarks/paper_newton.py --h 0.0058 --qmax 8
+    .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/paper_newton.py --h 0.0058
+
+``--h`` is gmsh's target size; the largest cell diameter obtained is printed as ``h``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import time
+
+import numpy as np
+from mpi4py import MPI
+
+from shellobstacle.config import load_config
+from shellobstacle.domains import mesh_size
+from shellobstacle.postprocess import Postprocessor
+from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.solve import make_mesh
+from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+
+PAPER = "src/shellobstacle/configs/paper.toml"
+
+
+def main() -> None:
+    """Run the sweep and print JSON lines on rank 0."""
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--h", type=float, default=0.0058, help="gmsh target mesh size")
+    ap.add_argument("--qmax", type=float, default=8.0)
+    ap.add_argument("--quadratures", default="gauss,vertex")
+    ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
+    args = ap.parse_args()
+    comm = MPI.COMM_WORLD
+
+    def emit(record: dict) -> None:
+        if comm.rank == 0:
+            print(json.dumps(record), flush=True)
+
+    cfg = load_config(PAPER, [f"domain.h={args.h}"])
+    t0 = time.perf_counter()
+    mesh = make_mesh(cfg.domain)
+    h = mesh_size(mesh)
+    t_mesh = time.perf_counter() - t0
+    for quadrature in args.quadratures.split(","):
+        t0 = time.perf_counter()
+        disc = Discretization(penalty_quadrature=quadrature)
+        problem = PenalizedProblem(cfg.shell, mesh, disc)
+        solver = NewtonSolver(problem, NewtonOptions(linear_solver=args.linear_solver))
+        post = Postprocessor(problem)
+        t_compile = time.perf_counter() - t0
+        total = 0.0
+        for q in np.arange(0.5, args.qmax + 1e-9, 0.5):
+            problem.set_kappa(h**q)
+            t0 = time.perf_counter()
+            r = solver.solve()
+            seconds = time.perf_counter() - t0
+            total += seconds
+            c = post.contact()
+            emit({
+                "quadrature": quadrature, "q": float(q), "kappa": h**q, "newton": r.iterations,
+                "line_search_evals": r.line_search_evaluations, "reason": r.reason,
+                "relative_residual": r.relative_residual, "seconds": round(seconds, 3),
+                "linear_iterations": r.linear_iterations,
+                "contact_area": c["contact_area"], "max_violation": c["max_violation"],
+            })
+        emit({
+            "quadrature": quadrature, "h": h, "dofs": problem.num_dofs, "ranks": comm.size,
+            "mesh_s": round(t_mesh, 2), "compile_s": round(t_compile, 2),
+            "sweep_s": round(total, 2),
+            **{f"{k}_s": round(v, 2) for k, v in solver.timings.items()},
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
+        })
+
+
+if __name__ == "__main__":
+    main()

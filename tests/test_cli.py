@@ -1,0 +1,182 @@
+"""The command line: solve, check, config errors, result folders (issue: core)."""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from pathlib import Path
+
+import pytest
+from mpi4py import MPI
+
+from shellobstacle.cli import main
+
+SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
+
+
+def test_solve_writes_a_complete_result_folder(tmp_path: Path) -> None:
+    """``solve`` writes config, summary, checks, ParaView files and the cross-section figure."""
+    out = tmp_path / "run"
+    assert main(["solve", str(SMALL), "-o", str(out), "-q", "--set", "domain.h=0.05"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    for key in (
+        "converged",
+        "iterations",
+        "dofs",
+        "h",
+        "kappa",
+        "energy",
+        "zeta3_min",
+        "zeta3_max",
+        "contact_area",
+        "contact_area_projected",
+        "max_violation",
+        "timings",
+        "versions",
+    ):
+        assert key in summary, key
+    assert summary["converged"] is True
+    assert summary["contact_area"] > 0
+    assert summary["contact_area_projected"] <= summary["contact_area"]
+    assert summary["kappa"] == pytest.approx(summary["h"] ** 2.0)
+    assert summary["versions"]["dolfinx"].startswith("0.11")
+    resolved = tomllib.loads((out / "config.toml").read_text())
+    assert resolved["domain"]["h"] == 0.05
+    assert resolved["discretization"]["transverse"] == "clamped"
+    assert (out / "cross_section.png").stat().st_size > 10_000
+    assert (out / "surface.bp").is_dir()
+    assert "pass" in (out / "checks.txt").read_text()
+    assert "Newton steps" in (out / "log.txt").read_text()
+
+
+def test_results_are_never_overwritten(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
+    """A non-empty -o is refused without --overwrite; the earlier summary survives."""
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "summary.json").write_text("{}")
+    assert main(["solve", str(SMALL), "-o", str(out), "-q"]) == 2
+    assert "already holds results" in capsys.readouterr().err
+    assert (out / "summary.json").read_text() == "{}"
+
+
+def test_default_folder_is_new_each_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without -o, each run gets its own folder named after the config."""
+    monkeypatch.chdir(tmp_path)
+    args = ["solve", str(SMALL), "-q", "--set", "domain.h=0.08", "--set", "output.paraview=false"]
+    assert main(args) == 0
+    assert main(args) == 0
+    assert (tmp_path / "small-results" / "summary.json").is_file()
+    assert (tmp_path / "small-results-2" / "summary.json").is_file()
+
+
+def test_check_prints_the_assumption_table(capsys: pytest.CaptureFixture) -> None:
+    """``check`` prints every assumption with its extreme value and passes on the paper's data."""
+    assert main(["check", str(SMALL)]) == 0
+    out = capsys.readouterr().out
+    for name in (
+        "immersion",
+        "elliptic",
+        "inside half-space",
+        "normal towards obstacle",
+        "thin shell",
+    ):
+        assert name in out
+    assert "FAIL" not in out
+
+
+def test_check_and_solve_refuse_a_shell_through_the_plane(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """An offset above the apex puts the shell through the plane: check fails, solve refuses."""
+    bad = ["--set", "surface.offset=1.2"]
+    assert main(["check", str(SMALL), *bad]) == 2
+    assert "FAIL" in capsys.readouterr().out
+    assert main(["solve", str(SMALL), "-o", str(tmp_path / "x"), "-q", *bad]) == 2
+    err = capsys.readouterr().err
+    assert "inside half-space" in err and "θ·q" in err
+
+
+def test_force_proceeds_and_records_the_warning(tmp_path: Path) -> None:
+    """--force solves anyway (here: a saddle surface) and records the failed check."""
+    out = tmp_path / "forced"
+    args = [
+        "solve",
+        str(SMALL),
+        "-o",
+        str(out),
+        "-q",
+        "--force",
+        "--set",
+        "surface.kind=expression",
+        "--set",
+        'surface.theta=["y1", "y2", "0.3 + 0.5*(y1**2 - y2**2)"]',
+        "--set",
+        "domain.h=0.08",
+        "--set",
+        "output.paraview=false",
+    ]
+    assert main(args) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    elliptic = next(c for c in summary["checks"] if c["name"] == "elliptic")
+    assert not elliptic["passed"] and elliptic["value"] < 0
+    assert any("elliptic" in w for w in summary["warnings"])
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ("domain.hh=0.1", "did you mean 'h'"),
+        ("material.epsilon=-1", "epsilon must be > 0"),
+        ("penalty.kappa=1e-3", "not both"),
+        ('load.p=["0", "0", "import os"]', "load.p[3]"),
+        ("obstacle.q=[0, 0, 0]", "nonzero normal"),
+        ("discretization.degree=3", "degree must be 1 or 2"),
+        ("surface.kind=sphere", "did you mean 'spherical_cap'"),
+    ],
+)
+def test_config_errors_exit_2_with_a_message(
+    override: str, message: str, capsys: pytest.CaptureFixture
+) -> None:
+    """User errors give exit code 2 and one clear line, no traceback."""
+    assert main(["check", str(SMALL), "--set", override]) == 2
+    err = capsys.readouterr().err
+    assert message in err
+    assert "Traceback" not in err
+
+
+def test_missing_config_file(capsys: pytest.CaptureFixture) -> None:
+    """A config path that does not exist is named in the error."""
+    assert main(["solve", "no-such-file.toml"]) == 2
+    assert "no-such-file.toml" in capsys.readouterr().err
+
+
+def test_version(capsys: pytest.CaptureFixture) -> None:
+    """``--version`` prints the package version."""
+    with pytest.raises(SystemExit) as info:
+        main(["--version"])
+    assert info.value.code == 0
+    assert "shellobstacle 0." in capsys.readouterr().out
+
+
+def test_solver_failure_writes_the_last_iterate(tmp_path: Path) -> None:
+    """A Newton failure exits 1 and leaves a summary saying what failed."""
+    out = tmp_path / "fail"
+    args = [
+        "solve",
+        str(SMALL),
+        "-o",
+        str(out),
+        "-q",
+        "--set",
+        "penalty.continuation=false",
+        "--set",
+        "solver.max_iterations=1",
+        "--set",
+        "output.paraview=false",
+    ]
+    assert main(args) == 1
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["converged"] is False
+    assert "did not converge" in summary["error"]
+    assert len(summary["residual_history"]) == 2

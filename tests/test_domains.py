@@ -1,0 +1,220 @@
+"""Tests of shellobstacle.domains: areas, mesh sizes, nested refinement, errors, .msh files.
+
+Only global (allreduced) quantities are asserted, so the ``mpi`` tests hold on any number of
+ranks (``mpiexec -n 2 python -m pytest -m mpi``).
+"""
+
+import math
+
+from shellobstacle import compat  # noqa: F401
+
+# isort: split
+import gmsh
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from shellobstacle.domains import (
+    DomainSpec,
+    boundary_facets,
+    create_mesh,
+    domain_area,
+    mesh_size,
+    mesh_size_min,
+    num_cells_global,
+    refine_uniformly,
+)
+
+COMM = MPI.COMM_WORLD
+L_SHAPE = ((0.0, 0.0), (1.0, 0.0), (1.0, 0.5), (0.5, 0.5), (0.5, 1.0), (0.0, 1.0))
+
+
+def _chord_deficit(curvature: float, length: float, h: float) -> float:
+    """Upper bound of the area lost by an inscribed polygon with chords no longer than h.
+
+    A chord of length s cutting a boundary arc of curvature ≤ κ removes a segment of area
+    ≤ κ s³ / 12 (1 + O(κ s)); summed over the arcs (Σ s ≤ length) this is κ h² length / 12.
+    A 10% margin covers the O(κ h) terms for the κ h ≤ 0.7 used here.
+    """
+    return 1.1 * curvature * h**2 * length / 12.0
+
+
+def _num_boundary_facets_global(mesh) -> int:
+    owned = mesh.topology.index_map(mesh.topology.dim - 1).size_local
+    return COMM.allreduce(int(np.sum(boundary_facets(mesh) < owned)), op=MPI.SUM)
+
+
+def _extent(mesh) -> np.ndarray:
+    """Global max |x|, max |y| of the mesh nodes."""
+    local = np.abs(mesh.geometry.x[:, :2]).max(axis=0, initial=0.0)
+    return np.array([COMM.allreduce(float(v), op=MPI.MAX) for v in local])
+
+
+@pytest.mark.mpi
+def test_disk_area_mesh_size_and_nested_refinement():
+    r, h = 0.5, 0.1
+    mesh = create_mesh(DomainSpec("disk", h, radius=r, center=(0.2, -0.1)))
+    assert mesh.geometry.dim == 2 and mesh.topology.dim == 2
+    assert mesh.ufl_domain().geometric_dimension == 2
+    H = mesh_size(mesh)
+    assert 0.8 * h <= H <= 2.0 * h
+    area = domain_area(mesh)
+    # inscribed polygon (boundary nodes on the circle): 0 < πr² - area ≤ π h²/6 for H ≤ h
+    assert 0.0 < math.pi * r**2 - area <= _chord_deficit(1 / r, 2 * math.pi * r, H)
+
+    fine = refine_uniformly(mesh)
+    assert fine.geometry.dim == 2 and fine.ufl_domain().geometric_dimension == 2
+    assert mesh_size(fine) == pytest.approx(H / 2, rel=1e-12)
+    assert mesh_size_min(fine) == pytest.approx(mesh_size_min(mesh) / 2, rel=1e-12)
+    assert num_cells_global(fine) == 4 * num_cells_global(mesh)
+    assert _num_boundary_facets_global(fine) == 2 * _num_boundary_facets_global(mesh)
+    # midpoints of boundary chords stay on the chords: nested meshes, same polygon
+    assert domain_area(fine) == pytest.approx(area, rel=1e-12)
+
+    twice = create_mesh(DomainSpec("disk", h, radius=r, center=(0.2, -0.1), refinements=2))
+    assert num_cells_global(twice) == 16 * num_cells_global(mesh)
+    assert mesh_size(twice) == pytest.approx(H / 4, rel=1e-12)
+
+
+def test_disk_area_converges_quadratically():
+    errors = [math.pi / 4 - domain_area(create_mesh(DomainSpec("disk", h))) for h in (0.1, 0.05)]
+    assert 3.0 < errors[0] / errors[1] < 5.5
+
+
+def test_rectangle_structured():
+    (x0, y0), (x1, y1) = corners = ((-1.0, 0.5), (2.0, 1.5))
+    h = 0.22
+    mesh = create_mesh(DomainSpec("rectangle", h, corners=corners))
+    nx, ny = math.ceil(3.0 / h), math.ceil(1.0 / h)
+    assert num_cells_global(mesh) == 2 * nx * ny
+    assert domain_area(mesh) == pytest.approx((x1 - x0) * (y1 - y0), rel=1e-12)
+    assert mesh_size(mesh) == pytest.approx(math.hypot(3.0 / nx, 1.0 / ny), rel=1e-12)
+    assert _num_boundary_facets_global(mesh) == 2 * (nx + ny)
+
+
+@pytest.mark.parametrize("orientation", [1, -1])
+def test_l_shaped_polygon_area_exact(orientation):
+    h = 0.05
+    mesh = create_mesh(DomainSpec("polygon", h, vertices=L_SHAPE[::orientation]))
+    assert domain_area(mesh) == pytest.approx(0.75, rel=1e-12)
+    assert 0.8 * h <= mesh_size(mesh) <= 2.0 * h
+
+
+@pytest.mark.parametrize("semi_axes", [(0.6, 0.3), (0.3, 0.6)])
+def test_ellipse_area_and_orientation(semi_axes):
+    a, b = semi_axes
+    mesh = create_mesh(DomainSpec("ellipse", 0.05, semi_axes=semi_axes))
+    H = mesh_size(mesh)
+    curvature, perimeter = max(a, b) / min(a, b) ** 2, 2 * math.pi * max(a, b)
+    assert 0.0 < math.pi * a * b - domain_area(mesh) <= _chord_deficit(curvature, perimeter, H)
+    # the major vertices are nodes; the minor ones lie within a chord's sagitta of nodes
+    assert _extent(mesh) == pytest.approx([a, b], rel=1e-2)
+    assert _extent(mesh).argmax() == int(b > a)
+
+
+def test_central_refinement():
+    h, central_h, rho = 0.05, 0.005, 0.05
+    spec = DomainSpec("disk", h, center=(0.1, 0.0), central_h=central_h, central_radius=rho)
+    mesh = create_mesh(spec)
+    assert mesh_size_min(mesh) < 0.2 * h
+    assert mesh_size(mesh) <= 2.0 * h
+    # every cell whose midpoint lies in the central zone is of size ~ central_h
+    tdim = mesh.topology.dim
+    owned = np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32)
+    dofs = mesh.geometry.dofmaps[0][owned]
+    mid = mesh.geometry.x[dofs, :2].mean(axis=1)
+    inside = np.linalg.norm(mid - np.array(spec.center), axis=1) < rho
+    local = mesh.h(tdim, owned[inside]).max(initial=0.0)
+    assert COMM.allreduce(float(local), op=MPI.MAX) <= 2.0 * central_h
+    assert COMM.allreduce(int(inside.sum()), op=MPI.SUM) > math.pi * rho**2 / central_h**2
+    assert domain_area(mesh) == pytest.approx(math.pi / 4, rel=1e-2)
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        (DomainSpec("square", 0.1), "unknown domain kind 'square'; valid kinds: disk, ellipse"),
+        (DomainSpec("disk", 0.0), "h must be positive"),
+        (DomainSpec("disk", -0.1), "h must be positive"),
+        (DomainSpec("disk", None), "h must be positive"),
+        (DomainSpec("disk", 1.5, radius=0.5), "exceeds the domain's diameter"),
+        (DomainSpec("polygon", 0.1), "polygon needs vertices"),
+        (DomainSpec("polygon", 0.1, vertices=((0, 0), (1, 0))), "at least 3 vertices"),
+        (DomainSpec("polygon", 0.1, vertices=((0, 0), (2, 2), (2, 0), (0, 1))), "must be simple"),
+        (DomainSpec("polygon", 0.1, vertices=((0, 0), (2, 0), (1, 0), (1, 1))), "must be simple"),
+        (DomainSpec("ellipse", 0.1), "ellipse needs semi_axes"),
+        (DomainSpec("rectangle", 0.1), "rectangle needs corners"),
+        (DomainSpec("file"), "needs path"),
+        (DomainSpec("disk", 0.1, central_h=0.01), "must be given together"),
+        (DomainSpec("disk", 0.1, refinements=-1), "refinements must be >= 0"),
+    ],
+)
+def test_bad_specs_raise(spec, message):
+    with pytest.raises(ValueError, match=message.replace("(", r"\(")):
+        create_mesh(spec)
+
+
+@pytest.mark.mpi
+def test_missing_file_raises_on_all_ranks(tmp_path):
+    path = COMM.bcast(str(tmp_path / "nowhere.msh"), root=0)
+    with pytest.raises(ValueError, match=r"nowhere\.msh' does not exist"):
+        create_mesh(DomainSpec("file", path=path))
+
+
+def _write_rectangle_msh(path: str, physical: bool = True, **options: float) -> None:
+    """Rank 0 writes the rectangle [0, 2] x [0, 1] meshed by gmsh to ``path``."""
+    if COMM.rank == 0:
+        gmsh.initialize(readConfigFiles=False, interruptible=False)
+        gmsh.option.setNumber("General.Terminal", 0)
+        for key, value in {"Mesh.MeshSizeMax": 0.2, **options}.items():
+            gmsh.option.setNumber(key, value)
+        gmsh.model.add("writer")
+        surface = gmsh.model.occ.addRectangle(0, 0, 0, 2, 1)
+        gmsh.model.occ.synchronize()
+        if physical:
+            gmsh.model.addPhysicalGroup(2, [surface], 7, name="plate")
+        gmsh.model.mesh.generate(2)
+        gmsh.write(path)
+        gmsh.finalize()
+    COMM.barrier()
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("physical", [True, False])
+def test_msh_file_roundtrip(tmp_path, physical):
+    path = COMM.bcast(str(tmp_path / "plate.msh"), root=0)
+    _write_rectangle_msh(path, physical=physical)
+    mesh = create_mesh(DomainSpec("file", path=path, refinements=1))
+    assert mesh.geometry.dim == 2 and mesh.geometry.x.shape[1] == 3
+    assert domain_area(mesh) == pytest.approx(2.0, rel=1e-12)
+    assert 0.05 < mesh_size(mesh) < 0.2
+    assert _extent(mesh) == pytest.approx([2.0, 1.0], rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("options", "found"),
+    [({"Mesh.RecombineAll": 1}, "Quadrilateral"), ({"Mesh.ElementOrder": 2}, "Triangle 6")],
+)
+def test_msh_file_not_linear_triangles(tmp_path, options, found):
+    path = COMM.bcast(str(tmp_path / "plate.msh"), root=0)
+    _write_rectangle_msh(path, **options)
+    with pytest.raises(ValueError, match=f"not made of linear triangles.*{found}"):
+        create_mesh(DomainSpec("file", path=path))
+
+
+def test_silent_and_leaves_a_users_gmsh_session_alone(capfd):
+    create_mesh(DomainSpec("disk", 0.2))
+    assert not gmsh.isInitialized()
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.model.add("mine")
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 3.0)
+        create_mesh(DomainSpec("polygon", 0.2, vertices=L_SHAPE))
+        assert gmsh.isInitialized()
+        assert gmsh.model.getCurrent() == "mine"
+        assert gmsh.option.getNumber("Mesh.MeshSizeMax") == 3.0
+    finally:
+        gmsh.finalize()
+    out, err = capfd.readouterr()
+    assert out == "" and err == ""

@@ -1,0 +1,146 @@
+"""Newton on the penalized problem: small κ, cold starts, failures, serial vs MPI (MODEL.md §4)."""
+
+from __future__ import annotations
+
+import dolfinx
+import numpy as np
+import pytest
+from mpi4py import MPI
+
+from shellobstacle import compat  # noqa: F401
+from shellobstacle.config import PenaltySpec
+from shellobstacle.model import Load, Material, Shell
+from shellobstacle.postprocess import Postprocessor, l2_norm
+from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.solve import continuation, solve
+from shellobstacle.solvers.newton import ConvergenceError, NewtonOptions, NewtonSolver
+from shellobstacle.surface import Surface
+
+PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
+
+
+def paper_shell(load: str = PAPER_LOAD) -> Shell:
+    """The paper's section 10 data (MODEL.md §7)."""
+    return Shell(
+        Surface.spherical_cap(1.0, 0.85), Material(1e-3, 0.4, 0.012), Load(("0", "0", load))
+    )
+
+
+def square(comm=MPI.COMM_WORLD, n: int = 24, half: float = 0.25) -> dolfinx.mesh.Mesh:
+    """A structured mesh of [-half, half]²."""
+    return dolfinx.mesh.create_rectangle(comm, [[-half, -half], [half, half]], [n, n])
+
+
+@pytest.mark.parametrize("quadrature", ["gauss", "vertex"])
+def test_kappa_down_to_1e_12(quadrature: str) -> None:
+    """Warm-started Newton converges for κ = 1e-1 … 1e-12; the penetration left is bounded."""
+    problem = PenalizedProblem(
+        paper_shell(), square(), Discretization(penalty_quadrature=quadrature)
+    )
+    solver = NewtonSolver(problem)
+    kappas = [10.0**-k for k in range(1, 13)]
+    steps = continuation(problem, solver, kappas)
+    assert [s.newton.converged for s in steps] == [True] * len(kappas)
+    assert all(s.newton.iterations <= 30 for s in steps)
+    post = Postprocessor(problem)
+    c = post.contact()
+    assert c["num_contact_nodes"] > 0
+    if quadrature == "vertex":  # nodal constraint: violation ~ κ·(load/ε), here ~1e-13
+        assert c["max_violation"] < 1e-9
+    else:  # Gauss points: the vertices of a curved gap may cross by O(h²)
+        h = np.sqrt(2) * 0.5 / 24
+        assert 0 < c["max_violation"] < h**2
+
+
+def test_violation_proportional_to_kappa() -> None:
+    """Nodal penalty: the largest violation max{g}^- scales like κ (Lemma 5.1 / the penalty)."""
+    problem = PenalizedProblem(paper_shell(), square(), Discretization(penalty_quadrature="vertex"))
+    solver = NewtonSolver(problem)
+    post = Postprocessor(problem)
+    violations = []
+    for kappa in [1e-2, 1e-3, 1e-4, 1e-5]:
+        continuation(problem, solver, [kappa])
+        violations.append(post.contact()["max_violation"])
+    ratios = np.array(violations[:-1]) / np.array(violations[1:])
+    assert np.all(violations) and np.all((ratios > 8) & (ratios < 12.5)), ratios
+
+
+def test_cold_start_small_kappa_with_continuation() -> None:
+    """``solve`` with one small κ reaches it from ζ = 0 through its continuation ladder."""
+    shell = paper_shell()
+    mesh = square()
+    result = solve(shell, mesh, PenaltySpec(kappa=1e-10))
+    assert result.converged
+    assert result.steps[-1].kappa == 1e-10
+    assert len(result.steps) > 1
+    warm = PenalizedProblem(shell, mesh, kappa=1.0)
+    continuation(warm, NewtonSolver(warm), [10.0**-k for k in range(0, 11)])
+    diff = l2_norm(result.problem.zeta - warm.zeta)
+    assert diff <= 1e-8 * l2_norm(warm.zeta)
+
+
+def test_nonconvergence_is_reported_with_the_iterate() -> None:
+    """A Newton that runs out of iterations raises ConvergenceError carrying its history."""
+    problem = PenalizedProblem(paper_shell(), square(), kappa=1e-10)
+    solver = NewtonSolver(problem, NewtonOptions(max_iterations=2))
+    with pytest.raises(ConvergenceError, match="did not converge") as info:
+        solver.solve()
+    result = info.value.result
+    assert not result.converged
+    assert result.iterations == 2
+    assert len(result.residual_norms) == 3
+    # and solve() turns it into a failed result, not a success
+    failed = solve(
+        paper_shell(),
+        square(),
+        PenaltySpec(kappa=1e-10, continuation=False),
+        options=NewtonOptions(max_iterations=2),
+    )
+    assert not failed.converged
+    assert "did not converge" in (failed.error or "")
+
+
+def test_no_load_gives_zero() -> None:
+    """Zero load: ζ = 0 is the solution, found without a Newton step."""
+    problem = PenalizedProblem(paper_shell("0"), square(n=8))
+    r = NewtonSolver(problem).solve()
+    assert r.converged and r.iterations == 0
+    assert np.all(problem.zeta.x.array == 0.0)
+
+
+def test_iterative_matches_direct() -> None:
+    """CG + GAMG gives the direct solver's answer on a contact problem."""
+    mesh = square(n=16)
+    a = PenalizedProblem(paper_shell(), mesh)
+    b = PenalizedProblem(paper_shell(), mesh)
+    kappas = [1e-1, 1e-2, 1e-3, 1e-4]
+    continuation(a, NewtonSolver(a), kappas)
+    continuation(b, NewtonSolver(b, NewtonOptions(linear_solver="iterative")), kappas)
+    assert l2_norm(a.zeta - b.zeta) <= 1e-8 * l2_norm(a.zeta)
+
+
+@pytest.mark.mpi
+def test_serial_and_parallel_agree() -> None:
+    """The distributed solve equals a serial solve of the same mesh (each rank solves alone)."""
+    kappas = [1e-1, 1e-2, 1e-3, 1e-4, 1e-6]
+    results = []
+    for comm in (MPI.COMM_WORLD, MPI.COMM_SELF):
+        problem = PenalizedProblem(paper_shell(), square(comm, n=20))
+        steps = continuation(problem, NewtonSolver(problem), kappas)
+        post = Postprocessor(problem)
+        c = post.contact()
+        results.append(
+            {
+                "iterations": [s.newton.iterations for s in steps],
+                "energy": problem.energies()["energy"],
+                "area": c["contact_area"],
+                "nodes": c["num_contact_nodes"],
+                "violation": c["max_violation"],
+                "zeta3_min": post.zeta3_range()[0],
+                "norm": l2_norm(problem.zeta),
+            }
+        )
+    par, ser = results
+    assert par["nodes"] == ser["nodes"] and par["nodes"] > 0
+    for key in ("energy", "area", "violation", "zeta3_min", "norm"):
+        assert par[key] == pytest.approx(ser[key], rel=1e-9, abs=1e-15), key
