@@ -23,7 +23,7 @@ from shellobstacle.config import load_config
 from shellobstacle.domains import mesh_size
 from shellobstacle.postprocess import Postprocessor
 from shellobstacle.problem import Discretization, PenalizedProblem
-from shellobstacle.solve import make_mesh
+from shellobstacle.pipeline import make_mesh
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
 PAPER = "src/shellobstacle/configs/paper.toml"

@@ -12,7 +12,7 @@ from shellobstacle.config import PenaltySpec
 from shellobstacle.model import Load, Material, Shell
 from shellobstacle.postprocess import Postprocessor, l2_norm
 from shellobstacle.problem import Discretization, PenalizedProblem
-from shellobstacle.solve import continuation, solve
+from shellobstacle.pipeline import continuation, solve
 from shellobstacle.solvers.newton import ConvergenceError, NewtonOptions, NewtonSolver
 from shellobstacle.surface import Surface
 
