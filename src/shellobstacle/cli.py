@@ -1,4 +1,4 @@
-"""Command line: ``shellobstacle solve | check | reproduce | config-reference``."""
+"""Command line: ``shellobstacle solve | check | reproduce | experiment | config-reference``."""
 
 from __future__ import annotations
 
@@ -18,7 +18,6 @@ import shellobstacle
 __all__ = ["main"]
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
-PAPER_CONFIG = Path(__file__).parent / "configs" / "paper.toml"
 
 
 class Reporter:
@@ -103,14 +102,44 @@ def _parser() -> argparse.ArgumentParser:
 
     r = sub.add_parser(
         "reproduce",
-        help="the paper's section 10 problem, with a report",
+        help="the paper's section 10 (batches 1-3) with a report",
         formatter_class=fmt,
-        epilog="example: shellobstacle reproduce -o paper",
+        epilog="example: shellobstacle reproduce -o paper  (add --full for the paper's sizes)",
     )
     r.add_argument("-o", "--output", default=None, help="result folder")
     r.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty -o")
-    r.add_argument("--full", action="store_true", help="the paper's mesh size h ≈ 0.0078")
+    r.add_argument(
+        "--full", action="store_true", help="the paper's sizes (h ≈ 0.0312, 0.0078, 0.0039; long)"
+    )
     r.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+
+    e = sub.add_parser(
+        "experiment",
+        help="one batch of the paper's study on any config",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="examples:\n"
+        "  shellobstacle experiment penalty examples/paper.toml --set domain.h=0.02\n"
+        "  shellobstacle experiment mesh examples/paper.toml --q 0.5,1.0 --refinements 2\n"
+        "  shellobstacle experiment load my.toml --parameter ell --values 0,10,20",
+    )
+    e.add_argument(
+        "batch",
+        choices=("penalty", "mesh", "load"),
+        help="penalty: κ = h^q → 0 on a fixed mesh; mesh: nested meshes with κ = h^q; "
+        "load: sweep a load parameter",
+    )
+    common(e)
+    e.add_argument("-o", "--output", default=None, help="result folder")
+    e.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty -o")
+    e.add_argument("--start", type=float, default=0.5, help="penalty: first exponent q (0.5)")
+    e.add_argument("--step", type=float, default=0.5, help="penalty: exponent step (0.5)")
+    e.add_argument("--q-max", type=float, default=12.0, help="penalty: last exponent tried (12)")
+    e.add_argument("--tol", type=float, default=2e-6, help="stop below this difference (2e-6)")
+    e.add_argument("--quadratures", default="gauss,vertex", help="penalty: penalty quadratures")
+    e.add_argument("--q", default="0.4,0.5,0.6,0.7,1.0,1.3", help="mesh: exponents q")
+    e.add_argument("--refinements", type=int, default=3, help="mesh: uniform refinements (3)")
+    e.add_argument("--parameter", default="ell", help="load: the [load] parameter to sweep")
+    e.add_argument("--values", default="0,10,20,40,80", help="load: its values")
 
     sub.add_parser("config-reference", help="print the configuration reference (Markdown)")
     return p
@@ -136,6 +165,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             return _solve(args)
         if args.command == "reproduce":
             return _reproduce(args)
+        if args.command == "experiment":
+            return _experiment(args)
     except (ConfigError, ExpressionError, AssumptionError, ResultsError) as err:
         if MPI.COMM_WORLD.rank == 0:
             print(f"shellobstacle: error: {err}", file=sys.stderr)
@@ -184,9 +215,9 @@ def run_and_write(
 ) -> int:
     """Solve a config and write its result folder; returns the exit code."""
     from shellobstacle.config import to_toml
+    from shellobstacle.pipeline import solve_config
     from shellobstacle.report import write_solution
     from shellobstacle.results import atomic_write, prepare_folder
-    from shellobstacle.pipeline import solve_config
 
     folder = prepare_folder(output, default, overwrite)
     report.attach(folder / "log.txt")
@@ -208,68 +239,59 @@ def run_and_write(
 
 
 def _reproduce(args: argparse.Namespace) -> int:
-    """The paper's section 10 problem (a single solve until the batch experiments land)."""
-    from shellobstacle.config import load_config
+    """The paper's section 10: batches 1-3 with report.md."""
+    from shellobstacle.experiments.report import reproduce
+    from shellobstacle.results import prepare_folder
 
-    overrides = [] if args.full else ["domain.h=0.02"]
-    cfg = load_config(PAPER_CONFIG, overrides)
+    folder = prepare_folder(args.output, "paper-results", args.overwrite)
     report = Reporter(args.quiet)
-    code = run_and_write(cfg, args.output, "paper-results", args.overwrite, False, report)
-    if report.log is not None:
-        write_report(report.log.parent)
-    return code
+    report.attach(folder / "log.txt")
+    report(f"results go to {folder}/ (mode {'full' if args.full else 'fast'})")
+    reproduce(folder, "full" if args.full else "fast", report)
+    return EXIT_OK
 
 
-def write_report(folder: Path) -> None:
-    """``report.md``: what was solved, the key numbers and the figure (rank 0)."""
-    import json
+def _floats(text: str, what: str) -> list[float]:
+    from shellobstacle.config import ConfigError
 
-    from shellobstacle.results import atomic_write
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"{what}: expected comma-separated numbers, got {text!r}") from None
 
-    if MPI.COMM_WORLD.rank != 0:
-        return
-    s = json.loads((folder / "summary.json").read_text())
-    rows = "\n".join(
-        f"| {c['kappa']:.3e} | {c['iterations']} | {c['relative_residual']:.1e} | "
-        f"{c['seconds']:.2f} | {c['reason']} |"
-        for c in s["continuation"]
-    )
-    times = ", ".join(f"{k} {v:.2f} s" for k, v in s["timings"].items())
-    v = s["versions"]
-    text = f"""# The paper's section 10 problem
 
-{s["surface"]}; ω = disk of radius 0.5; ε = 0.001, λ = 0.4, μ = 0.012; q = (0, 0, 1);
-load (0, 0, g) with the paper's discontinuous g; P1, clamped, Gauss-point penalty.
+def _experiment(args: argparse.Namespace) -> int:
+    """One batch on a user's config."""
+    from shellobstacle.config import ConfigError, load_config, to_toml
+    from shellobstacle.experiments import report as batches
+    from shellobstacle.experiments.penalty import PenaltyStudyOptions
+    from shellobstacle.results import atomic_write, prepare_folder
 
-| quantity | value |
-|---|---|
-| converged | {s["converged"]} |
-| h (largest cell diameter) | {s["h"]:.5g} |
-| degrees of freedom | {s["dofs"]} |
-| κ = h^1.5 | {s["kappa"]:.4e} |
-| Newton steps (all κ) | {s["iterations"]} |
-| contact area (√a dy) | {s["contact_area"]:.6g} |
-| contact area (projected, dy) | {s["contact_area_projected"]:.6g} |
-| largest violation max{{g}}⁻ | {s["max_violation"]:.3e} |
-| ζ_3 min / max | {s["zeta3_min"]:.6g} / {s["zeta3_max"]:.6g} |
-| energy J(ζ) | {s["energy"]:.6e} |
-
-Continuation in κ (warm starts):
-
-| κ | Newton steps | relative residual | seconds | stop reason |
-|---|---|---|---|---|
-{rows}
-
-![cross-section](cross_section.png)
-
-Timings: {times}.
-
-Machine: {v["machine"]}, {v["cpus"]} CPUs, {v["mpi_ranks"]} MPI rank(s); shellobstacle
-{v["shellobstacle"]}, DOLFINx {v["dolfinx"]}, PETSc {v["petsc"]}, Python {v["python"]};
-{v["date"]}. The batch experiments of section 10 (κ and h convergence, load sweep) are
-not part of this report yet.
-"""
-    atomic_write(folder / "report.md", text)
+    cfg = load_config(args.config, args.set)
+    if args.batch == "load" and cfg.penalty.exponent is None:
+        raise ConfigError("experiment load needs penalty.exponent (κ = h^exponent)")
+    default = f"{Path(args.config).stem}-{args.batch}"
+    folder = prepare_folder(args.output, default, args.overwrite)
+    report = Reporter(args.quiet)
+    report.attach(folder / "log.txt")
+    atomic_write(folder / "config.toml", to_toml(cfg.resolved))
+    if args.batch == "penalty":
+        opts = PenaltyStudyOptions(args.start, args.step, args.tol, args.q_max)
+        quadratures = [v.strip() for v in args.quadratures.split(",")]
+        text = batches.run_penalty(cfg, folder, [cfg.domain], report, opts, quadratures)
+    elif args.batch == "mesh":
+        q_values = _floats(args.q, "--q")
+        text = batches.run_mesh(
+            cfg, folder, cfg.domain, args.refinements, q_values, report, args.tol
+        )
+    else:
+        values = _floats(args.values, "--values")
+        text = batches.run_load(
+            cfg, folder, cfg.domain, values, cfg.penalty.exponent, report, args.parameter
+        )
+    atomic_write(folder / "report.md", f"# Experiment {args.batch}: {args.config}\n\n{text}")
+    report(f"report written: {folder / 'report.md'}")
+    return EXIT_OK
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,0 +1,126 @@
+"""Batch 3 (physics): a load parameter ℓ sweeps the load; the contact area must grow with ℓ."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import dolfinx
+import numpy as np
+
+from shellobstacle import compat  # noqa: F401
+from shellobstacle.config import PenaltySpec
+from shellobstacle.domains import mesh_size
+from shellobstacle.experiments.common import write_csv
+from shellobstacle.model import Shell
+from shellobstacle.pipeline import continuation
+from shellobstacle.postprocess import CrossSection, Postprocessor
+from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+
+__all__ = ["PAPER_BATCH3_LOAD", "LoadStudy", "load_study", "plot_contact_area", "write_load_study"]
+
+#: The paper's g_ℓ (MODEL.md §7, batch 3) with ℓ as the load parameter ``ell``.
+PAPER_BATCH3_LOAD = (
+    "Piecewise((-(2*epsilon/25)*(-5.0*y1**2 - 5.0*y2**2 + (1 + 0.05*ell)*0.295), r < 0.060),"
+    " (0, True))"
+)
+COLUMNS = ("ell", "contact_area", "contact_area_projected", "max_violation", "zeta3_min")
+
+
+@dataclass
+class LoadStudy:
+    """Contact quantities and cross-sections per value of the load parameter."""
+
+    parameter: str
+    h: float
+    kappa: float
+    dofs: int
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    sections: list[tuple[str, CrossSection]] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def area_increases(self) -> bool:
+        """Whether the contact area is nondecreasing in the parameter and grows overall."""
+        a = np.array([r["contact_area"] for r in self.rows])
+        return bool(np.all(np.diff(a) >= 0) and a[-1] > a[0])
+
+
+def load_study(
+    shell: Shell,
+    mesh: dolfinx.mesh.Mesh,
+    discretization: Discretization,
+    penalty: PenaltySpec,
+    values: Sequence[float],
+    parameter: str = "ell",
+    newton: NewtonOptions | None = None,
+    progress: Callable[[str], Any] | None = None,
+) -> LoadStudy:
+    """Solve for each value of the load parameter (one compiled problem, warm starts)."""
+    say = progress or (lambda _m: None)
+    if parameter not in shell.load.parameters:
+        raise ValueError(
+            f"the load has no parameter {parameter!r}: add it to [load] parameters "
+            f"(it has {sorted(shell.load.parameters)})"
+        )
+    h = mesh_size(mesh)
+    problem = PenalizedProblem(shell, mesh, discretization)
+    solver = NewtonSolver(problem, newton)
+    post = Postprocessor(problem)
+    ladder = penalty.ladder(h)
+    study = LoadStudy(parameter, h, ladder[-1], problem.num_dofs)
+    t0 = time.perf_counter()
+    for k, value in enumerate(values):
+        problem.set_parameter(parameter, value)
+        steps = continuation(problem, solver, ladder if k == 0 else ladder[-1:])
+        c = post.contact()
+        study.rows.append(
+            {
+                parameter: value,
+                "ell": value,
+                "contact_area": c["contact_area"],
+                "contact_area_projected": c["contact_area_projected"],
+                "max_violation": c["max_violation"],
+                "zeta3_min": post.zeta3_range()[0],
+                "newton": sum(s.newton.iterations for s in steps),
+            }
+        )
+        study.sections.append((f"{parameter} = {value:g}", post.cross_section()))
+        say(f"batch 3: {parameter} = {value:g}: contact area {c['contact_area']:.6g}")
+    study.seconds = time.perf_counter() - t0
+    return study
+
+
+def write_load_study(study: LoadStudy, folder: Path) -> Path:
+    """``batch3.csv``: ell, contact_area, contact_area_projected, max_violation, zeta3_min."""
+    path = folder / "batch3.csv"
+    write_csv(path, study.rows, COLUMNS)
+    return path
+
+
+def plot_contact_area(study: LoadStudy, path: Path) -> Path:
+    """Contact area (surface and projected) against the load parameter."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    ell = [r["ell"] for r in study.rows]
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    ax.plot(ell, [r["contact_area"] for r in study.rows], "o-", label="area with √a dy")
+    ax.plot(ell, [r["contact_area_projected"] for r in study.rows], "s--", label="projected (dy)")
+    ax.axhline(np.pi * 0.06**2, color="grey", ls=":", label="loaded disk |y| < 0.06 (π·0.06²)")
+    ax.set_xlabel(study.parameter)
+    ax.set_ylabel("contact area")
+    ax.set_title(
+        f"Batch 3: contact area vs {study.parameter} (h = {study.h:.4g}, κ = {study.kappa:.2e})"
+    )
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return path

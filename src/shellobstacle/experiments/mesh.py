@@ -1,0 +1,153 @@
+"""Batch 2 (Theorem 8.1): κ = h^q fixed exponent, nested meshes h → 0; differences of solutions
+on consecutive meshes ‖ζ^{h_1}_{h_1^q} − ζ^{h_2}_{h_2^q}‖ (the coarse one interpolated exactly)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import dolfinx
+import numpy as np
+
+from shellobstacle import compat  # noqa: F401
+from shellobstacle.config import PenaltySpec
+from shellobstacle.domains import mesh_size, refine_uniformly
+from shellobstacle.experiments.common import DifferenceNorms, fit_rate, transfer, write_csv
+from shellobstacle.model import Shell
+from shellobstacle.pipeline import continuation
+from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+
+__all__ = [
+    "MeshLevel",
+    "MeshStudy",
+    "mesh_levels",
+    "mesh_study",
+    "plot_mesh_study",
+    "write_mesh_study",
+]
+
+COLUMNS = ("h_1", "h_2", "error_VM", "error_H1")
+
+
+@dataclass
+class MeshLevel:
+    """One mesh of the nested sequence with its compiled problem and solver (reused over q)."""
+
+    mesh: dolfinx.mesh.Mesh
+    h: float
+    problem: PenalizedProblem
+    solver: NewtonSolver
+    norms: DifferenceNorms
+
+
+@dataclass
+class MeshStudy:
+    """Results of batch 2 for one exponent q."""
+
+    q: float
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    newton: list[int] = field(default_factory=list)
+    stop_h: float | None = None
+    seconds: float = 0.0
+
+    def rate(self) -> float:
+        """Fitted slope of log error_VM against log h_2."""
+        return fit_rate([r["h_2"] for r in self.rows], [r["error_VM"] for r in self.rows])
+
+
+def mesh_levels(
+    shell: Shell,
+    base: dolfinx.mesh.Mesh,
+    refinements: int,
+    discretization: Discretization,
+    newton: NewtonOptions | None = None,
+    progress: Callable[[str], Any] | None = None,
+) -> list[MeshLevel]:
+    """The base mesh and its uniform refinements, each with a compiled problem."""
+    say = progress or (lambda _m: None)
+    levels = []
+    mesh = base
+    for k in range(refinements + 1):
+        if k > 0:
+            mesh = refine_uniformly(mesh)
+        problem = PenalizedProblem(shell, mesh, discretization)
+        levels.append(
+            MeshLevel(
+                mesh,
+                mesh_size(mesh),
+                problem,
+                NewtonSolver(problem, newton),
+                DifferenceNorms(problem.V, discretization.qdegree),
+            )
+        )
+        say(f"batch 2: mesh level {k}: h = {levels[-1].h:.4g}, {problem.num_dofs} dofs")
+    return levels
+
+
+def mesh_study(
+    levels: Sequence[MeshLevel],
+    q: float,
+    tol: float = 2e-6,
+    progress: Callable[[str], Any] | None = None,
+) -> MeshStudy:
+    """Solve with κ = h^q on each level (continuation in κ from ζ = 0) and difference them."""
+    say = progress or (lambda _m: None)
+    study = MeshStudy(q)
+    t0 = time.perf_counter()
+    previous = None
+    for k, level in enumerate(levels):
+        level.problem.zeta.x.array[:] = 0.0
+        steps = continuation(level.problem, level.solver, PenaltySpec(exponent=q).ladder(level.h))
+        study.newton.append(sum(s.newton.iterations for s in steps))
+        if previous is not None:
+            coarse = transfer(previous.problem.zeta, level.problem.V)
+            d = level.norms(coarse, level.problem.zeta)
+            study.rows.append(
+                {"h_1": previous.h, "h_2": level.h, "error_VM": d["vm"], "error_H1": d["h1"]}
+            )
+            say(f"batch 2 [q = {q:g}]: h {previous.h:.4g}→{level.h:.4g}: ‖Δζ‖_VM = {d['vm']:.3e}")
+            if d["vm"] < tol:
+                study.stop_h = level.h
+                break
+        else:
+            say(f"batch 2 [q = {q:g}]: h = {level.h:.4g} solved")
+        previous = levels[k]
+    study.seconds = time.perf_counter() - t0
+    return study
+
+
+def write_mesh_study(study: MeshStudy, folder: Path) -> Path:
+    """``batch2_q<q>.csv`` (columns h_1, h_2, error_VM, error_H1)."""
+    path = folder / f"batch2_q{study.q:g}.csv"
+    write_csv(path, study.rows, COLUMNS)
+    return path
+
+
+def plot_mesh_study(study: MeshStudy, path: Path, tol: float = 2e-6) -> Path:
+    """Differences on consecutive meshes against h_2, with the slope-1 reference of Theorem 8.1."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    h = np.array([r["h_2"] for r in study.rows])
+    e = np.array([r["error_VM"] for r in study.rows])
+    ax.loglog(h, e, "o-", label="‖ζ(h_1) − ζ(h_2)‖ in V_M")
+    ax.loglog(h, [r["error_H1"] for r in study.rows], "s--", label="full H¹ norm")
+    if h.size:
+        ax.loglog(h, e[0] * h / h[0], "k:", lw=1, label="slope 1")
+    ax.axhline(tol, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("h_2 (finer mesh)")
+    ax.set_ylabel("difference")
+    ax.set_title(f"Batch 2: κ = h^{study.q:g}, nested meshes (fitted rate {study.rate():.2f})")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return path

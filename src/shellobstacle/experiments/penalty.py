@@ -1,0 +1,169 @@
+"""Batch 1 (Theorems 5.1 / 7.1): on a fixed mesh, κ = h^{q_n} with q_n = 0.5, 1.0, …;
+Cauchy differences ‖ζ^h_{h^{q_n}} − ζ^h_{h^{q_{n+1}}}‖ until they fall below a tolerance."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import dolfinx
+import numpy as np
+
+from shellobstacle import compat  # noqa: F401
+from shellobstacle.domains import mesh_size
+from shellobstacle.experiments.common import DifferenceNorms, fit_rate, write_csv
+from shellobstacle.model import Shell
+from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+
+__all__ = [
+    "PenaltyStudy",
+    "PenaltyStudyOptions",
+    "penalty_study",
+    "plot_penalty_study",
+    "write_penalty_study",
+]
+
+COLUMNS = ("iteration", "q_n", "q_m", "error_VM", "error_H1", "reference")
+
+
+@dataclass(frozen=True)
+class PenaltyStudyOptions:
+    """The sweep ``q = start, start + step, …`` up to ``tol`` (the paper's 2e-6) or ``q_max``."""
+
+    start: float = 0.5
+    step: float = 0.5
+    tol: float = 2e-6
+    q_max: float = 12.0
+
+
+@dataclass
+class PenaltyStudy:
+    """Results of batch 1 on one mesh with one penalty quadrature."""
+
+    h: float
+    dofs: int
+    quadrature: str
+    rows: list[dict[str, Any]] = field(default_factory=list)
+    solves: list[dict[str, Any]] = field(default_factory=list)
+    reached_tol: bool = False
+    seconds: float = 0.0
+
+    def decay_rate(self) -> float:
+        """Fitted slope of log error_VM against log κ_n over the differences above the tol."""
+        k = [self.h ** r["q_n"] for r in self.rows]
+        return fit_rate(k, [r["error_VM"] for r in self.rows])
+
+    def mean_newton(self) -> float:
+        """Average Newton steps per κ after the first (warm-started) one."""
+        its = [s["newton"] for s in self.solves[1:]]
+        return float(np.mean(its)) if its else float("nan")
+
+
+def penalty_study(
+    shell: Shell,
+    mesh: dolfinx.mesh.Mesh,
+    discretization: Discretization,
+    options: PenaltyStudyOptions | None = None,
+    newton: NewtonOptions | None = None,
+    progress: Callable[[str], Any] | None = None,
+) -> PenaltyStudy:
+    """Run batch 1 on ``mesh`` (each κ warm-started from the previous one)."""
+    opts = options or PenaltyStudyOptions()
+    say = progress or (lambda _m: None)
+    h = mesh_size(mesh)
+    problem = PenalizedProblem(shell, mesh, discretization)
+    solver = NewtonSolver(problem, newton)
+    norms = DifferenceNorms(problem.V, discretization.qdegree)
+    study = PenaltyStudy(h, problem.num_dofs, discretization.penalty_quadrature)
+    previous: dolfinx.fem.Function | None = None
+    q_prev = None
+    t_start = time.perf_counter()
+    q = opts.start
+    n = 0
+    while q <= opts.q_max + 1e-12:
+        problem.set_kappa(h**q)
+        t0 = time.perf_counter()
+        r = solver.solve()
+        study.solves.append(
+            {
+                "q": q,
+                "kappa": h**q,
+                "newton": r.iterations,
+                "reason": r.reason,
+                "relative_residual": r.relative_residual,
+                "seconds": time.perf_counter() - t0,
+            }
+        )
+        if previous is not None:
+            d = norms(previous, problem.zeta)
+            n += 1
+            study.rows.append(
+                {
+                    "iteration": n,
+                    "q_n": q_prev,
+                    "q_m": q,
+                    "error_VM": d["vm"],
+                    "error_H1": d["h1"],
+                    "reference": np.sqrt(h**q_prev) / 10,
+                }
+            )
+            say(
+                f"batch 1 [{study.quadrature}, h = {h:.4g}]: q {q_prev:g}→{q:g}: "
+                f"‖Δζ‖_VM = {d['vm']:.3e} ({r.iterations} Newton steps)"
+            )
+            if d["vm"] < opts.tol:
+                study.reached_tol = True
+                break
+        else:
+            say(
+                f"batch 1 [{study.quadrature}, h = {h:.4g}]: q = {q:g} "
+                f"({r.iterations} Newton steps)"
+            )
+            previous = dolfinx.fem.Function(problem.V)
+        previous.x.array[:] = problem.zeta.x.array
+        q_prev = q
+        q += opts.step
+    study.seconds = time.perf_counter() - t_start
+    return study
+
+
+def write_penalty_study(study: PenaltyStudy, folder: Path) -> Path:
+    """``batch1_h<h>_<quadrature>.csv`` (columns iteration, q_n, q_m, error_VM, error_H1)."""
+    path = folder / f"batch1_h{study.h:.4f}_{study.quadrature}.csv"
+    write_csv(path, study.rows, COLUMNS)
+    return path
+
+
+def plot_penalty_study(studies: list[PenaltyStudy], path: Path, tol: float = 2e-6) -> Path:
+    """Cauchy differences against the paper's reference √(h^{q_n})/10, one curve per study."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.8))
+    lo, hi = np.inf, 0.0
+    for s in studies:
+        x = [r["reference"] for r in s.rows]
+        y = [r["error_VM"] for r in s.rows]
+        if not x:
+            continue
+        lo, hi = min(lo, *x), max(hi, *x)
+        ax.loglog(x, y, "o-", label=f"h = {s.h:.4f}, {s.quadrature} penalty")
+    if hi > 0:
+        ref = np.array([lo, hi])
+        ax.loglog(ref, ref, "k--", lw=1, label="the paper's reference √κ_n / 10")
+    ax.axhline(tol, color="grey", lw=0.8, ls=":", label=f"tolerance {tol:g}")
+    ax.set_xlabel("√κ_n / 10,  κ_n = h^q_n")
+    ax.set_ylabel("Cauchy difference ‖ζ(κ_n) − ζ(κ_n+1)‖ in V_M")
+    ax.set_title("Batch 1: Cauchy differences in κ = h^q on a fixed mesh")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return path

@@ -1,0 +1,504 @@
+"""The Brezis–Sibony iteration for the penalized problem (MODEL.md §6, the paper's (38)).
+
+With ``R(ψ)`` the residual vector of the discrete penalized problem (the ``"residual"`` form of
+:class:`~shellobstacle.problem.PenalizedProblem`: ``A_h ψ + (ε/κ) P_h β(ψ) − P_h(p√a)`` tested
+against the basis of ``V_h``) and ``M`` the mass matrix of ``V_h``, the paper's operator is
+``N_h(ψ) = M⁻¹ R(ψ)`` and the iteration (38) reads
+
+.. math:: ψ_{k+1} = ψ_k − τ M^{-1} R(ψ_k), \\qquad τ = Ξ h^4 .
+
+Dirichlet dofs carry identity rows (and columns) in ``M`` and zero rows in ``R``, so ``ψ``
+stays 0 on them.
+
+**Step and contraction.** ``R`` is piecewise linear: at every penalty quadrature point
+``min(g, 0)`` is a piecewise-linear function of the affine gap ``g(ψ)``, so
+``R(ψ) − R(φ) = J̄ (ψ − φ)`` exactly, with ``J̄ = K + (ε/κ) Σ_x w_x θ_x (c·)(c·)/|c|``,
+``K`` the elastic matrix and ``θ_x ∈ [0, 1]``. Hence ``K ≤ J̄ ≤ K + P_all`` (Loewner order),
+``P_all`` being the penalty Jacobian with *every* penalty point active. The Jacobian at the
+start would not do: the penalty part changes with ``ψ``. In the ``M``-norm (the L² norm of
+``V_h``) the error and the increments therefore contract at every step by at most
+
+.. math:: ρ = \\max(|1 − τ λ_{min}|, |1 − τ λ_{max}|),
+
+with ``λ_min`` the smallest eigenvalue of ``K v = λ M v`` and ``λ_max`` the largest of
+``(K + P_all) v = λ M v`` (both on the free dofs). The automatic step is
+``τ = 2 / (λ_max (1 + s))`` with a safety ``s`` (SLEPc's Ritz value approaches ``λ_max``
+from below), so ``ρ = 1 − τ λ_min`` and ``Ξ = τ / h⁴`` is reported. Theorem 9.1's
+``(1 − ρ')^{1/2}`` is this ``ρ``. Since ``λ_max / λ_min`` grows like ``h⁻²`` (or like
+``1/κ`` once the penalty dominates), the number of iterations grows like ``h⁻²``: the paper's
+"very slow" warning.
+
+**Mass.** ``mass="consistent"`` is the paper's ``M`` (factorized once by MUMPS);
+``mass="lumped"`` replaces it by its row sums (a diagonal scaling; a deviation from the paper,
+P1 only: the row sums of P2 vanish at the vertices). With the lumped mass every L² norm
+above is the lumped one.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py / slepc4py)
+
+# isort: split
+import dolfinx
+import dolfinx.fem.petsc
+import numpy as np
+import ufl
+from petsc4py import PETSc
+from slepc4py import SLEPc
+
+from shellobstacle.membrane import elastic_product
+from shellobstacle.problem import PenalizedProblem
+
+__all__ = ["BrezisSibonyOptions", "BrezisSibonyResult", "BrezisSibonySolver"]
+
+MASSES = ("consistent", "lumped")
+STARTS = ("zero", "linearized", "current")
+
+Progress = Callable[[int, float], Any]
+
+
+@dataclass(frozen=True)
+class BrezisSibonyOptions:
+    """Step, mass matrix, start and stopping rules of :class:`BrezisSibonySolver`.
+
+    Attributes:
+        xi: ``Ξ`` of (38), the step being ``τ = Ξ h⁴``; ``None`` chooses
+            ``τ = 2 / (λ_max (1 + safety))`` from the estimated spectrum.
+        safety: ``s`` in the automatic step (``τ λ_max = 2 / (1 + s) < 2``).
+        mass: ``"consistent"`` (the paper's mass matrix) or ``"lumped"`` (row sums, P1 only).
+        start: ``"zero"``, ``"linearized"`` (the unconstrained solution ``K ψ_0 = L``: one linear
+            solve with the elastic matrix and the load) or ``"current"`` (``problem.zeta``).
+        rtol: stop when ``‖ψ_{k+1} − ψ_k‖_{L²} ≤ rtol ‖ψ_k‖_{L²}`` (0 disables).
+        rtol_residual: stop when ``‖R(ψ)‖ ≤ rtol_residual ‖R(0)‖`` (Euclidean norms of the
+            residual vector, as in Newton; 0 disables). Either criterion ends the iteration.
+        max_iterations: stop (with ``converged=False``, no exception) after this many steps.
+        progress_every: call ``progress(k, ‖ψ_k − ψ_{k−1}‖_{L²})`` every this many steps.
+        history_stride: record every this many increments in ``result.increments``.
+        tail: the number of final steps over which ``contraction_factor_tail`` is measured.
+        estimate_spectrum: estimate ``λ_min``, ``λ_max`` also when ``xi`` is given (for the
+            reported bound); always done when ``xi`` is ``None``.
+        eigen_tol: relative tolerance of the SLEPc eigensolves.
+        eigen_max_iterations: iteration cap of the SLEPc eigensolves.
+        divergence_factor: give up when an increment exceeds this times the first one.
+    """
+
+    xi: float | None = None
+    safety: float = 0.1
+    mass: str = "consistent"
+    start: str = "linearized"
+    rtol: float = 1e-10
+    rtol_residual: float = 1e-10
+    max_iterations: int = 200_000
+    progress_every: int = 1000
+    history_stride: int = 1
+    tail: int = 100
+    estimate_spectrum: bool = True
+    eigen_tol: float = 1e-8
+    eigen_max_iterations: int = 1000
+    divergence_factor: float = 1e8
+
+    def __post_init__(self) -> None:
+        if self.mass not in MASSES:
+            raise ValueError(f"mass must be one of {MASSES}, got {self.mass!r}")
+        if self.start not in STARTS:
+            raise ValueError(f"start must be one of {STARTS}, got {self.start!r}")
+        if self.xi is not None and not self.xi > 0:
+            raise ValueError(f"xi must be > 0 (or None for the automatic step), got {self.xi}")
+        if not self.safety > 0:
+            raise ValueError(f"safety must be > 0, got {self.safety}")
+        if self.rtol < 0 or self.rtol_residual < 0:
+            raise ValueError("rtol and rtol_residual must be >= 0")
+        for name in ("max_iterations", "progress_every", "history_stride", "tail"):
+            if getattr(self, name) < 1 and name != "max_iterations":
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if self.max_iterations < 0:
+            raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")
+
+
+@dataclass
+class BrezisSibonyResult:
+    """What a Brezis–Sibony run did.
+
+    Attributes:
+        converged: a stopping criterion was met (``False`` at the iteration cap or on
+            divergence; the last iterate is in ``problem.zeta`` either way).
+        iterations: number of steps (38) taken.
+        reason: why it stopped.
+        xi: ``Ξ = τ / h⁴``.
+        tau: the step ``τ``.
+        lambda_max: largest eigenvalue of ``(K + P_all) v = λ M v`` (NaN if not estimated).
+        lambda_min: smallest eigenvalue of ``K v = λ M v`` (NaN if not estimated).
+        contraction_bound: ``max(|1 − τ λ_min|, |1 − τ λ_max|)``, the guaranteed contraction
+            of error and increments per step in the (``M``-)L² norm.
+        contraction_factor: observed, over the whole run: the geometric mean of the ratios of
+            successive L² increments, ``(Δ_n / Δ_1)^{1/(n−1)}``.
+        contraction_factor_tail: the same over the last ``options.tail`` steps (the
+            asymptotic rate).
+        max_ratio: the largest ratio ``Δ_{k+1} / Δ_k`` over the run (all steps, not thinned).
+        increments: ``Δ_k = ‖ψ_k − ψ_{k−1}‖_{L²}`` for ``k = 1, 1 + stride, 1 + 2 stride, …``.
+        increment_stride: the ``stride`` of ``increments``.
+        relative_increment: the last ``Δ_k / ‖ψ_{k−1}‖_{L²}``.
+        relative_residual: ``‖R(ψ)‖ / ‖R(0)‖`` at the returned iterate.
+        error_estimate: a posteriori bound ``ρ/(1 − ρ) Δ_n`` of ``‖ψ_n − ζ_κ^h‖_{L²}``.
+        seconds: wall time of :meth:`BrezisSibonySolver.solve` (setup included).
+        setup_seconds: the part spent on the spectrum estimate and the start.
+    """
+
+    converged: bool
+    iterations: int
+    reason: str
+    xi: float
+    tau: float
+    lambda_max: float = math.nan
+    lambda_min: float = math.nan
+    contraction_bound: float = math.nan
+    contraction_factor: float = math.nan
+    contraction_factor_tail: float = math.nan
+    max_ratio: float = math.nan
+    increments: list[float] = field(default_factory=list)
+    increment_stride: int = 1
+    relative_increment: float = math.nan
+    relative_residual: float = math.nan
+    error_estimate: float = math.nan
+    seconds: float = 0.0
+    setup_seconds: float = 0.0
+
+    def as_dict(self, history: bool = False) -> dict[str, Any]:
+        """JSON-friendly record (the increment history only if ``history``)."""
+        out = {k: v for k, v in self.__dict__.items() if k != "increments"}
+        if history:
+            out["increments"] = list(self.increments)
+        return out
+
+
+class BrezisSibonySolver:
+    """The iteration (38) for one :class:`PenalizedProblem` on a mesh of size ``h``.
+
+    The mass matrix is assembled and factorized once (or lumped once); each step assembles
+    the residual into a preallocated vector, applies ``M⁻¹`` and updates ``problem.zeta``.
+    ``κ`` is read from ``problem.kappa`` at every :meth:`solve` (the spectrum is re-estimated
+    when it changed). Collective under MPI.
+
+    Args:
+        problem: the compiled penalized problem; ``problem.zeta`` is the iterate.
+        h: the mesh size in ``τ = Ξ h⁴`` (the caller's ``h``, e.g. the largest cell diameter).
+        options: step, mass, start and stopping rules.
+    """
+
+    def __init__(
+        self,
+        problem: PenalizedProblem,
+        h: float,
+        options: BrezisSibonyOptions | None = None,
+    ) -> None:
+        if not h > 0:
+            raise ValueError(f"the mesh size h must be > 0, got {h}")
+        self.problem = problem
+        self.h = float(h)
+        self.options = opts = options or BrezisSibonyOptions()
+        V, mesh = problem.V, problem.mesh
+        self.comm = mesh.comm
+        degree = problem.disc.degree
+        if opts.mass == "lumped" and degree != 1:
+            raise ValueError(
+                "mass = 'lumped' needs P1 (the row sums of the P2 mass matrix vanish at vertices)"
+            )
+        self._prefix = f"shellobstacle_bs_{id(self)}_"
+
+        # forms: mass, elastic (K) and the safe bound K + P_all (every penalty point active)
+        u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
+        dx_mass = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 2 * degree})
+        mat, G = problem.shell.material, problem.G
+        elastic = (
+            mat.epsilon
+            * elastic_product(G, mat.lam, mat.mu, problem.strain_of(u), problem.strain_of(v))
+            * G.sqrt_a
+            * problem.dx
+        )
+        c_u = sum(problem.c[j] * u[j] for j in range(3))
+        c_v = sum(problem.c[j] * v[j] for j in range(3))
+        penalty_all = (mat.epsilon / problem.kappa) * c_u * c_v / problem.c_norm * problem.dx_penalty
+        self._elastic_form = dolfinx.fem.form(elastic)
+        self._safe_form = dolfinx.fem.form(elastic + penalty_all)
+
+        # the mass matrix (identity rows/columns at Dirichlet dofs) or its row sums
+        bcs = problem.bcs
+        self.M = dolfinx.fem.petsc.assemble_matrix(
+            dolfinx.fem.form(ufl.inner(u, v) * dx_mass), bcs=bcs, diag=1.0
+        )
+        self.M.assemble()
+        self.free = dolfinx.fem.petsc.create_vector(V)  # 1 at free dofs, 0 at Dirichlet dofs
+        self.free.set(1.0)
+        dolfinx.fem.petsc.set_bc(self.free, bcs)
+        self.D: PETSc.Vec | None = None
+        self.ksp: PETSc.KSP | None = None
+        if opts.mass == "lumped":
+            ones = ufl.as_vector([1.0, 1.0, 1.0])
+            D = dolfinx.fem.petsc.assemble_vector(dolfinx.fem.form(ufl.inner(ones, v) * dx_mass))
+            D.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            D.pointwiseMult(D, self.free)
+            D.axpy(1.0, self._one_minus_free())  # 1 at Dirichlet dofs
+            if D.min()[1] <= 0.0:
+                raise ValueError("the lumped mass has a non-positive entry")
+            self.D = D
+            self.M.zeroEntries()  # the diagonal matrix of D, for the eigenproblems
+            self.M.setDiagonal(D)
+            self.M.assemble()
+        else:
+            self.ksp = self._lu(self.M, "mass_")
+
+        self.R = dolfinx.fem.petsc.create_vector(V)
+        self.d = dolfinx.fem.petsc.create_vector(V)
+        self.Md = dolfinx.fem.petsc.create_vector(V)
+        owned = np.flatnonzero(self.free.array_r == 1.0).astype(PETSc.IntType)
+        rstart = self.free.getOwnershipRange()[0]
+        self._free_is = PETSc.IS().createGeneral(owned + rstart, comm=self.comm)
+        self._spectrum_cache: dict[float, tuple[float, float]] = {}
+        self.spectrum_seconds = 0.0
+
+    # -- building blocks ----------------------------------------------------------------------
+    def _one_minus_free(self) -> PETSc.Vec:
+        """``1 − free``: 1 at Dirichlet dofs."""
+        w = self.free.copy()
+        w.scale(-1.0)
+        w.shift(1.0)
+        return w
+
+    def _lu(self, A: PETSc.Mat, name: str) -> PETSc.KSP:
+        """A direct solver (MUMPS LU) for ``A``, factorized at the first solve."""
+        ksp = PETSc.KSP().create(self.comm)
+        ksp.setOperators(A)
+        ksp.setOptionsPrefix(self._prefix + name)
+        ksp.setType("preonly")
+        pc = ksp.getPC()
+        pc.setType("lu")
+        pc.setFactorSolverType("mumps")
+        ksp.setFromOptions()
+        return ksp
+
+    def _assemble_matrix(self, form: dolfinx.fem.Form) -> PETSc.Mat:
+        A = dolfinx.fem.petsc.assemble_matrix(form, bcs=self.problem.bcs, diag=1.0)
+        A.assemble()
+        return A
+
+    def _residual(self) -> None:
+        """``R ← R(problem.zeta)`` with zero rows at Dirichlet dofs (as NewtonSolver)."""
+        b = self.R
+        with b.localForm() as loc:
+            loc.set(0.0)
+        dolfinx.fem.petsc.assemble_vector(b, self.problem.forms["residual"])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
+
+    def _apply_inverse_mass(self) -> None:
+        """``d ← M⁻¹ R``."""
+        if self.D is not None:
+            self.d.pointwiseDivide(self.R, self.D)
+        else:
+            self.ksp.solve(self.R, self.d)
+            if self.ksp.getConvergedReason() < 0:
+                raise RuntimeError(
+                    f"mass-matrix solve failed (PETSc reason {self.ksp.getConvergedReason()})"
+                )
+
+    def _m_norm(self, x: PETSc.Vec) -> float:
+        """``sqrt(xᵀ M x)``: the L² norm of the function with coefficients ``x``."""
+        self.M.mult(x, self.Md)
+        return math.sqrt(max(x.dot(self.Md), 0.0))
+
+    def _extreme_eigenvalue(self, A: PETSc.Mat, B: PETSc.Mat, largest: bool) -> float:
+        """Largest or smallest eigenvalue of the SPD pencil ``A v = λ B v`` (SLEPc, GHEP)."""
+        opts = self.options
+        eps = SLEPc.EPS().create(self.comm)
+        eps.setOperators(A, B)
+        eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
+        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
+        eps.setDimensions(nev=1)
+        eps.setTolerances(opts.eigen_tol, opts.eigen_max_iterations)
+        st = eps.getST()
+        if largest:
+            eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
+            st.setType(SLEPc.ST.Type.SHIFT)  # applies B⁻¹ A
+        else:
+            st.setType(SLEPc.ST.Type.SINVERT)  # applies (A − 0·B)⁻¹ B
+            eps.setTarget(0.0)
+            eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
+        ksp = st.getKSP()
+        ksp.setType("preonly")
+        ksp.getPC().setType("lu")
+        ksp.getPC().setFactorSolverType("mumps")
+        eps.setOptionsPrefix(self._prefix + ("eig_max_" if largest else "eig_min_"))
+        eps.setFromOptions()
+        eps.solve()
+        nconv = eps.getConverged()
+        if nconv < 1:
+            its = eps.getIterationNumber()
+            eps.destroy()
+            which = "largest" if largest else "smallest"
+            raise RuntimeError(
+                f"SLEPc did not converge to the {which} eigenvalue in {its} iterations; raise "
+                "eigen_max_iterations or give xi explicitly"
+            )
+        values = [eps.getEigenvalue(i).real for i in range(nconv)]
+        eps.destroy()
+        return float(max(values) if largest else min(values))
+
+    def spectrum(self) -> tuple[float, float]:
+        """``(λ_min, λ_max)``: smallest of ``K v = λ M v``, largest of ``(K + P_all) v = λ M v``.
+
+        Both on the free (non-Dirichlet) dofs, for the current ``κ``; cached per ``κ``.
+        """
+        kappa = float(self.problem.kappa.value)
+        if kappa in self._spectrum_cache:
+            return self._spectrum_cache[kappa]
+        t0 = time.perf_counter()
+        B = self.M.createSubMatrix(self._free_is, self._free_is)
+        K = self._assemble_matrix(self._elastic_form)
+        K_ff = K.createSubMatrix(self._free_is, self._free_is)
+        lam_min = self._extreme_eigenvalue(K_ff, B, largest=False)
+        K.destroy()
+        K_ff.destroy()
+        S = self._assemble_matrix(self._safe_form)
+        S_ff = S.createSubMatrix(self._free_is, self._free_is)
+        lam_max = self._extreme_eigenvalue(S_ff, B, largest=True)
+        for A in (S, S_ff, B):
+            A.destroy()
+        self._spectrum_cache[kappa] = (lam_min, lam_max)
+        self.spectrum_seconds += time.perf_counter() - t0
+        return lam_min, lam_max
+
+    def _start(self) -> None:
+        """Set ``problem.zeta`` to ``ψ_0`` (homogeneous Dirichlet values in every case)."""
+        zeta = self.problem.zeta
+        if self.options.start == "zero":
+            zeta.x.array[:] = 0.0
+        elif self.options.start == "linearized":
+            K = self._assemble_matrix(self._elastic_form)
+            L = dolfinx.fem.petsc.assemble_vector(self.problem.forms["load"])
+            L.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+            dolfinx.fem.petsc.set_bc(L, self.problem.bcs)
+            ksp = self._lu(K, "linearized_")
+            ksp.solve(L, zeta.x.petsc_vec)
+            reason = ksp.getConvergedReason()
+            for obj in (ksp, K, L):
+                obj.destroy()
+            if reason < 0:
+                raise RuntimeError(f"linearized start: linear solve failed (PETSc reason {reason})")
+        dolfinx.fem.petsc.set_bc(zeta.x.petsc_vec, self.problem.bcs)
+        zeta.x.scatter_forward()
+
+    def _load_norm(self) -> float:
+        """``‖R(0)‖``: the load vector's norm (the penalty vanishes at ψ = 0 as θ·q > 0)."""
+        b = dolfinx.fem.petsc.assemble_vector(self.problem.forms["load"])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
+        norm = b.norm()
+        b.destroy()
+        return norm
+
+    # -- the iteration ------------------------------------------------------------------------
+    def solve(self, progress: Progress | None = None) -> BrezisSibonyResult:
+        """Run (38) from the chosen start until a stopping criterion or the iteration cap.
+
+        Args:
+            progress: called as ``progress(k, Δ_k)`` every ``options.progress_every`` steps,
+                ``Δ_k = ‖ψ_k − ψ_{k−1}‖_{L²}``.
+
+        Returns:
+            The :class:`BrezisSibonyResult`; ``problem.zeta`` holds the last iterate, also when
+            ``converged`` is False (iteration cap, divergence, NaN): nothing is raised then.
+        """
+        opts, problem = self.options, self.problem
+        t_start = time.perf_counter()
+        h4 = self.h**4
+        lam_min = lam_max = math.nan
+        if opts.xi is None or opts.estimate_spectrum:
+            lam_min, lam_max = self.spectrum()
+        tau = opts.xi * h4 if opts.xi is not None else 2.0 / (lam_max * (1.0 + opts.safety))
+        bound = max(abs(1.0 - tau * lam_min), abs(1.0 - tau * lam_max))
+        self._start()
+        ref = self._load_norm()
+        scale = ref if ref > 0.0 else 1.0
+        setup = time.perf_counter() - t_start
+
+        psi = problem.zeta.x.petsc_vec
+        R, d = self.R, self.d
+        result = BrezisSibonyResult(
+            False, 0, "", tau / h4, tau, lam_max, lam_min, bound,
+            increment_stride=opts.history_stride,
+        )  # fmt: skip
+        recent: deque[float] = deque(maxlen=opts.tail + 1)
+        first = last = math.nan
+        max_ratio = 0.0
+        psi_norm = self._m_norm(psi)
+        rel_inc = math.nan
+        k = 0
+        while True:
+            self._residual()  # R(ψ_k)
+            rnorm = R.norm()
+            if not math.isfinite(rnorm):
+                result.reason = "residual is not finite (NaN/Inf)"
+                break
+            if rnorm <= opts.rtol_residual * scale:
+                result.converged = True
+                result.reason = "relative residual below rtol_residual"
+                break
+            if k >= opts.max_iterations:
+                result.reason = f"no convergence in {opts.max_iterations} iterations"
+                break
+            self._apply_inverse_mass()  # d = M⁻¹ R(ψ_k)
+            dR, psiR = R.mDot([d, psi])  # dᵀMd, ψ_kᵀMd
+            inc = tau * math.sqrt(max(dR, 0.0))
+            psi.axpy(-tau, d)  # ψ_{k+1}
+            problem.zeta.x.scatter_forward()
+            k += 1
+            # ‖ψ_{k+1}‖² = ‖ψ_k‖² − 2τ ψ_kᵀMd + τ² dᵀMd (recomputed exactly now and then)
+            old_norm = psi_norm
+            if k % 1000 == 0:
+                psi_norm = self._m_norm(psi)
+            else:
+                psi_norm = math.sqrt(max(psi_norm**2 - 2 * tau * psiR + tau**2 * dR, 0.0))
+            if k == 1:
+                first = inc
+            else:
+                max_ratio = max(max_ratio, inc / last if last > 0 else math.inf)
+            last = inc
+            recent.append(inc)
+            if (k - 1) % opts.history_stride == 0:
+                result.increments.append(inc)
+            rel_inc = inc / old_norm if old_norm > 0 else math.inf
+            if progress is not None and k % opts.progress_every == 0:
+                progress(k, inc)
+            if not math.isfinite(inc):
+                result.reason = "increment is not finite (NaN/Inf)"
+                break
+            if inc > opts.divergence_factor * first:
+                result.reason = f"diverging: increment grew by more than {opts.divergence_factor:g}"
+                break
+            if inc <= opts.rtol * old_norm:
+                result.converged = True
+                result.reason = "relative L2 increment below rtol"
+                self._residual()
+                rnorm = R.norm()
+                break
+
+        result.iterations = k
+        result.relative_residual = rnorm / scale
+        result.relative_increment = rel_inc
+        result.max_ratio = max_ratio if k >= 2 else math.nan
+        if k >= 2 and first > 0:
+            result.contraction_factor = (last / first) ** (1.0 / (k - 1))
+        if len(recent) >= 2 and recent[0] > 0:
+            result.contraction_factor_tail = (recent[-1] / recent[0]) ** (1.0 / (len(recent) - 1))
+        if k >= 1 and bound < 1.0:
+            result.error_estimate = bound / (1.0 - bound) * last
+        result.setup_seconds = setup
+        result.seconds = time.perf_counter() - t_start
+        return result
