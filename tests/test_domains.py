@@ -6,8 +6,6 @@ ranks (``mpiexec -n 2 python -m pytest -m mpi``).
 
 import math
 
-from shellobstacle import compat  # noqa: F401
-
 # isort: split
 import gmsh
 import numpy as np

@@ -9,8 +9,6 @@ sphere and the ellipsoid.
 
 import math
 
-from shellobstacle import compat  # noqa: F401
-
 # isort: split
 import dolfinx
 import dolfinx.fem

@@ -19,8 +19,6 @@ regularity in ζ_3, so duality cannot give h³).
 
 from functools import cached_property
 
-from shellobstacle import compat  # noqa: F401
-
 # isort: split
 import dolfinx
 import numpy as np

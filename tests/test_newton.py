@@ -7,12 +7,11 @@ import numpy as np
 import pytest
 from mpi4py import MPI
 
-from shellobstacle import compat  # noqa: F401
 from shellobstacle.config import PenaltySpec
 from shellobstacle.model import Load, Material, Shell
+from shellobstacle.pipeline import continuation, solve
 from shellobstacle.postprocess import Postprocessor, l2_norm
 from shellobstacle.problem import Discretization, PenalizedProblem
-from shellobstacle.pipeline import continuation, solve
 from shellobstacle.solvers.newton import ConvergenceError, NewtonOptions, NewtonSolver
 from shellobstacle.surface import Surface
 

@@ -11,8 +11,6 @@ import itertools
 import math
 from pathlib import Path
 
-from shellobstacle import compat  # noqa: F401
-
 # isort: split
 import dolfinx
 import dolfinx.fem
