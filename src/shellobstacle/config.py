@@ -103,11 +103,22 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "quadrature_degree": Key("int", OPTIONAL, "quadrature degree (default 2·degree + 2)"),
     },
     "solver": {
-        "method": Key("str", "newton", "nonlinear solver", ("newton",)),
+        "method": Key(
+            "str",
+            "newton",
+            "newton: penalized problem by Newton; brezis-sibony: the paper's iteration (38); "
+            "active-set: the exact nodal variational inequality (κ = 0, no [penalty])",
+            ("newton", "brezis-sibony", "active-set"),
+        ),
         "linear_solver": Key("str", "direct", "MUMPS LU or CG + GAMG", ("direct", "iterative")),
         "rtol": Key("float", 1e-10, "relative residual tolerance"),
         "stol": Key("float", 1e-12, "relative Newton-correction tolerance"),
-        "max_iterations": Key("int", 100, "Newton iterations per κ"),
+        "max_iterations": Key("int", 100, "Newton (or active-set) iterations per κ"),
+        "xi": Key("float", OPTIONAL, "brezis-sibony: Ξ of (38); default: from a λ_max estimate"),
+        "mass": Key("str", "consistent", "brezis-sibony: mass matrix", ("consistent", "lumped")),
+        "start": Key("str", "linearized", "brezis-sibony: ψ_0", ("zero", "linearized")),
+        "bs_max_iterations": Key("int", 200000, "brezis-sibony: iteration cap"),
+        "bs_rtol": Key("float", 1e-9, "brezis-sibony: relative L² increment tolerance"),
     },
     "output": {
         "paraview": Key("bool", True, "write VTX (.bp) files for ParaView"),
@@ -313,6 +324,21 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     disc = Discretization(**r["discretization"])
 
     p = r.get("penalty", {})
+    sv = r["solver"]
+    if sv["method"] == "active-set":
+        if "kappa" in p or "exponent" in p:
+            raise ConfigError(
+                f"{source}: solver.method = 'active-set' solves the constraint exactly (κ = 0): "
+                "remove penalty.kappa / penalty.exponent"
+            )
+        if disc.degree != 1 or disc.penalty_quadrature != "vertex":
+            raise ConfigError(
+                f"{source}: solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1: "
+                "set discretization.degree = 1 and discretization.penalty_quadrature = 'vertex'"
+            )
+        p = {**p, "kappa": 1.0}  # unused by the exact solver; keeps PenalizedProblem's forms
+    if sv.get("xi") is not None and not sv["xi"] > 0:
+        raise ConfigError(f"{source}: solver.xi must be > 0, got {sv['xi']}")
     if "kappa" in p and "exponent" in p:
         raise ConfigError(f"{source}: give either penalty.kappa or penalty.exponent, not both")
     if "kappa" not in p and "exponent" not in p:
@@ -325,7 +351,6 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         raise ConfigError(f"{source}: penalty.exponent must be > 0, got {p['exponent']}")
     penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
 
-    sv = r["solver"]
     solver = NewtonOptions(
         rtol=sv["rtol"],
         stol=sv["stol"],

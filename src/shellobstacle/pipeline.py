@@ -82,16 +82,22 @@ def continuation(
     solver: NewtonSolver,
     kappas: list[float],
     progress: Progress | None = None,
+    predictor: bool = True,
 ) -> list[KappaStep]:
     """Solve for each κ in turn, warm-starting from the previous solution.
+
+    With ``predictor`` the warm start is the Euler prediction along κ
+    (:meth:`NewtonSolver.predict`) rather than the previous solution itself.
 
     Raises:
         ConvergenceError: from the first κ that fails (earlier steps are in ``err.steps``).
     """
     steps: list[KappaStep] = []
     for k, kappa in enumerate(kappas):
-        problem.set_kappa(kappa)
         t0 = time.perf_counter()
+        if predictor and k > 0:
+            solver.predict(kappa)
+        problem.set_kappa(kappa)
         try:
             result = solver.solve()
         except ConvergenceError as err:

@@ -153,6 +153,8 @@ class PenalizedProblem:
             "elastic_energy": dolfinx.fem.form(elastic),
             "work": dolfinx.fem.form(work),
             "penalty_energy": dolfinx.fem.form(penalty),
+            # (ε/κ) ∫ β(ζ)·v dy: the penalty part of the residual (= −κ ∂R/∂κ)
+            "penalty_residual": dolfinx.fem.form(ufl.derivative(penalty, zeta, v)),
         }
         self.bcs = self._boundary_conditions()
 

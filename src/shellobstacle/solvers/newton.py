@@ -115,6 +115,7 @@ class NewtonSolver:
             self.ksp.setTolerances(rtol=opts.linear_rtol, atol=1e-50, max_it=2000)
         self.ksp.setFromOptions()
         self.timings: dict[str, float] = {"assemble": 0.0, "solve": 0.0, "line_search": 0.0}
+        self._factored_kappa: float | None = None  # κ of the Jacobian held by the KSP
 
     # -- assembly ---------------------------------------------------------------------------
     def _residual(self, u: dolfinx.fem.Function, b: PETSc.Vec) -> None:
@@ -128,6 +129,7 @@ class NewtonSolver:
         dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
 
     def _jacobian(self) -> None:
+        self._factored_kappa = float(self.problem.kappa.value)
         self.A.zeroEntries()
         dolfinx.fem.petsc.assemble_matrix(
             self.A, self.problem.forms["jacobian"], bcs=self.problem.bcs
@@ -152,6 +154,31 @@ class NewtonSolver:
         """``δ ← A⁻¹ (−R)`` (``self.R`` holds ``−R``)."""
         self.ksp.solve(self.R, self.dz)
         self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def predict(self, kappa_new: float) -> bool:
+        """Euler predictor along κ: ``ζ ← ζ + (κ_new − κ) dζ/dκ`` with ``J dζ/dκ = −∂R/∂κ``.
+
+        ``∂R/∂κ = −(1/κ) (ε/κ)∫β(ζ)·v dy`` and ``J`` is the Jacobian already factored at the
+        end of the last solve, so the prediction costs one assembly and one back-substitution.
+        Returns False (and changes nothing) when no factorization for the current κ exists.
+        """
+        kappa = float(self.problem.kappa.value)
+        if self._factored_kappa != kappa:
+            return False
+        t0 = time.perf_counter()
+        b = dolfinx.fem.petsc.assemble_vector(self.problem.forms["penalty_residual"])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
+        b.scale(1.0 / kappa)  # −∂R/∂κ
+        self.ksp.solve(b, self.dz)
+        self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        b.destroy()
+        zeta = self.problem.zeta
+        with self.dz.localForm() as dz_loc:
+            zeta.x.array[:] += (kappa_new - kappa) * dz_loc.array_r
+        zeta.x.scatter_forward()
+        self.timings["predict"] = self.timings.get("predict", 0.0) + time.perf_counter() - t0
+        return True
 
     # -- line search --------------------------------------------------------------------------
     def _slope(self, t: float, z0: np.ndarray) -> float:
