@@ -9,6 +9,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -327,10 +328,12 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     sv = r["solver"]
     if sv["method"] == "active-set":
         if "kappa" in p or "exponent" in p:
-            raise ConfigError(
-                f"{source}: solver.method = 'active-set' solves the constraint exactly (κ = 0): "
-                "remove penalty.kappa / penalty.exponent"
+            warnings.warn(
+                f"{source}: solver.method = 'active-set' solves the constraint exactly (κ = 0); "
+                "penalty.kappa / penalty.exponent are ignored",
+                stacklevel=2,
             )
+            p = {k: v for k, v in p.items() if k not in ("kappa", "exponent")}
         if disc.degree != 1 or disc.penalty_quadrature != "vertex":
             raise ConfigError(
                 f"{source}: solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1: "

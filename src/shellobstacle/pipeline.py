@@ -21,7 +21,18 @@ from shellobstacle.model import Shell
 from shellobstacle.problem import Discretization, PenalizedProblem
 from shellobstacle.solvers.newton import ConvergenceError, NewtonOptions, NewtonResult, NewtonSolver
 
-__all__ = ["KappaStep", "SolveResult", "continuation", "make_mesh", "solve", "solve_config"]
+__all__ = [
+    "METHODS",
+    "KappaStep",
+    "MethodStep",
+    "SolveResult",
+    "continuation",
+    "make_mesh",
+    "solve",
+    "solve_config",
+]
+
+METHODS = ("newton", "brezis-sibony", "active-set")
 
 Progress = Callable[[str], Any]
 
@@ -33,6 +44,21 @@ class KappaStep:
     kappa: float
     newton: NewtonResult
     seconds: float
+
+    @property
+    def iterations(self) -> int:
+        """Newton steps at this κ."""
+        return self.newton.iterations
+
+    @property
+    def converged(self) -> bool:
+        """Whether Newton converged at this κ."""
+        return self.newton.converged
+
+    @property
+    def residual_norms(self) -> list[float]:
+        """Residual norms of the Newton iterates."""
+        return self.newton.residual_norms
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-friendly record."""
@@ -51,22 +77,52 @@ class KappaStep:
 
 
 @dataclass
+class MethodStep:
+    """One solve by a method other than Newton (Brezis–Sibony, the exact active-set solver)."""
+
+    method: str
+    kappa: float | None
+    iterations: int
+    converged: bool
+    reason: str
+    relative_residual: float
+    seconds: float
+    residual_norms: list[float] = field(default_factory=list)
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly record."""
+        return {
+            "method": self.method,
+            "kappa": self.kappa,
+            "converged": self.converged,
+            "iterations": self.iterations,
+            "reason": self.reason,
+            "relative_residual": self.relative_residual,
+            "seconds": self.seconds,
+            **self.details,
+        }
+
+
+@dataclass
 class SolveResult:
     """A finished (or failed) solve: the problem holding ζ, steps, checks and timings."""
 
     problem: PenalizedProblem
     h: float
     kappa: float
-    steps: list[KappaStep]
+    steps: list[KappaStep | MethodStep]
     checks: list[Check]
     timings: dict[str, float] = field(default_factory=dict)
     converged: bool = True
     error: str | None = None
+    method: str = "newton"
+    extra: dict[str, Any] = field(default_factory=dict)
 
     @property
     def iterations(self) -> int:
-        """Newton iterations summed over the continuation."""
-        return sum(s.newton.iterations for s in self.steps)
+        """Iterations summed over all steps (Newton steps over the continuation)."""
+        return sum(s.iterations for s in self.steps)
 
 
 def make_mesh(domain: DomainSpec) -> dolfinx.mesh.Mesh:
@@ -120,6 +176,8 @@ def solve(
     options: NewtonOptions | None = None,
     force: bool = False,
     progress: Progress | None = None,
+    method: str = "newton",
+    method_options: Any = None,
 ) -> SolveResult:
     """Solve P_{M,κ}^{ε,h} for the shell on a domain (or a ready mesh).
 
@@ -131,6 +189,9 @@ def solve(
         options: Newton tolerances and linear solver.
         force: proceed (with a warning) when the theory's assumptions fail.
         progress: called with one-line progress messages.
+        method: ``"newton"`` (continuation in κ), ``"brezis-sibony"`` (the iteration (38) at
+            the target κ) or ``"active-set"`` (the exact nodal VI, κ unused).
+        method_options: ``BrezisSibonyOptions`` or ``ActiveSetOptions`` for those methods.
 
     Raises:
         AssumptionError: the data violate MODEL.md §3 (unless ``force``).
@@ -166,23 +227,116 @@ def solve(
     say(f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ")
 
     t = time.perf_counter()
-    result = SolveResult(problem, h, kappas[-1], [], checks, timings)
-    try:
-        result.steps = continuation(problem, solver, kappas, progress)
-    except ConvergenceError as err:
-        result.steps = err.steps  # type: ignore[attr-defined]
-        result.steps.append(KappaStep(float(problem.kappa.value), err.result, float("nan")))
-        result.converged, result.error = False, str(err)
+    result = SolveResult(problem, h, kappas[-1], [], checks, timings, method=method)
+    if method == "newton":
+        try:
+            result.steps = continuation(problem, solver, kappas, progress)
+        except ConvergenceError as err:
+            result.steps = err.steps  # type: ignore[attr-defined]
+            result.steps.append(KappaStep(float(problem.kappa.value), err.result, float("nan")))
+            result.converged, result.error = False, str(err)
+        for key, value in solver.timings.items():
+            timings[f"solve.{key}"] = value
+    elif method == "brezis-sibony":
+        _brezis_sibony(result, method_options, say)
+    elif method == "active-set":
+        _active_set(result, method_options, say)
+    else:
+        raise ConfigError(f"solver.method must be one of {METHODS}, got {method!r}")
     timings["solve"] = time.perf_counter() - t
-    for key, value in solver.timings.items():
-        timings[f"solve.{key}"] = value
     return result
+
+
+def _brezis_sibony(result: SolveResult, options: Any, say: Progress) -> None:
+    """The paper's iteration (38) at the target κ; non-convergence is reported, not raised."""
+    from shellobstacle.solvers.brezis_sibony import BrezisSibonySolver
+
+    problem = result.problem
+    problem.set_kappa(result.kappa)
+    solver = BrezisSibonySolver(problem, result.h, options)
+
+    def progress(k: int, increment: float) -> None:
+        say(f"Brezis–Sibony step {k}: ‖ψ_k − ψ_(k−1)‖_L² = {increment:.3e}")
+
+    r = solver.solve(progress)
+    details = r.as_dict()
+    for key in ("converged", "iterations", "reason", "relative_residual"):
+        details.pop(key, None)
+    result.steps = [
+        MethodStep(
+            "brezis-sibony",
+            result.kappa,
+            r.iterations,
+            r.converged,
+            r.reason,
+            r.relative_residual,
+            r.seconds,
+            [],
+            details,
+        )
+    ]
+    say(
+        f"Brezis–Sibony: {r.iterations} steps, {r.reason}; contraction observed "
+        f"{r.contraction_factor:.6f}, bound {r.contraction_bound:.6f}"
+    )
+    if not r.converged:
+        result.converged, result.error = False, f"Brezis–Sibony did not converge: {r.reason}"
+
+
+def _active_set(result: SolveResult, options: Any, say: Progress) -> None:
+    """The exact nodal variational inequality (κ = 0)."""
+    from shellobstacle.solvers.active_set import ActiveSetSolver
+
+    problem = result.problem
+    result.kappa = 0.0
+    t0 = time.perf_counter()
+    try:
+        r = ActiveSetSolver(problem, options).solve()
+    except ConvergenceError as err:
+        r = err.result  # type: ignore[assignment]
+        result.converged, result.error = False, str(err)
+    seconds = time.perf_counter() - t0
+    norms = r.residual_norms
+    rel = norms[-1] / norms[0] if len(norms) > 1 and norms[0] else float("nan")
+    details = {"active_nodes": r.active_nodes, "kkt": r.kkt, "kkt_scales": r.scales}
+    result.steps = [
+        MethodStep(
+            "active-set",
+            0.0,
+            r.iterations,
+            r.converged,
+            r.reason,
+            rel,
+            seconds,
+            list(norms),
+            details,
+        )
+    ]
+    result.extra["multiplier"] = r.multiplier
+    result.extra["contact_pressure"] = r.contact_pressure
+    say(f"active set: {r.iterations} steps, {r.active_nodes} active vertices, KKT {r.kkt}")
 
 
 def solve_config(
     config: Config, force: bool = False, progress: Progress | None = None
 ) -> SolveResult:
     """:func:`solve` with everything taken from a validated :class:`Config`."""
+    sv = config.resolved["solver"]
+    method_options: Any = None
+    if config.method == "brezis-sibony":
+        from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions
+
+        method_options = BrezisSibonyOptions(
+            xi=sv.get("xi"),
+            mass=sv["mass"],
+            start=sv["start"],
+            max_iterations=sv["bs_max_iterations"],
+            rtol=sv["bs_rtol"],
+        )
+    elif config.method == "active-set":
+        from shellobstacle.solvers.active_set import ActiveSetOptions
+
+        method_options = ActiveSetOptions(max_iterations=sv["max_iterations"])
     return solve(
         config.shell,
         config.domain,
@@ -191,4 +345,6 @@ def solve_config(
         config.solver,
         force=force,
         progress=progress,
+        method=config.method,
+        method_options=method_options,
     )

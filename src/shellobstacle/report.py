@@ -37,19 +37,21 @@ def write_solution(
     quantities = post.summary()
     timings = dict(result.timings)
     timings["postprocess"] = time.perf_counter() - t
-    last = result.steps[-1].newton if result.steps else None
+    last = result.steps[-1] if result.steps else None
     summary: dict[str, Any] = {
         "converged": result.converged,
         "error": result.error,
+        "method": result.method,
         "iterations": result.iterations,
         "iterations_last_kappa": last.iterations if last else 0,
         "dofs": problem.num_dofs,
         "h": result.h,
-        "kappa": float(problem.kappa.value),
+        "kappa": 0.0 if result.method == "active-set" else float(problem.kappa.value),
         "kappa_target": result.kappa,
         **quantities,
         "residual_history": last.residual_norms if last else [],
         "continuation": [s.as_dict() for s in result.steps],
+        **{k: v for k, v in result.extra.items() if isinstance(v, int | float | str | dict)},
         "checks": [
             {
                 "name": c.name,
