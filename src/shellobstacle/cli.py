@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 import time
 import traceback
@@ -124,9 +125,9 @@ def _parser() -> argparse.ArgumentParser:
     )
     e.add_argument(
         "batch",
-        choices=("penalty", "mesh", "load"),
+        choices=("penalty", "mesh", "load", "solvers"),
         help="penalty: κ = h^q → 0 on a fixed mesh; mesh: nested meshes with κ = h^q; "
-        "load: sweep a load parameter",
+        "load: sweep a load parameter; solvers: Newton vs Brezis–Sibony on --sizes",
     )
     common(e)
     e.add_argument("-o", "--output", default=None, help="result folder")
@@ -140,6 +141,8 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--refinements", type=int, default=3, help="mesh: uniform refinements (3)")
     e.add_argument("--parameter", default="ell", help="load: the [load] parameter to sweep")
     e.add_argument("--values", default="0,10,20,40,80", help="load: its values")
+    e.add_argument("--sizes", default="0.1,0.07", help="solvers: gmsh target sizes of ω")
+    e.add_argument("--exponent", type=float, default=1.5, help="solvers: κ = h^exponent")
 
     sub.add_parser("config-reference", help="print the configuration reference (Markdown)")
     return p
@@ -284,6 +287,9 @@ def _experiment(args: argparse.Namespace) -> int:
         text = batches.run_mesh(
             cfg, folder, cfg.domain, args.refinements, q_values, report, args.tol
         )
+    elif args.batch == "solvers":
+        sizes = [dataclasses.replace(cfg.domain, h=v) for v in _floats(args.sizes, "--sizes")]
+        text = batches.run_solvers(cfg, folder, sizes, args.exponent, report)
     else:
         values = _floats(args.values, "--values")
         text = batches.run_load(

@@ -17,7 +17,7 @@ from mpi4py import MPI
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.results import atomic_write
 
-__all__ = ["DifferenceNorms", "fit_rate", "transfer", "write_csv"]
+__all__ = ["DifferenceNorms", "exact_solution", "fit_rate", "transfer", "write_csv"]
 
 
 class DifferenceNorms:
@@ -88,3 +88,23 @@ def fit_rate(x: Sequence[float], y: Sequence[float]) -> float:
     if keep.sum() < 2:
         return float("nan")
     return float(np.polyfit(np.log(x[keep]), np.log(y[keep]), 1)[0])
+
+
+def exact_solution(shell: Any, mesh: dolfinx.mesh.Mesh, discretization: Any) -> tuple[Any, Any]:
+    """The exact discrete VI solution ζ^h (nodal constraint, P1) on ``mesh``.
+
+    Returns:
+        ``(zeta, result)``: a Function in the P1 vector space of ``mesh`` and the
+        :class:`~shellobstacle.solvers.active_set.ActiveSetResult` (KKT quality).
+    """
+    import dataclasses
+
+    from shellobstacle.problem import PenalizedProblem
+    from shellobstacle.solvers.active_set import ActiveSetSolver
+
+    disc = dataclasses.replace(discretization, penalty_quadrature="vertex", degree=1)
+    problem = PenalizedProblem(shell, mesh, disc)
+    result = ActiveSetSolver(problem).solve()
+    zeta = dolfinx.fem.Function(problem.V, name="zeta_exact")
+    zeta.x.array[:] = problem.zeta.x.array
+    return zeta, result
