@@ -200,6 +200,12 @@ def _check(args: argparse.Namespace) -> int:
             f"ε = {cfg.shell.material.epsilon}"
         )
         print(format_checks(checks))
+        failed = [c.name for c in checks if not c.passed]
+        if failed:
+            print(
+                f"shellobstacle: error: assumptions fail: {', '.join(failed)} (see the table)",
+                file=sys.stderr,
+            )
     return EXIT_OK if all(c.passed for c in checks) else EXIT_USAGE
 
 

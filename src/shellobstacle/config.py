@@ -152,7 +152,7 @@ class PenaltySpec:
             path = [h**qq for qq in qs]
         else:
             path = [10.0**-k for k in range(0, 40) if 10.0**-k > target]
-        return [*path, target]
+        return [k for k in path if k > 0] + [target]
 
 
 @dataclass(frozen=True)
@@ -181,9 +181,13 @@ def _coerce(value: Any, key: Key, where: str) -> Any:
     def number(v: Any, what: str) -> float:
         if isinstance(v, bool) or not isinstance(v, int | float):
             raise ConfigError(f"{what} must be a number, got {v!r}")
-        if not math.isfinite(v):
+        try:
+            value = float(v)
+        except OverflowError:
+            raise ConfigError(f"{what} is too large to be a floating-point number") from None
+        if not math.isfinite(value):
             raise ConfigError(f"{what} must be finite, got {v!r}")
-        return float(v)
+        return value
 
     t = key.type
     if t == "float":
@@ -216,7 +220,7 @@ def _coerce(value: Any, key: Key, where: str) -> Any:
             if isinstance(v, str) or (
                 t.startswith("str|") and not isinstance(v, bool) and isinstance(v, int | float)
             ):
-                out.append(v if isinstance(v, str) else repr(float(v)))
+                out.append(v if isinstance(v, str) else repr(number(v, f"{where}[{i + 1}]")))
             else:
                 raise ConfigError(f"{where}[{i + 1}] must be a string expression, got {v!r}")
         return tuple(out)
@@ -309,7 +313,7 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     shell.load_expressions()  # parse now: errors name the key
 
     d = dict(r["domain"])
-    if d["kind"] != "file" and d["kind"] != "rectangle" and "h" not in d:
+    if d["kind"] != "file" and "h" not in d:
         raise ConfigError(
             f"{source}: [domain] needs 'h' (target mesh size) for kind = '{d['kind']}'"
         )
@@ -318,8 +322,11 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     if "path" in d and not Path(d["path"]).is_absolute():
         base = Path(source).parent if source not in ("<config>", "") else Path(".")
         d["path"] = str((base / d["path"]).resolve())
-    if d["refinements"] < 0:
-        raise ConfigError(f"{source}: domain.refinements must be >= 0, got {d['refinements']}")
+    if not 0 <= d["refinements"] <= 8:
+        raise ConfigError(
+            f"{source}: domain.refinements must be in 0..8 (each multiplies the cells by 4), "
+            f"got {d['refinements']}"
+        )
     domain = DomainSpec(**d)
 
     disc = Discretization(**r["discretization"])
@@ -350,10 +357,18 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         )
     if "kappa" in p and not p["kappa"] > 0:
         raise ConfigError(f"{source}: penalty.kappa must be > 0, got {p['kappa']}")
-    if "exponent" in p and not p["exponent"] > 0:
-        raise ConfigError(f"{source}: penalty.exponent must be > 0, got {p['exponent']}")
+    if "exponent" in p and not 0 < p["exponent"] <= 20:
+        raise ConfigError(
+            f"{source}: penalty.exponent must be in (0, 20] (κ = h^20 is already far below "
+            f"what double precision resolves), got {p['exponent']}"
+        )
+    if "kappa" in p and p["kappa"] < 1e-100:
+        raise ConfigError(f"{source}: penalty.kappa = {p['kappa']} is too small (at least 1e-100)")
     penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
 
+    for key in ("rtol", "stol", "bs_rtol"):
+        if sv[key] < 0:
+            raise ConfigError(f"{source}: solver.{key} must be >= 0, got {sv[key]}")
     solver = NewtonOptions(
         rtol=sv["rtol"],
         stol=sv["stol"],

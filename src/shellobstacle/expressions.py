@@ -64,6 +64,11 @@ FUNCTIONS: dict[str, Any] = {
 }
 
 _SYMPY_INTERNALS = {"Integer": sp.Integer, "Float": sp.Float, "Rational": sp.Rational}
+#: Operators an expression may contain (no attribute access, indexing, strings, assignment).
+_OPERATORS = {"+", "-", "*", "/", "**", "^", "(", ")", ",", "<", ">", "<=", ">=", "==", "!="}
+#: Largest exponent of a constant power (SymPy evaluates integer powers exactly).
+_MAX_EXPONENT = 1000
+_RESERVED = {*_SYMPY_INTERNALS, "Symbol", "True", "False", "None"}
 _SAFE_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
@@ -77,7 +82,7 @@ def _rename_keywords(text: str, what: str) -> tuple[str, dict[str, str]]:
     out = []
     try:
         tokens = list(tokenize.generate_tokens(StringIO(text).readline))
-    except (tokenize.TokenError, IndentationError) as err:
+    except (tokenize.TokenError, SyntaxError, UnicodeError, ValueError) as err:
         raise ExpressionError(f"{what}: cannot read {text!r}: {err}") from None
     for tok in tokens:
         if tok.type == tokenize.NAME and tok.string in ("True", "False"):
@@ -123,27 +128,91 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
         key = f"{name}_" if keyword.iskeyword(name) else name
         local[key] = value
     allowed = set(local) | set(FUNCTIONS) | {"True", "False"}
-    for tok in tokenize.generate_tokens(StringIO(code).readline):
-        if tok.type == tokenize.NAME and tok.string not in allowed:
-            known = ", ".join(sorted(str(n) for n in names))
+    ignorable = {
+        tokenize.NEWLINE,
+        tokenize.NL,
+        tokenize.ENDMARKER,
+        tokenize.INDENT,
+        tokenize.DEDENT,
+    }
+    try:
+        tokens = list(tokenize.generate_tokens(StringIO(code).readline))
+    except (tokenize.TokenError, SyntaxError, UnicodeError, ValueError) as err:
+        raise ExpressionError(f"{what}: cannot read {text!r}: {err}") from None
+    for tok in tokens:
+        if tok.type == tokenize.NAME:
+            if tok.string not in allowed:
+                known = ", ".join(sorted(str(n) for n in names))
+                raise ExpressionError(
+                    f"{what}: unknown name {renamed.get(tok.string, tok.string)!r} in {text!r}; "
+                    f"allowed are {known} and the functions {', '.join(sorted(FUNCTIONS))}"
+                )
+        elif tok.type == tokenize.OP:
+            if tok.string not in _OPERATORS:
+                raise ExpressionError(
+                    f"{what}: the operator {tok.string!r} is not allowed in {text!r} "
+                    f"(allowed: {' '.join(sorted(_OPERATORS))})"
+                )
+        elif tok.type == tokenize.NUMBER:
+            if tok.string.lower().endswith("j"):
+                raise ExpressionError(f"{what}: complex numbers are not allowed in {text!r}")
+        elif tok.type not in ignorable:
             raise ExpressionError(
-                f"{what}: unknown name {renamed.get(tok.string, tok.string)!r} in {text!r}; "
-                f"allowed are {known} and the functions {', '.join(sorted(FUNCTIONS))}"
+                f"{what}: {tok.string!r} is not allowed in {text!r} (strings, comments and other "
+                "tokens are refused: write numbers, names, operators and function calls)"
             )
     global_dict = {"__builtins__": {}, **FUNCTIONS, **_SYMPY_INTERNALS}
-    try:
-        expr = parse_expr(
+
+    # the unevaluated build names SymPy's node classes; no string literal can reach them
+    unevaluated = {
+        "Add": sp.Add, "Mul": sp.Mul, "Pow": sp.Pow, "Lt": sp.Lt, "Le": sp.Le, "Gt": sp.Gt,
+        "Ge": sp.Ge, "Eq": sp.Eq, "Ne": sp.Ne,
+    }  # fmt: skip
+
+    def build(evaluate: bool) -> Any:
+        return parse_expr(
             code,
             local_dict=local,
-            global_dict=global_dict,
+            global_dict=global_dict if evaluate else {**global_dict, **unevaluated},
             transformations=(*standard_transformations, convert_xor),
-            evaluate=True,
+            evaluate=evaluate,
         )
+
+    try:
+        _check_powers(build(False), what, text)  # before SymPy evaluates 9**9**9 exactly
+        expr = build(True)
+    except ExpressionError:
+        raise
     except Exception as err:  # SymPy raises many types for malformed input
         raise ExpressionError(f"{what}: cannot parse {text!r}: {err}") from None
     if not isinstance(expr, sp.Expr):
         raise ExpressionError(f"{what}: {text!r} is not a scalar expression")
+    if expr.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
+        raise ExpressionError(f"{what}: {text!r} is not finite (it evaluates to {expr})")
+    for pw in expr.atoms(sp.Piecewise):
+        if pw.args[-1].cond != sp.true:
+            raise ExpressionError(
+                f"{what}: the Piecewise in {text!r} needs a last branch (value, True) so that "
+                "it is defined everywhere"
+            )
     return expr
+
+
+def _check_powers(tree: Any, what: str, text: str) -> None:
+    """Refuse constant powers with huge exponents (an unevaluated tree is walked)."""
+    if not isinstance(tree, sp.Basic):
+        return
+    for node in sp.preorder_traversal(tree):
+        if isinstance(node, sp.Pow) and not node.exp.free_symbols:
+            try:
+                size = abs(complex(node.exp.evalf(15)))
+            except (TypeError, ValueError, OverflowError):
+                size = float("inf")
+            if not size <= _MAX_EXPONENT:
+                raise ExpressionError(
+                    f"{what}: the exponent {node.exp} in {text!r} is too large "
+                    f"(at most {_MAX_EXPONENT})"
+                )
 
 
 def _ufl_relational(expr: sp.Basic, rec: Callable[[sp.Basic], Any]) -> Any:
@@ -275,4 +344,10 @@ def to_numpy(expr: sp.Expr, args: tuple[sp.Symbol, ...] = (y1, y2)) -> Callable[
 
 def is_safe_name(name: str) -> bool:
     """Whether ``name`` may be used as a user parameter name in expressions."""
-    return bool(_SAFE_NAME.match(name)) and name not in FUNCTIONS and "__" not in name
+    return (
+        bool(_SAFE_NAME.match(name))
+        and name not in FUNCTIONS
+        and name not in _RESERVED
+        and not keyword.iskeyword(name)
+        and "__" not in name
+    )

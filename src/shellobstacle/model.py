@@ -94,15 +94,17 @@ class Obstacle:
         q = np.asarray(self.q, dtype=float)
         if q.shape != (3,) or not np.all(np.isfinite(q)):
             raise ValueError(f"obstacle.q must be three finite numbers, got {self.q!r}")
-        norm = float(np.linalg.norm(q))
-        if norm == 0.0:
+        largest = float(np.max(np.abs(q)))
+        if largest == 0.0:
             raise ValueError("obstacle.q = (0, 0, 0) defines no half-space: give a nonzero normal")
+        norm = largest * float(np.linalg.norm(q / largest))  # no overflow for huge entries
         if abs(norm - 1.0) > 1e-12:
             warnings.warn(
                 f"obstacle.q = {tuple(self.q)} has norm {norm:.6g}; using q/|q|",
                 stacklevel=3,
             )
-        object.__setattr__(self, "q", tuple(float(v) for v in q / norm))
+        unit = (q / largest) / float(np.linalg.norm(q / largest))
+        object.__setattr__(self, "q", tuple(float(v) for v in unit))
 
 
 @dataclass(frozen=True)

@@ -21,6 +21,8 @@ rank, kept on that rank, so this works on any number of MPI ranks.
 
 from __future__ import annotations
 
+import os
+import shutil
 from pathlib import Path
 
 from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py)
@@ -127,9 +129,54 @@ def surface_mesh(mesh2d: dolfinx.mesh.Mesh, coordinates: np.ndarray) -> dolfinx.
 
 
 def _write(comm: MPI.Comm, path: Path, functions: list[dolfinx.fem.Function]) -> Path:
-    with dolfinx.io.VTXWriter(comm, path, functions, engine="BP4") as writer:
-        writer.write(0.0)
+    """Write ``functions`` to the VTX folder ``path`` atomically.
+
+    All ranks write (collectively) into a hidden temporary ``.bp`` folder next to ``path``;
+    once the writer is closed, rank 0 renames it into place, so ``path`` is either absent, the
+    previous complete output, or the new complete output, never a partial one.
+    """
+    tag = comm.bcast(os.getpid() if comm.rank == 0 else None, root=0)
+    tmp = path.with_name(f".{path.stem}.{tag}.tmp.bp")
+    if comm.rank == 0:  # a leftover of an interrupted run with the same process id
+        shutil.rmtree(tmp, ignore_errors=True)
+    comm.barrier()
+    try:
+        with dolfinx.io.VTXWriter(comm, tmp, functions, engine="BP4") as writer:
+            writer.write(0.0)
+    except BaseException:
+        if comm.rank == 0:  # no barrier here: the other ranks may not have failed
+            shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    comm.barrier()  # every rank has closed the writer: the folder is complete
+    error = None
+    if comm.rank == 0:
+        try:
+            _replace_dir(tmp, path)
+        except OSError as err:
+            shutil.rmtree(tmp, ignore_errors=True)
+            error = f"cannot move {tmp} to {path}: {err}"
+    error = comm.bcast(error, root=0)
+    if error:
+        raise OSError(error)
     return path
+
+
+def _replace_dir(src: Path, dst: Path) -> None:
+    """Rename the folder ``src`` to ``dst``, replacing an existing ``dst`` (file or folder)."""
+    if not dst.exists() and not dst.is_symlink():
+        os.replace(src, dst)
+        return
+    old = dst.with_name(f".{dst.name}.{os.getpid()}.old")
+    os.replace(dst, old)  # a folder cannot be renamed onto a non-empty folder: move it aside
+    try:
+        os.replace(src, dst)
+    except OSError:
+        os.replace(old, dst)
+        raise
+    if old.is_dir() and not old.is_symlink():
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        old.unlink(missing_ok=True)
 
 
 def write_paraview(problem: PenalizedProblem, post: Postprocessor, folder: Path) -> list[Path]:

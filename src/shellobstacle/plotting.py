@@ -6,6 +6,7 @@ Only rank 0 draws: pass the same data on every rank (as
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -114,6 +115,24 @@ def plot_cross_section(
 
     fig.suptitle(title or "Deformed middle surface θ + ζᵢ aⁱ over the obstacle plane")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
+    try:
+        _save_atomically(fig, path, dpi=150)
+    finally:
+        plt.close(fig)
     return path
+
+
+def _save_atomically(fig, path: Path, **kwargs) -> None:
+    """``fig.savefig(path)`` through a temporary file in the same folder and ``os.replace``.
+
+    The format comes from the suffix of ``path``, as for ``savefig`` (PNG if it has none);
+    readers never see a partly written file, and a failed save leaves ``path`` untouched.
+    """
+    fmt = path.suffix[1:].lower() or "png"
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        fig.savefig(tmp, format=fmt, **kwargs)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise

@@ -123,6 +123,8 @@ class Surface:
     @classmethod
     def spherical_cap(cls, radius: float, offset: float) -> Surface:
         """The paper's (50): ``θ = (y1, y2, √(R² − y1² − y2²) − offset)``."""
+        if not radius > 0:
+            raise ValueError(f"surface.radius must be > 0, got {radius}")
         R = sp.Float(radius)
         z = sp.sqrt(R**2 - y1**2 - y2**2) - sp.Float(offset)
         return cls(
@@ -135,6 +137,8 @@ class Surface:
     @classmethod
     def ellipsoid_cap(cls, semi_axes: Sequence[float], offset: float) -> Surface:
         """``θ = (y1, y2, C √(1 − y1²/A² − y2²/B²) − offset)`` for semi-axes ``(A, B, C)``."""
+        if len(semi_axes) != 3 or not all(v > 0 for v in semi_axes):
+            raise ValueError(f"surface.semi_axes must be three numbers > 0, got {semi_axes}")
         A, B, C = (sp.Float(v) for v in semi_axes)
         z = C * sp.sqrt(1 - y1**2 / A**2 - y2**2 / B**2) - sp.Float(offset)
         return cls(

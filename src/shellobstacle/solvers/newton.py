@@ -74,11 +74,17 @@ class NewtonResult:
     linear_iterations: list[int] = field(default_factory=list)
     line_search_evaluations: int = 0
     timings: dict[str, float] = field(default_factory=dict)
+    reference: float = 0.0  # ‖R(0)‖, the scale of the relative residual
 
     @property
     def relative_residual(self) -> float:
-        """Final ``‖R‖ / ‖R(0)‖``."""
-        return self.residual_norms[-1] / self.residual_norms[0] if self.residual_norms else math.nan
+        """Final ``‖R(ζ)‖ / ‖R(0)‖`` (``R(0)`` = minus the load vector; 0 for a zero load)."""
+        if not self.residual_norms:
+            return math.nan
+        last = self.residual_norms[-1]
+        if self.reference > 0:
+            return last / self.reference
+        return 0.0 if last == 0 else math.inf
 
 
 class ConvergenceError(RuntimeError):
@@ -246,6 +252,7 @@ class NewtonSolver:
         rnorm = self.R.norm()
         result.residual_norms.append(rnorm)
         scale = ref if ref > 0.0 else 1.0
+        result.reference = ref
         for it in range(1, opts.max_iterations + 1):
             if not math.isfinite(rnorm):
                 result.reason = "residual is not finite (NaN/Inf)"
