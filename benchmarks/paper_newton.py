@@ -67,6 +67,7 @@ def main() -> None:
                 "quadrature": quadrature, "q": float(q), "kappa": h**q, "newton": r.iterations,
                 "line_search_evals": r.line_search_evaluations, "reason": r.reason,
                 "relative_residual": r.relative_residual, "seconds": round(seconds, 3),
+                "round_off_limited": r.round_off_limited,
                 "linear_iterations": r.linear_iterations,
                 "contact_area": c["contact_area"], "max_violation": c["max_violation"],
             })

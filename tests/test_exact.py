@@ -7,7 +7,6 @@ With ``p^{i,ε} = (0, 0, p)``, ``transverse = "free"`` and no contact, ``ζ_1 = 
 discrete solution equals it up to the solver tolerance and the quadrature of the geometry.
 """
 
-
 # isort: split
 import dolfinx
 import numpy as np

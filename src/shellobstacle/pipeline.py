@@ -69,6 +69,7 @@ class KappaStep:
             "iterations": r.iterations,
             "reason": r.reason,
             "relative_residual": r.relative_residual,
+            "round_off_limited": r.round_off_limited,
             "line_search_evaluations": r.line_search_evaluations,
             "linear_iterations": r.linear_iterations,
             "step_lengths": r.step_lengths,

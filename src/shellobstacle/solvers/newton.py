@@ -77,6 +77,16 @@ class NewtonResult:
     reference: float = 0.0  # ‖R(0)‖, the scale of the relative residual
 
     @property
+    def round_off_limited(self) -> bool:
+        """Stopped because round-off, not the tolerance, bounds what can be resolved.
+
+        For tiny κ the gap ``g = θ·q + ζ_j c_j`` is known only to machine precision and the
+        penalty multiplies that error by ``ε/κ``: the residual then cannot reach ``rtol`` and
+        the iterate is the solution to working precision only.
+        """
+        return self.converged and self.reason != "relative residual below rtol"
+
+    @property
     def relative_residual(self) -> float:
         """Final ``‖R(ζ)‖ / ‖R(0)‖`` (``R(0)`` = minus the load vector; 0 for a zero load)."""
         if not self.residual_norms:
