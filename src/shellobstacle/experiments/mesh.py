@@ -101,20 +101,25 @@ def mesh_study(
     tol: float = 2e-6,
     progress: Callable[[str], Any] | None = None,
     reference: dolfinx.fem.Function | None = None,
+    warm: bool = True,
 ) -> MeshStudy:
     """Solve with κ = h^q on each level (continuation in κ from ζ = 0) and difference them.
 
     With ``reference`` (a solution in the finest level's space, e.g. the exact VI solution
     there) every level's solution is also compared with it (batch 4); the tolerance stop is then
-    not applied, so that every level is measured.
+    not applied, so that every level is measured. With ``warm`` a level that already holds a
+    solution (of a previous q) starts from it and solves for κ = h^q directly.
     """
     say = progress or (lambda _m: None)
     study = MeshStudy(q)
     t0 = time.perf_counter()
     previous = None
     for k, level in enumerate(levels):
-        level.problem.zeta.x.array[:] = 0.0
-        steps = continuation(level.problem, level.solver, PenaltySpec(exponent=q).ladder(level.h))
+        ladder = PenaltySpec(exponent=q).ladder(level.h)
+        solved_before = warm and bool(np.any(level.problem.zeta.x.array))
+        if not warm:
+            level.problem.zeta.x.array[:] = 0.0
+        steps = continuation(level.problem, level.solver, ladder[-1:] if solved_before else ladder)
         study.newton.append(sum(s.newton.iterations for s in steps))
         if reference is not None:
             fine_V = reference.function_space
