@@ -180,3 +180,51 @@ def test_solver_failure_writes_the_last_iterate(tmp_path: Path) -> None:
     assert summary["converged"] is False
     assert "did not converge" in summary["error"]
     assert len(summary["residual_history"]) == 2
+
+
+def test_active_set_method_reports_kkt(tmp_path: Path) -> None:
+    """``solver.method = active-set`` solves κ = 0 and records the KKT residuals."""
+    out = tmp_path / "exact"
+    args = [
+        "solve",
+        str(SMALL),
+        "-o",
+        str(out),
+        "-q",
+        "--set",
+        "solver.method=active-set",
+        "--set",
+        "discretization.penalty_quadrature=vertex",
+    ]
+    assert main(args) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["method"] == "active-set" and summary["kappa"] == 0.0
+    kkt = summary["continuation"][0]["kkt_relative"]
+    assert max(kkt.values()) < 1e-10
+    assert summary["max_violation"] < 1e-12
+    assert summary["contact_area"] > 0
+
+
+def test_brezis_sibony_method_cap_is_reported(tmp_path: Path) -> None:
+    """Brezis–Sibony stopped by its cap exits 1 with converged = false, not a traceback."""
+    out = tmp_path / "bs"
+    args = [
+        "solve",
+        str(SMALL),
+        "-o",
+        str(out),
+        "-q",
+        "--set",
+        "solver.method=brezis-sibony",
+        "--set",
+        "domain.h=0.1",
+        "--set",
+        "solver.bs_max_iterations=50",
+        "--set",
+        "output.paraview=false",
+    ]
+    assert main(args) == 1
+    summary = json.loads((out / "summary.json").read_text())
+    step = summary["continuation"][0]
+    assert summary["converged"] is False and step["iterations"] == 50
+    assert 0 < step["contraction_factor"] < 1

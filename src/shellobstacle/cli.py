@@ -212,15 +212,32 @@ def _check(args: argparse.Namespace) -> int:
 def _solve(args: argparse.Namespace) -> int:
     from shellobstacle.config import load_config
 
-    cfg = load_config(args.config, args.set)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cfg = load_config(args.config, args.set)
+    report = Reporter(args.quiet)
+    for w in caught:
+        report(f"warning: {w.message}")
     default = f"{Path(args.config).stem}-results"
     return run_and_write(
-        cfg, args.output, default, args.overwrite, args.force, Reporter(args.quiet)
+        cfg,
+        args.output,
+        default,
+        args.overwrite,
+        args.force,
+        report,
+        [str(w.message) for w in caught],
     )
 
 
 def run_and_write(
-    cfg: Any, output: str | None, default: str, overwrite: bool, force: bool, report: Reporter
+    cfg: Any,
+    output: str | None,
+    default: str,
+    overwrite: bool,
+    force: bool,
+    report: Reporter,
+    config_warnings: Sequence[str] = (),
 ) -> int:
     """Solve a config and write its result folder; returns the exit code."""
     from shellobstacle.config import to_toml
@@ -235,7 +252,8 @@ def run_and_write(
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = solve_config(cfg, force=force, progress=report)
-    summary = write_solution(result, cfg, folder, report, [str(w.message) for w in caught])
+    seen = [*config_warnings, *(str(w.message) for w in caught)]
+    summary = write_solution(result, cfg, folder, report, seen)
     if not result.converged:
         report(f"FAILED: {result.error}")
         report(f"the last iterate and the residual history are in {folder}/")

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from collections.abc import Sequence
 from pathlib import Path
 
 from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py)
@@ -179,13 +180,20 @@ def _replace_dir(src: Path, dst: Path) -> None:
         old.unlink(missing_ok=True)
 
 
-def write_paraview(problem: PenalizedProblem, post: Postprocessor, folder: Path) -> list[Path]:
+def write_paraview(
+    problem: PenalizedProblem,
+    post: Postprocessor,
+    folder: Path,
+    extra: Sequence[dolfinx.fem.Function] = (),
+) -> list[Path]:
     """Write the current solution ``problem.zeta`` for ParaView (see the module docstring).
 
     Args:
         problem: The solved problem.
         post: Its :class:`~shellobstacle.postprocess.Postprocessor`.
         folder: Output folder (created if needed).
+        extra: More scalar P1 fields (e.g. the contact pressure of the exact solver), written
+            with the gap and the contact indicator.
 
     Returns:
         The paths of the written ``.bp`` folders (the same list on every rank).
@@ -224,14 +232,16 @@ def write_paraview(problem: PenalizedProblem, post: Postprocessor, folder: Path)
             g = dolfinx.fem.Function(W, name=f.name)
             g.interpolate(f)  # vertex values of the P2 field
             p1_vectors.append(g)
-    flat = [*p1_vectors, gap, contact]
+    flat = [*p1_vectors, gap, contact, *extra]
     paths.insert(0, _write(comm, folder / "parameter_domain.bp", flat))
 
     # the reference and the deformed middle surface as 3D meshes
     pos_nodes = _node_values(p1_vectors[2])
     disp_nodes = _node_values(p1_vectors[1])
     reference = SurfaceMesh(problem.mesh, pos_nodes)
-    surface_fields = [reference.transfer(f) for f in (p1_vectors[0], p1_vectors[1], gap, contact)]
+    surface_fields = [
+        reference.transfer(f) for f in (p1_vectors[0], p1_vectors[1], gap, contact, *extra)
+    ]
     paths.append(_write(comm, folder / "surface.bp", surface_fields))
     current = SurfaceMesh(problem.mesh, pos_nodes + disp_nodes)
     deformed_fields = [current.transfer(f) for f in (p1_vectors[1], gap, contact)]

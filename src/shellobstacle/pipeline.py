@@ -297,20 +297,19 @@ def _active_set(result: SolveResult, options: Any, say: Progress) -> None:
         r = err.result  # type: ignore[assignment]
         result.converged, result.error = False, str(err)
     seconds = time.perf_counter() - t0
-    norms = r.residual_norms
-    rel = norms[-1] / norms[0] if len(norms) > 1 and norms[0] else float("nan")
-    details = {"active_nodes": r.active_nodes, "kkt": r.kkt, "kkt_scales": r.scales}
+    rel = r.kkt.get("stationarity", float("nan"))  # ‖Kζ − f − Bᵀλ‖ / ‖f‖
+    details = {
+        "active_nodes": r.active_nodes,
+        "kkt": r.kkt,
+        "kkt_relative": r.relative_kkt,
+        "kkt_scales": r.scales,
+        "newton_steps": r.newton_steps,
+        "pdas_steps": r.pdas_steps,
+        "active_history": r.active_history,
+    }
     result.steps = [
         MethodStep(
-            "active-set",
-            0.0,
-            r.iterations,
-            r.converged,
-            r.reason,
-            rel,
-            seconds,
-            list(norms),
-            details,
+            "active-set", 0.0, r.iterations, r.converged, r.reason, rel, seconds, [], details
         )
     ]
     result.extra["multiplier"] = r.multiplier

@@ -72,7 +72,13 @@ def write_solution(
     t = time.perf_counter()
     files: list[str] = []
     if output.get("paraview", True):
-        files += [str(p.relative_to(folder)) for p in write_paraview(problem, post, folder)]
+        extra = []
+        pressure = result.extra.get("contact_pressure")
+        if pressure is not None:
+            extra.append(pressure.copy())
+            extra[-1].name = "contact_pressure"
+        paths = write_paraview(problem, post, folder, extra)
+        files += [str(p.relative_to(folder)) for p in paths]
     if output.get("figures", True):
         section = post.cross_section()
         png = folder / "cross_section.png"
