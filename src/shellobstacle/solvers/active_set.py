@@ -61,6 +61,7 @@ from petsc4py import PETSc
 
 from shellobstacle.membrane import elastic_product
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.line_search import piecewise_linear_root
 from shellobstacle.solvers.newton import ConvergenceError
 
 __all__ = ["ActiveSetOptions", "ActiveSetResult", "ActiveSetSolver", "nodal_rotations"]
@@ -352,31 +353,13 @@ class ActiveSetSolver:
 
     def _line_search(self, slope0: float, a0: float, b: float, rho, viol) -> float:
         """Minimizer of the convex piecewise-quadratic ``φ(t) = J_γ(u + tδ)`` on ``[0, 1]``."""
-        lo, f_lo = 0.0, slope0
-        hi, f_hi = 1.0, self._slope(1.0, a0, b, rho, viol)
-        tol = 1e-12 * abs(slope0)
-        if f_hi <= tol:
-            return 1.0
-        t, side = hi, 0
-        for _ in range(100):  # Illinois regula falsi: exact once no kink is left in the bracket
-            t = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
-            if not lo < t < hi:
-                t = 0.5 * (lo + hi)
-            f = self._slope(t, a0, b, rho, viol)
-            if abs(f) <= tol:
-                break
-            if f < 0:
-                lo, f_lo = t, f
-                if side == -1:
-                    f_hi *= 0.5
-                side = -1
-            else:
-                hi, f_hi = t, f
-                if side == 1:
-                    f_lo *= 0.5
-                side = 1
-            if hi - lo <= 1e-15 * hi:
-                break
+        t, _ = piecewise_linear_root(
+            lambda t: self._slope(t, a0, b, rho, viol),
+            slope0,
+            1e-12 * abs(slope0),
+            max_evaluations=100,
+            interval_rtol=1e-15,
+        )
         return t
 
     def _newton_stage(self, gamma: float, budget: int) -> tuple[int, bool]:

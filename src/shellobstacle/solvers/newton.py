@@ -23,6 +23,7 @@ from petsc4py import PETSc
 
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.line_search import piecewise_linear_root
 
 __all__ = ["ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
 
@@ -206,37 +207,9 @@ class NewtonSolver:
         return self.R.dot(self.dz)
 
     def _line_search(self, z0: np.ndarray, slope0: float, noise: float) -> tuple[float, int]:
-        """Root of the monotone, piecewise-linear ``φ'`` (the full step if ``φ'(1) ≤ 0``)."""
-        lo, f_lo = 0.0, slope0
-        hi, f_hi = 1.0, self._slope(1.0, z0)
-        evals = 1
+        """Exact step along δ: the root of ``φ'(t) = R(ζ_0 + tδ)·δ`` (round-off aware)."""
         tol = max(1e-10 * abs(slope0), noise)
-        if f_hi <= tol:  # the minimizer lies at or beyond the full step: take it
-            return 1.0, evals
-        t = hi
-        side = 0
-        for _ in range(60):
-            # secant (Illinois variant of regula falsi keeps the bracket shrinking on both ends)
-            t = (lo * f_hi - hi * f_lo) / (f_hi - f_lo)
-            if not lo < t < hi:
-                t = 0.5 * (lo + hi)
-            f = self._slope(t, z0)
-            evals += 1
-            if abs(f) <= tol:
-                break
-            if f < 0:
-                lo, f_lo = t, f
-                if side == -1:
-                    f_hi *= 0.5
-                side = -1
-            else:
-                hi, f_hi = t, f
-                if side == 1:
-                    f_lo *= 0.5
-                side = 1
-            if hi - lo <= 1e-14 * hi:
-                break
-        return t, evals
+        return piecewise_linear_root(lambda t: self._slope(t, z0), slope0, tol)
 
     # -- Newton -------------------------------------------------------------------------------
     def solve(self, progress: Callable[[int, float], Any] | None = None) -> NewtonResult:
