@@ -1,0 +1,88 @@
+"""Phase timings of one solve of the paper's problem over a ladder of mesh sizes.
+
+For each gmsh target size: mesh, geometry checks, compilation, the continuation to
+κ = h^1.5 (Newton steps; assembly, linear solves, line search), post-processing and output
+(ParaView + figure), dofs and peak RSS. One JSON line per size on rank 0.
+
+    .venv/bin/python benchmarks/ladder.py --sizes 0.02,0.01,0.005,0.0035
+    .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/ladder.py --sizes 0.01,0.005
+    .venv/bin/python benchmarks/ladder.py --linear-solver iterative --sizes 0.01,0.005
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import tempfile
+import time
+from pathlib import Path
+
+from mpi4py import MPI
+
+from shellobstacle.checks import check_assumptions
+from shellobstacle.config import load_config
+from shellobstacle.domains import mesh_size
+from shellobstacle.output import write_paraview
+from shellobstacle.pipeline import continuation, make_mesh
+from shellobstacle.plotting import plot_cross_section
+from shellobstacle.postprocess import Postprocessor
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+
+PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
+
+
+def main() -> None:
+    """Run the ladder and print JSON lines on rank 0."""
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--sizes", default="0.02,0.01,0.005")
+    ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
+    ap.add_argument("--exponent", type=float, default=1.5)
+    ap.add_argument("--no-output", action="store_true", help="skip ParaView/figure output")
+    args = ap.parse_args()
+    comm = MPI.COMM_WORLD
+    for size in (float(s) for s in args.sizes.split(",")):
+        cfg = load_config(PAPER, [f"domain.h={size}"])
+        rec: dict = {"target": size, "ranks": comm.size, "linear_solver": args.linear_solver}
+        t = time.perf_counter()
+        mesh = make_mesh(cfg.domain)
+        h = mesh_size(mesh)
+        rec["mesh_s"] = time.perf_counter() - t
+        t = time.perf_counter()
+        check_assumptions(cfg.shell, mesh)
+        rec["checks_s"] = time.perf_counter() - t
+        t = time.perf_counter()
+        problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization)
+        solver = NewtonSolver(problem, NewtonOptions(linear_solver=args.linear_solver))
+        rec["compile_s"] = time.perf_counter() - t
+        kappas = [h**q for q in (0.5, 1.0, args.exponent)]
+        t = time.perf_counter()
+        steps = continuation(problem, solver, kappas)
+        rec["continuation_s"] = time.perf_counter() - t
+        rec |= {f"newton_{k}_s": v for k, v in solver.timings.items()}
+        rec["newton"] = [s.iterations for s in steps]
+        rec["linear_iterations"] = [s.newton.linear_iterations for s in steps]
+        t = time.perf_counter()
+        post = Postprocessor(problem)
+        summary = post.summary()
+        rec["postprocess_s"] = time.perf_counter() - t
+        if not args.no_output:
+            t = time.perf_counter()
+            folder = Path(comm.bcast(tempfile.mkdtemp() if comm.rank == 0 else None))
+            write_paraview(problem, post, folder)
+            plot_cross_section([("κ", post.cross_section())], problem.q, folder / "x.png")
+            rec["output_s"] = time.perf_counter() - t
+        rec |= {"h": h, "dofs": problem.num_dofs, "contact_area": summary["contact_area"]}
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        rec["peak_rss_mb_per_rank_max"] = comm.allreduce(rss, op=MPI.MAX)
+        rec["peak_rss_mb_total"] = comm.allreduce(rss, op=MPI.SUM)
+        if comm.rank == 0:
+            print(
+                json.dumps({k: round(v, 4) if isinstance(v, float) else v for k, v in rec.items()}),
+                flush=True,
+            )
+
+
+if __name__ == "__main__":
+    main()
