@@ -21,9 +21,9 @@ from mpi4py import MPI
 
 from shellobstacle.config import load_config
 from shellobstacle.domains import mesh_size
+from shellobstacle.pipeline import make_mesh
 from shellobstacle.postprocess import Postprocessor
 from shellobstacle.problem import Discretization, PenalizedProblem
-from shellobstacle.pipeline import make_mesh
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
 PAPER = "src/shellobstacle/configs/paper.toml"
@@ -63,21 +63,35 @@ def main() -> None:
             seconds = time.perf_counter() - t0
             total += seconds
             c = post.contact()
-            emit({
-                "quadrature": quadrature, "q": float(q), "kappa": h**q, "newton": r.iterations,
-                "line_search_evals": r.line_search_evaluations, "reason": r.reason,
-                "relative_residual": r.relative_residual, "seconds": round(seconds, 3),
-                "round_off_limited": r.round_off_limited,
-                "linear_iterations": r.linear_iterations,
-                "contact_area": c["contact_area"], "max_violation": c["max_violation"],
-            })
-        emit({
-            "quadrature": quadrature, "h": h, "dofs": problem.num_dofs, "ranks": comm.size,
-            "mesh_s": round(t_mesh, 2), "compile_s": round(t_compile, 2),
-            "sweep_s": round(total, 2),
-            **{f"{k}_s": round(v, 2) for k, v in solver.timings.items()},
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
-        })
+            emit(
+                {
+                    "quadrature": quadrature,
+                    "q": float(q),
+                    "kappa": h**q,
+                    "newton": r.iterations,
+                    "line_search_evals": r.line_search_evaluations,
+                    "reason": r.reason,
+                    "relative_residual": r.relative_residual,
+                    "seconds": round(seconds, 3),
+                    "round_off_limited": r.round_off_limited,
+                    "linear_iterations": r.linear_iterations,
+                    "contact_area": c["contact_area"],
+                    "max_violation": c["max_violation"],
+                }
+            )
+        emit(
+            {
+                "quadrature": quadrature,
+                "h": h,
+                "dofs": problem.num_dofs,
+                "ranks": comm.size,
+                "mesh_s": round(t_mesh, 2),
+                "compile_s": round(t_compile, 2),
+                "sweep_s": round(total, 2),
+                **{f"{k}_s": round(v, 2) for k, v in solver.timings.items()},
+                "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
+            }
+        )
 
 
 if __name__ == "__main__":
