@@ -18,14 +18,19 @@ import shellobstacle
 
 __all__ = ["main"]
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE = 0, 1, 2
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 class Reporter:
-    """Progress lines on rank 0 (stderr), also appended to a log file once one is known."""
+    """Progress lines on rank 0 (stderr), also appended to a log file once one is known.
 
-    def __init__(self, quiet: bool = False) -> None:
+    ``quiet`` prints nothing (the log file still gets every line); ``verbose`` adds a line per
+    Newton iteration (:meth:`newton`, passed as ``newton_progress`` to the solvers).
+    """
+
+    def __init__(self, quiet: bool = False, verbose: bool = False) -> None:
         self.quiet = quiet
+        self.verbose = verbose
         self.start = time.perf_counter()
         self.log: Path | None = None
         self.lines: list[str] = []
@@ -41,11 +46,39 @@ class Reporter:
             with self.log.open("a") as f:
                 f.write(line + "\n")
 
-    def attach(self, path: Path) -> None:
-        """Start logging to ``path`` (the lines so far are written first)."""
+    def attach(self, path: Path, append: bool = False) -> None:
+        """Start logging to ``path`` (the lines so far are written first).
+
+        With ``append`` (a resumed run) the earlier log is kept and continued.
+        """
         self.log = path
         if MPI.COMM_WORLD.rank == 0:
-            path.write_text("".join(line + "\n" for line in self.lines))
+            text = "".join(line + "\n" for line in self.lines)
+            if append and path.exists():
+                with path.open("a") as f:
+                    f.write("--- resumed ---\n" + text)
+            else:
+                path.write_text(text)
+
+    @property
+    def newton(self) -> NewtonEcho | None:
+        """The per-iteration callback in verbose mode, else None."""
+        return NewtonEcho(self) if self.verbose else None
+
+
+class NewtonEcho:
+    """``newton_progress`` of the verbose mode: one line per Newton iteration."""
+
+    def __init__(self, say: Reporter) -> None:
+        self.say = say
+
+    def __call__(self, it: int, relres: float) -> None:
+        self.say(f"    Newton {it}: relative residual {relres:.3e}")
+
+    def finished(self, result: Any) -> None:
+        """After a solve: its step lengths (the exact line search's t) and stop reason."""
+        steps = ", ".join(f"{t:.3g}" for t in result.step_lengths) or "none"
+        self.say(f"    Newton: {result.iterations} steps, step lengths {steps}; {result.reason}")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -62,7 +95,18 @@ def _parser() -> argparse.ArgumentParser:
     )
     sub = p.add_subparsers(dest="command", required=True)
 
-    def common(sp: argparse.ArgumentParser) -> None:
+    def verbosity(sp: argparse.ArgumentParser, verbose: bool = True) -> None:
+        group = sp.add_mutually_exclusive_group()
+        group.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+        if verbose:
+            group.add_argument(
+                "-v",
+                "--verbose",
+                action="store_true",
+                help="print also a line per Newton iteration (relative residual, step lengths)",
+            )
+
+    def common(sp: argparse.ArgumentParser, verbose: bool = True) -> None:
         sp.add_argument("config", help="TOML configuration file")
         sp.add_argument(
             "--set",
@@ -71,22 +115,35 @@ def _parser() -> argparse.ArgumentParser:
             metavar="SECTION.KEY=VALUE",
             help="override a config value (TOML syntax), repeatable",
         )
-        sp.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+        verbosity(sp, verbose)
+
+    def output(sp: argparse.ArgumentParser, resume: bool, default: str) -> None:
+        sp.add_argument(
+            "-o", "--output", default=None, help=f"result folder (default: a new folder {default})"
+        )
+        group = sp.add_mutually_exclusive_group()
+        group.add_argument(
+            "--overwrite", action="store_true", help="allow writing into a non-empty -o"
+        )
+        if resume:
+            group.add_argument(
+                "--resume",
+                action="store_true",
+                help="continue the interrupted run in -o OUT (same command and config): "
+                "the steps recorded in OUT/steps/ are not recomputed",
+            )
 
     s = sub.add_parser(
         "solve",
         help="solve one penalized problem and write a result folder",
         formatter_class=fmt,
+        description="Solve one penalized problem (continuation in κ) and write a result "
+        "folder. There is no --resume: the continuation is short, an interrupted solve is "
+        "simply run again (experiment and reproduce record their steps and can resume).",
         epilog="example: shellobstacle solve examples/paper.toml -o paper-run",
     )
     common(s)
-    s.add_argument(
-        "-o",
-        "--output",
-        default=None,
-        help="result folder (default: a new folder named after the config)",
-    )
-    s.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty -o")
+    output(s, resume=False, default="named after the config")
     s.add_argument(
         "--force",
         action="store_true",
@@ -99,20 +156,20 @@ def _parser() -> argparse.ArgumentParser:
         formatter_class=fmt,
         epilog="example: shellobstacle check examples/paper.toml",
     )
-    common(c)
+    common(c, verbose=False)
 
     r = sub.add_parser(
         "reproduce",
         help="the paper's section 10 (batches 1-3) with a report",
         formatter_class=fmt,
-        epilog="example: shellobstacle reproduce -o paper  (add --full for the paper's sizes)",
+        epilog="example: shellobstacle reproduce -o paper  (add --full for the paper's sizes; "
+        "after an interruption: shellobstacle reproduce -o paper --resume)",
     )
-    r.add_argument("-o", "--output", default=None, help="result folder")
-    r.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty -o")
+    output(r, resume=True, default="paper-results")
     r.add_argument(
         "--full", action="store_true", help="the paper's sizes (h ≈ 0.0312, 0.0078, 0.0039; long)"
     )
-    r.add_argument("-q", "--quiet", action="store_true", help="print only errors")
+    verbosity(r)
 
     e = sub.add_parser(
         "experiment",
@@ -121,7 +178,8 @@ def _parser() -> argparse.ArgumentParser:
         epilog="examples:\n"
         "  shellobstacle experiment penalty examples/paper.toml --set domain.h=0.02\n"
         "  shellobstacle experiment mesh examples/paper.toml --q 0.5,1.0 --refinements 2\n"
-        "  shellobstacle experiment load my.toml --parameter ell --values 0,10,20",
+        "  shellobstacle experiment load my.toml --parameter ell --values 0,10,20\n"
+        "  shellobstacle experiment penalty my.toml -o b1 --resume   # after an interruption",
     )
     e.add_argument(
         "batch",
@@ -130,8 +188,7 @@ def _parser() -> argparse.ArgumentParser:
         "load: sweep a load parameter; solvers: Newton vs Brezis–Sibony on --sizes",
     )
     common(e)
-    e.add_argument("-o", "--output", default=None, help="result folder")
-    e.add_argument("--overwrite", action="store_true", help="allow writing into a non-empty -o")
+    output(e, resume=True, default="CONFIG-BATCH")
     e.add_argument("--start", type=float, default=0.5, help="penalty: first exponent q (0.5)")
     e.add_argument("--step", type=float, default=0.5, help="penalty: exponent step (0.5)")
     e.add_argument("--q-max", type=float, default=12.0, help="penalty: last exponent tried (12)")
@@ -151,6 +208,8 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 solver failure, 2 user error)."""
     args = _parser().parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
+    args.folder = None  # the result folder, once known (for the interruption message)
     from shellobstacle.checks import AssumptionError
     from shellobstacle.config import ConfigError
     from shellobstacle.expressions import ExpressionError
@@ -174,6 +233,16 @@ def main(argv: Sequence[str] | None = None) -> int:
         if MPI.COMM_WORLD.rank == 0:
             print(f"shellobstacle: error: {err}", file=sys.stderr)
         return EXIT_USAGE
+    except KeyboardInterrupt:
+        if MPI.COMM_WORLD.rank == 0:
+            hint = ""
+            if args.folder is not None and hasattr(args, "resume"):
+                hint = (
+                    f"; the finished steps are recorded in {args.folder}/steps/: continue with "
+                    f"the same command and --resume -o {args.folder}"
+                )
+            print(f"shellobstacle: interrupted{hint}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except Exception:
         if MPI.COMM_WORLD.rank == 0:
             traceback.print_exc()
@@ -215,7 +284,7 @@ def _solve(args: argparse.Namespace) -> int:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cfg = load_config(args.config, args.set)
-    report = Reporter(args.quiet)
+    report = Reporter(args.quiet, args.verbose)
     for w in caught:
         report(f"warning: {w.message}")
     default = f"{Path(args.config).stem}-results"
@@ -251,7 +320,7 @@ def run_and_write(
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        result = solve_config(cfg, force=force, progress=report)
+        result = solve_config(cfg, force=force, progress=report, newton_progress=report.newton)
     seen = [*config_warnings, *(str(w.message) for w in caught)]
     summary = write_solution(result, cfg, folder, report, seen)
     if not result.converged:
@@ -267,15 +336,63 @@ def run_and_write(
 
 def _reproduce(args: argparse.Namespace) -> int:
     """The paper's section 10: batches 1-3 with report.md."""
-    from shellobstacle.experiments.report import reproduce
+    from shellobstacle.config import load_config
+    from shellobstacle.experiments.report import PAPER_CONFIG, reproduce
     from shellobstacle.results import prepare_folder
 
-    folder = prepare_folder(args.output, "paper-results", args.overwrite)
-    report = Reporter(args.quiet)
-    report.attach(folder / "log.txt")
-    report(f"results go to {folder}/ (mode {'full' if args.full else 'fast'})")
-    reproduce(folder, "full" if args.full else "fast", report)
+    mode = "full" if args.full else "fast"
+    meta = {
+        "command": "reproduce",
+        "mode": mode,
+        "config": _compared_config(load_config(PAPER_CONFIG)),
+    }
+    folder = prepare_folder(args.output, "paper-results", args.overwrite, resume=args.resume)
+    args.folder = folder
+    report = Reporter(args.quiet, args.verbose)
+    checkpoint = _open_checkpoint(folder, meta, args, report)
+    report.attach(folder / "log.txt", append=args.resume)
+    report(f"results go to {folder}/ (mode {mode}{', resumed' if args.resume else ''})")
+    reproduce(folder, mode, report, checkpoint, report.newton)
+    _finish(checkpoint, report)
     return EXIT_OK
+
+
+def _compared_config(cfg: Any) -> dict[str, Any]:
+    """The resolved configuration without the sections that do not change any number."""
+    return {k: v for k, v in cfg.resolved.items() if k != "output"}
+
+
+def _open_checkpoint(
+    folder: Path, meta: dict[str, Any], args: argparse.Namespace, report: Reporter
+) -> Any:
+    """Start recording the steps in ``folder/steps`` (or check them for ``--resume``)."""
+    from shellobstacle.checkpoint import open_checkpoint
+    from shellobstacle.results import versions
+
+    ranks = MPI.COMM_WORLD.size
+    info = {"argv": args.argv, "ranks": ranks, "versions": versions()}
+    checkpoint = open_checkpoint(folder, {**meta, **info}, args.resume)
+    old = checkpoint.recorded_meta
+    if old is not None:
+        started = " ".join(old.get("argv", []))
+        report(f"resuming the interrupted run in {folder}/ (started as: {started})")
+        if old.get("ranks") != ranks:
+            report(
+                f"note: the interrupted run used {old.get('ranks')} MPI rank(s), this one "
+                f"{ranks}: recorded and new steps agree to solver tolerance, not bitwise"
+            )
+    return checkpoint
+
+
+def _finish(checkpoint: Any, report: Reporter) -> None:
+    """Drop the saved vectors (only an unfinished sweep needs them) and say what was reused."""
+    checkpoint.finish()
+    loaded = checkpoint.stats["loaded"]
+    if loaded:
+        report(
+            f"resumed: {loaded} finished step(s) taken from {checkpoint.dir}/, "
+            f"{checkpoint.stats['saved']} computed now"
+        )
 
 
 def _floats(text: str, what: str) -> list[float]:
@@ -285,6 +402,27 @@ def _floats(text: str, what: str) -> list[float]:
         return [float(v) for v in text.split(",") if v.strip()]
     except ValueError:
         raise ConfigError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+
+
+def _experiment_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The options of ``args.batch`` that change its numbers (compared on ``--resume``)."""
+    if args.batch == "penalty":
+        return {
+            "--start": args.start,
+            "--step": args.step,
+            "--q-max": args.q_max,
+            "--tol": args.tol,
+            "--quadratures": [v.strip() for v in args.quadratures.split(",")],
+        }
+    if args.batch == "mesh":
+        return {
+            "--q": _floats(args.q, "--q"),
+            "--refinements": args.refinements,
+            "--tol": args.tol,
+        }
+    if args.batch == "solvers":
+        return {"--sizes": _floats(args.sizes, "--sizes"), "--exponent": args.exponent}
+    return {"--parameter": args.parameter, "--values": _floats(args.values, "--values")}
 
 
 def _experiment(args: argparse.Namespace) -> int:
@@ -297,30 +435,52 @@ def _experiment(args: argparse.Namespace) -> int:
     cfg = load_config(args.config, args.set)
     if args.batch == "load" and cfg.penalty.exponent is None:
         raise ConfigError("experiment load needs penalty.exponent (κ = h^exponent)")
+    options = _experiment_options(args)
+    meta = {
+        "command": "experiment",
+        "batch": args.batch,
+        "options": options,
+        "config": _compared_config(cfg),
+    }
     default = f"{Path(args.config).stem}-{args.batch}"
-    folder = prepare_folder(args.output, default, args.overwrite)
-    report = Reporter(args.quiet)
-    report.attach(folder / "log.txt")
+    folder = prepare_folder(args.output, default, args.overwrite, resume=args.resume)
+    args.folder = folder
+    report = Reporter(args.quiet, args.verbose)
+    checkpoint = _open_checkpoint(folder, meta, args, report)
+    report.attach(folder / "log.txt", append=args.resume)
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
+    kw: dict[str, Any] = {"checkpoint": checkpoint, "newton_progress": report.newton}
     if args.batch == "penalty":
         opts = PenaltyStudyOptions(args.start, args.step, args.tol, args.q_max)
-        quadratures = [v.strip() for v in args.quadratures.split(",")]
-        text = batches.run_penalty(cfg, folder, [cfg.domain], report, opts, quadratures)
+        quadratures = options["--quadratures"]
+        text = batches.run_penalty(cfg, folder, [cfg.domain], report, opts, quadratures, **kw)
     elif args.batch == "mesh":
-        q_values = _floats(args.q, "--q")
         text = batches.run_mesh(
-            cfg, folder, cfg.domain, args.refinements, q_values, report, args.tol
+            cfg, folder, cfg.domain, args.refinements, options["--q"], report, args.tol, **kw
         )
     elif args.batch == "solvers":
-        sizes = [dataclasses.replace(cfg.domain, h=v) for v in _floats(args.sizes, "--sizes")]
-        text = batches.run_solvers(cfg, folder, sizes, args.exponent, report)
+        sizes = [dataclasses.replace(cfg.domain, h=v) for v in options["--sizes"]]
+        text = batches.run_solvers(cfg, folder, sizes, args.exponent, report, **kw)
     else:
-        values = _floats(args.values, "--values")
         text = batches.run_load(
-            cfg, folder, cfg.domain, values, cfg.penalty.exponent, report, args.parameter
+            cfg,
+            folder,
+            cfg.domain,
+            options["--values"],
+            cfg.penalty.exponent,
+            report,
+            args.parameter,
+            **kw,
+        )
+    loaded = checkpoint.stats["loaded"]
+    if loaded:
+        text += (
+            f"\n\nResumed: {loaded} finished step(s) were taken from the records of an "
+            "interrupted run (`steps/`), not recomputed; their `seconds` are those of that run.\n"
         )
     atomic_write(folder / "report.md", f"# Experiment {args.batch}: {args.config}\n\n{text}")
     report(f"report written: {folder / 'report.md'}")
+    _finish(checkpoint, report)
     return EXIT_OK
 
 

@@ -140,11 +140,14 @@ def continuation(
     kappas: list[float],
     progress: Progress | None = None,
     predictor: bool = True,
+    newton_progress: Callable[[int, float], Any] | None = None,
 ) -> list[KappaStep]:
     """Solve for each κ in turn, warm-starting from the previous solution.
 
     With ``predictor`` the warm start is the Euler prediction along κ
     (:meth:`NewtonSolver.predict`) rather than the previous solution itself.
+    ``newton_progress(it, relative_residual)`` is called after every Newton iteration; if it
+    has a method ``finished(result)``, that is called with each κ's :class:`NewtonResult`.
 
     Raises:
         ConvergenceError: from the first κ that fails (earlier steps are in ``err.steps``).
@@ -156,10 +159,12 @@ def continuation(
             solver.predict(kappa)
         problem.set_kappa(kappa)
         try:
-            result = solver.solve()
+            result = solver.solve(newton_progress)
         except ConvergenceError as err:
             err.steps = steps  # type: ignore[attr-defined]
             raise
+        if hasattr(newton_progress, "finished"):
+            newton_progress.finished(result)
         steps.append(KappaStep(kappa, result, time.perf_counter() - t0))
         if progress is not None:
             progress(
@@ -179,6 +184,7 @@ def solve(
     progress: Progress | None = None,
     method: str = "newton",
     method_options: Any = None,
+    newton_progress: Callable[[int, float], Any] | None = None,
 ) -> SolveResult:
     """Solve P_{M,κ}^{ε,h} for the shell on a domain (or a ready mesh).
 
@@ -193,6 +199,8 @@ def solve(
         method: ``"newton"`` (continuation in κ), ``"brezis-sibony"`` (the iteration (38) at
             the target κ) or ``"active-set"`` (the exact nodal VI, κ unused).
         method_options: ``BrezisSibonyOptions`` or ``ActiveSetOptions`` for those methods.
+        newton_progress: called as ``(iteration, relative residual)`` after every Newton
+            iteration (see :func:`continuation`).
 
     Raises:
         AssumptionError: the data violate MODEL.md §3 (unless ``force``).
@@ -231,7 +239,9 @@ def solve(
     result = SolveResult(problem, h, kappas[-1], [], checks, timings, method=method)
     if method == "newton":
         try:
-            result.steps = continuation(problem, solver, kappas, progress)
+            result.steps = continuation(
+                problem, solver, kappas, progress, newton_progress=newton_progress
+            )
         except ConvergenceError as err:
             result.steps = err.steps  # type: ignore[attr-defined]
             result.steps.append(KappaStep(float(problem.kappa.value), err.result, float("nan")))
@@ -318,7 +328,10 @@ def _active_set(result: SolveResult, options: Any, say: Progress) -> None:
 
 
 def solve_config(
-    config: Config, force: bool = False, progress: Progress | None = None
+    config: Config,
+    force: bool = False,
+    progress: Progress | None = None,
+    newton_progress: Callable[[int, float], Any] | None = None,
 ) -> SolveResult:
     """:func:`solve` with everything taken from a validated :class:`Config`."""
     sv = config.resolved["solver"]
@@ -347,4 +360,5 @@ def solve_config(
         progress=progress,
         method=config.method,
         method_options=method_options,
+        newton_progress=newton_progress,
     )

@@ -22,21 +22,41 @@ class ResultsError(ValueError):
 
 
 def prepare_folder(
-    out: str | Path | None, default: str, overwrite: bool, comm=MPI.COMM_WORLD
+    out: str | Path | None,
+    default: str,
+    overwrite: bool,
+    comm=MPI.COMM_WORLD,
+    resume: bool = False,
 ) -> Path:
     """Create the result folder (rank 0) and return it on every rank.
 
     With ``out=None`` a new folder ``default``, ``default-2``, ... is chosen so earlier
     results are never touched. An explicit ``out`` that exists and is not empty is
-    refused unless ``overwrite``.
+    refused unless ``overwrite``. With ``resume`` the folder must be given and hold the
+    records of an interrupted run (``steps/meta.json``); it is then written into.
 
     Raises:
-        ResultsError: the folder holds earlier results and ``overwrite`` is false.
+        ResultsError: the folder holds earlier results and ``overwrite`` is false, or
+            ``resume`` is asked for without such a folder.
     """
     error = None
     path: Path | None = None
     if comm.rank == 0:
-        if out is None:
+        if resume:
+            path = None if out is None else Path(out)
+            if path is None:
+                error = "--resume needs -o OUT, the result folder of the interrupted run"
+            elif not path.is_dir():
+                error = (
+                    f"--resume: '{path}' does not exist: there is nothing to resume "
+                    "(run without --resume to start)"
+                )
+            elif not (path / "steps" / "meta.json").is_file():
+                error = (
+                    f"--resume: '{path}' holds no records of an interrupted run "
+                    "(no steps/meta.json): cannot resume"
+                )
+        elif out is None:
             base = Path(default)
             path, k = base, 1
             while path.exists():
@@ -47,9 +67,10 @@ def prepare_folder(
             if path.exists() and any(path.iterdir()) and not overwrite:
                 error = (
                     f"output folder '{path}' already holds results; choose another with -o, "
-                    "or pass --overwrite to replace them"
+                    "or pass --overwrite to replace them (or --resume to continue an "
+                    "interrupted experiment or reproduce run)"
                 )
-        if error is None:
+        if error is None and not resume:
             path.mkdir(parents=True, exist_ok=True)
     error, path = comm.bcast((error, path), root=0)
     if error:

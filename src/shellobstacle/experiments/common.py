@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import csv
 import io
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -17,7 +17,41 @@ from mpi4py import MPI
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.results import atomic_write
 
-__all__ = ["DifferenceNorms", "exact_solution", "fit_rate", "transfer", "write_csv"]
+__all__ = [
+    "DifferenceNorms",
+    "LazyReference",
+    "exact_solution",
+    "fit_rate",
+    "newton_finished",
+    "reference_of",
+    "transfer",
+    "write_csv",
+]
+
+
+class LazyReference:
+    """A reference solution computed on first use (a resumed sweep may not need it)."""
+
+    def __init__(self, make: Callable[[], dolfinx.fem.Function]) -> None:
+        self._make = make
+        self._value: dolfinx.fem.Function | None = None
+
+    def get(self) -> dolfinx.fem.Function:
+        """The reference (computed once, collectively)."""
+        if self._value is None:
+            self._value = self._make()
+        return self._value
+
+
+def reference_of(reference: Any) -> dolfinx.fem.Function | None:
+    """``reference`` itself, or the value of a :class:`LazyReference`."""
+    return reference.get() if isinstance(reference, LazyReference) else reference
+
+
+def newton_finished(newton_progress: Any, result: Any) -> None:
+    """Tell a ``newton_progress`` callback with a ``finished`` method that a solve ended."""
+    if hasattr(newton_progress, "finished"):
+        newton_progress.finished(result)
 
 
 class DifferenceNorms:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -12,6 +13,7 @@ import dolfinx
 import numpy as np
 
 from shellobstacle import compat  # noqa: F401
+from shellobstacle.checkpoint import Checkpoint
 from shellobstacle.config import PenaltySpec
 from shellobstacle.domains import mesh_size
 from shellobstacle.experiments.common import write_csv
@@ -58,27 +60,50 @@ def load_study(
     parameter: str = "ell",
     newton: NewtonOptions | None = None,
     progress: Callable[[str], Any] | None = None,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: Callable[[int, float], Any] | None = None,
 ) -> LoadStudy:
-    """Solve for each value of the load parameter (one compiled problem, warm starts)."""
+    """Solve for each value of the load parameter (one compiled problem, warm starts).
+
+    With ``checkpoint`` every finished value is recorded (its row, its cross-section and its
+    solution, from which the next value starts); recorded values are not solved again.
+    """
     say = progress or (lambda _m: None)
+    cp = checkpoint or Checkpoint(None)
     if parameter not in shell.load.parameters:
         raise ValueError(
             f"the load has no parameter {parameter!r}: add it to [load] parameters "
             f"(it has {sorted(shell.load.parameters)})"
         )
     h = mesh_size(mesh)
+    cp.check_mesh(mesh)
     problem = PenalizedProblem(shell, mesh, discretization)
     solver = NewtonSolver(problem, newton)
     post = Postprocessor(problem)
     ladder = penalty.ladder(h)
     study = LoadStudy(parameter, h, ladder[-1], problem.num_dofs)
     t0 = time.perf_counter()
+    recorded_seconds = 0.0
+    restore: str | None = None  # the recorded solution not yet loaded into problem.zeta
+    saved: str | None = None  # the newest saved solution
     for k, value in enumerate(values):
-        problem.set_parameter(parameter, value)
-        steps = continuation(problem, solver, ladder if k == 0 else ladder[-1:])
-        c = post.contact()
-        study.rows.append(
-            {
+        key = f"{parameter}{value:.10g}"
+        record = cp.load(key)
+        tag = ""
+        if record is None:
+            if restore is not None:
+                cp.restore_vector(restore, problem.zeta)
+                restore = None
+            ts = time.perf_counter()
+            problem.set_parameter(parameter, value)
+            steps = continuation(
+                problem,
+                solver,
+                ladder if k == 0 else ladder[-1:],
+                newton_progress=newton_progress,
+            )
+            c = post.contact()
+            row = {
                 parameter: value,
                 "ell": value,
                 "contact_area": c["contact_area"],
@@ -87,10 +112,26 @@ def load_study(
                 "zeta3_min": post.zeta3_range()[0],
                 "newton": sum(s.newton.iterations for s in steps),
             }
-        )
-        study.sections.append((f"{parameter} = {value:g}", post.cross_section()))
-        say(f"batch 3: {parameter} = {value:g}: contact area {c['contact_area']:.6g}")
-    study.seconds = time.perf_counter() - t0
+            section = dataclasses.asdict(post.cross_section())
+            record = {"row": row, "section": section, "seconds": time.perf_counter() - ts}
+            cp.save_vector(key, problem.zeta)
+            cp.save(key, record)
+            cp.drop_vector(saved)
+            saved = key
+        else:
+            restore = saved = key
+            recorded_seconds += record["seconds"]
+            tag = " (recorded)"
+        study.rows.append(record["row"])
+        section = {
+            name: np.asarray(v) if isinstance(v, list) else v
+            for name, v in record["section"].items()
+        }
+        study.sections.append((f"{parameter} = {value:g}", CrossSection(**section)))
+        area = record["row"]["contact_area"]
+        say(f"batch 3: {parameter} = {value:g}: contact area {area:.6g}{tag}")
+    cp.drop_vector(saved)  # the sweep is complete
+    study.seconds = time.perf_counter() - t0 + recorded_seconds
     return study
 
 

@@ -13,9 +13,17 @@ import dolfinx
 import numpy as np
 
 from shellobstacle import compat  # noqa: F401
+from shellobstacle.checkpoint import Checkpoint
 from shellobstacle.config import PenaltySpec
 from shellobstacle.domains import mesh_size, refine_uniformly
-from shellobstacle.experiments.common import DifferenceNorms, fit_rate, transfer, write_csv
+from shellobstacle.experiments.common import (
+    DifferenceNorms,
+    LazyReference,
+    fit_rate,
+    reference_of,
+    transfer,
+    write_csv,
+)
 from shellobstacle.model import Shell
 from shellobstacle.pipeline import continuation
 from shellobstacle.problem import Discretization, PenalizedProblem
@@ -42,6 +50,10 @@ class MeshLevel:
     problem: PenalizedProblem
     solver: NewtonSolver
     norms: DifferenceNorms
+    #: resume bookkeeping: the newest saved solution on this level, and a recorded one that
+    #: is not yet loaded into ``problem.zeta``
+    saved: str | None = None
+    restore: str | None = None
 
 
 @dataclass
@@ -73,14 +85,20 @@ def mesh_levels(
     discretization: Discretization,
     newton: NewtonOptions | None = None,
     progress: Callable[[str], Any] | None = None,
+    checkpoint: Checkpoint | None = None,
 ) -> list[MeshLevel]:
-    """The base mesh and its uniform refinements, each with a compiled problem."""
+    """The base mesh and its uniform refinements, each with a compiled problem.
+
+    With ``checkpoint`` each level's mesh is fingerprinted (and compared on resume).
+    """
     say = progress or (lambda _m: None)
+    cp = checkpoint or Checkpoint(None)
     levels = []
     mesh = base
     for k in range(refinements + 1):
         if k > 0:
             mesh = refine_uniformly(mesh)
+        cp.check_mesh(mesh, f"level{k}_mesh")
         problem = PenalizedProblem(shell, mesh, discretization)
         levels.append(
             MeshLevel(
@@ -100,52 +118,107 @@ def mesh_study(
     q: float,
     tol: float = 2e-6,
     progress: Callable[[str], Any] | None = None,
-    reference: dolfinx.fem.Function | None = None,
+    reference: dolfinx.fem.Function | LazyReference | None = None,
     warm: bool = True,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: Callable[[int, float], Any] | None = None,
 ) -> MeshStudy:
     """Solve with κ = h^q on each level (continuation in κ from ζ = 0) and difference them.
 
     With ``reference`` (a solution in the finest level's space, e.g. the exact VI solution
-    there) every level's solution is also compared with it (batch 4); the tolerance stop is then
-    not applied, so that every level is measured. With ``warm`` a level that already holds a
-    solution (of a previous q) starts from it and solves for κ = h^q directly.
+    there, possibly computed on first use) every level's solution is also compared with it
+    (batch 4); the tolerance stop is then not applied, so that every level is measured. With
+    ``warm`` a level that already holds a solution (of a previous q) starts from it and solves
+    for κ = h^q directly. With ``checkpoint`` every finished (q, level) is recorded with its
+    solution (only the newest per level is kept), and recorded steps are not solved again.
     """
     say = progress or (lambda _m: None)
+    cp = checkpoint or Checkpoint(None)
     study = MeshStudy(q)
     t0 = time.perf_counter()
+    recorded_seconds = 0.0
     previous = None
     for k, level in enumerate(levels):
-        ladder = PenaltySpec(exponent=q).ladder(level.h)
-        solved_before = warm and bool(np.any(level.problem.zeta.x.array))
-        if not warm:
-            level.problem.zeta.x.array[:] = 0.0
-        steps = continuation(level.problem, level.solver, ladder[-1:] if solved_before else ladder)
-        study.newton.append(sum(s.newton.iterations for s in steps))
-        if reference is not None:
-            fine_V = reference.function_space
-            mine = (
-                transfer(level.problem.zeta, fine_V) if k < len(levels) - 1 else level.problem.zeta
+        key = f"q{q:.10g}_level{k}"
+        record = cp.load(key)
+        tag = ""
+        if record is None:
+            for lv in (level, previous):
+                if lv is not None and lv.restore is not None:
+                    cp.restore_vector(lv.restore, lv.problem.zeta)
+                    lv.restore = None
+            record = _solve_level(levels, k, q, previous, reference, warm, newton_progress)
+            cp.save_vector(key, level.problem.zeta)
+            cp.save(key, record)
+            cp.drop_vector(level.saved)
+            level.saved = key
+        else:
+            level.saved = level.restore = key
+            recorded_seconds += record["seconds"]
+            tag = " (recorded)"
+        study.newton.append(record["newton"])
+        if record["reference_row"] is not None:
+            study.reference_rows.append(record["reference_row"])
+        row = record["row"]
+        if row is not None:
+            study.rows.append(row)
+            say(
+                f"batch 2 [q = {q:g}]: h {previous.h:.4g}→{level.h:.4g}: "
+                f"‖Δζ‖_VM = {row['error_VM']:.3e}{tag}"
             )
-            e = levels[-1].norms(mine, reference)
-            study.reference_rows.append(
-                {"q": q, "h": level.h, "error_VM": e["vm"], "error_H1": e["h1"]}
-            )
-        if previous is not None:
-            coarse = transfer(previous.problem.zeta, level.problem.V)
-            d = level.norms(coarse, level.problem.zeta)
-            study.rows.append(
-                {"h_1": previous.h, "h_2": level.h, "error_VM": d["vm"], "error_H1": d["h1"]}
-            )
-            say(f"batch 2 [q = {q:g}]: h {previous.h:.4g}→{level.h:.4g}: ‖Δζ‖_VM = {d['vm']:.3e}")
-            if d["vm"] < tol and study.stop_h is None:
+            if row["error_VM"] < tol and study.stop_h is None:
                 study.stop_h = level.h
                 if reference is None:
                     break
         else:
-            say(f"batch 2 [q = {q:g}]: h = {level.h:.4g} solved")
+            say(f"batch 2 [q = {q:g}]: h = {level.h:.4g} solved{tag}")
         previous = levels[k]
-    study.seconds = time.perf_counter() - t0
+    study.seconds = time.perf_counter() - t0 + recorded_seconds
     return study
+
+
+def _solve_level(
+    levels: Sequence[MeshLevel],
+    k: int,
+    q: float,
+    previous: MeshLevel | None,
+    reference: Any,
+    warm: bool,
+    newton_progress: Callable[[int, float], Any] | None,
+) -> dict[str, Any]:
+    """Solve level ``k`` for κ = h^q; the step's record (Newton steps, rows, seconds)."""
+    t0 = time.perf_counter()
+    level = levels[k]
+    ladder = PenaltySpec(exponent=q).ladder(level.h)
+    solved_before = warm and bool(np.any(level.problem.zeta.x.array))
+    if not warm:
+        level.problem.zeta.x.array[:] = 0.0
+    steps = continuation(
+        level.problem,
+        level.solver,
+        ladder[-1:] if solved_before else ladder,
+        newton_progress=newton_progress,
+    )
+    reference_row = None
+    ref = reference_of(reference)
+    if ref is not None:
+        fine_V = ref.function_space
+        mine = transfer(level.problem.zeta, fine_V) if k < len(levels) - 1 else level.problem.zeta
+        e = levels[-1].norms(mine, ref)
+        reference_row = {"q": q, "h": level.h, "error_VM": e["vm"], "error_H1": e["h1"]}
+    row = None
+    if previous is not None:
+        coarse = transfer(previous.problem.zeta, level.problem.V)
+        d = level.norms(coarse, level.problem.zeta)
+        row = {"h_1": previous.h, "h_2": level.h, "error_VM": d["vm"], "error_H1": d["h1"]}
+    return {
+        "q": q,
+        "level": k,
+        "newton": sum(s.newton.iterations for s in steps),
+        "reference_row": reference_row,
+        "row": row,
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def write_mesh_study(study: MeshStudy, folder: Path) -> Path:

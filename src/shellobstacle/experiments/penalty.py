@@ -13,8 +13,16 @@ import dolfinx
 import numpy as np
 
 from shellobstacle import compat  # noqa: F401
+from shellobstacle.checkpoint import Checkpoint
 from shellobstacle.domains import mesh_size
-from shellobstacle.experiments.common import DifferenceNorms, fit_rate, write_csv
+from shellobstacle.experiments.common import (
+    DifferenceNorms,
+    LazyReference,
+    fit_rate,
+    newton_finished,
+    reference_of,
+    write_csv,
+)
 from shellobstacle.model import Shell
 from shellobstacle.problem import Discretization, PenalizedProblem
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
@@ -78,16 +86,24 @@ def penalty_study(
     options: PenaltyStudyOptions | None = None,
     newton: NewtonOptions | None = None,
     progress: Callable[[str], Any] | None = None,
-    reference: dolfinx.fem.Function | None = None,
+    reference: dolfinx.fem.Function | LazyReference | None = None,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: Callable[[int, float], Any] | None = None,
 ) -> PenaltyStudy:
     """Run batch 1 on ``mesh`` (each κ warm-started from the previous one).
 
-    With ``reference`` (the exact discrete solution ζ^h on the same space) every ζ_κ is also
-    compared with it (batch 4, the error the paper could only bound).
+    With ``reference`` (the exact discrete solution ζ^h on the same space, possibly computed
+    on first use) every ζ_κ is also compared with it (batch 4, the error the paper could only
+    bound). With ``checkpoint`` (scoped to this mesh and quadrature) every finished κ is
+    recorded with its solution, and κ already recorded are not solved again: the sweep
+    continues from the last recorded solution. ``newton_progress(it, relative_residual)`` is
+    called after every Newton iteration.
     """
     opts = options or PenaltyStudyOptions()
     say = progress or (lambda _m: None)
+    cp = checkpoint or Checkpoint(None)
     h = mesh_size(mesh)
+    cp.check_mesh(mesh)
     problem = PenalizedProblem(shell, mesh, discretization)
     solver = NewtonSolver(problem, newton)
     norms = DifferenceNorms(problem.V, discretization.qdegree)
@@ -95,58 +111,113 @@ def penalty_study(
     previous: dolfinx.fem.Function | None = None
     q_prev = None
     t_start = time.perf_counter()
+    recorded_seconds = 0.0
+    restore: str | None = None  # the recorded solution not yet loaded into problem.zeta
+    saved: str | None = None  # the newest saved solution of this sweep
     q = opts.start
     n = 0
     while q <= opts.q_max + 1e-12:
-        problem.set_kappa(h**q)
-        t0 = time.perf_counter()
-        r = solver.solve()
-        study.solves.append(
-            {
-                "q": q,
-                "kappa": h**q,
-                "newton": r.iterations,
-                "reason": r.reason,
-                "relative_residual": r.relative_residual,
-                "seconds": time.perf_counter() - t0,
-            }
-        )
-        if reference is not None:
-            e = norms(problem.zeta, reference)
-            study.reference_rows.append(
-                {"h": h, "kappa": h**q, "q": q, "error_VM": e["vm"], "error_H1": e["h1"]}
+        key = f"q{q:.10g}"
+        record = cp.load(key)
+        if record is None:
+            if restore is not None:  # continue from the last recorded step
+                cp.restore_vector(restore, problem.zeta)
+                previous = dolfinx.fem.Function(problem.V)
+                previous.x.array[:] = problem.zeta.x.array
+                restore = None
+            record = _solve_step(
+                problem, solver, norms, h, (q, q_prev, n + 1), previous, reference, newton_progress
             )
-        if previous is not None:
-            d = norms(previous, problem.zeta)
+            cp.save_vector(key, problem.zeta)
+            cp.save(key, record)
+            cp.drop_vector(saved)
+            saved, tag = key, ""
+            if previous is None:
+                previous = dolfinx.fem.Function(problem.V)
+            previous.x.array[:] = problem.zeta.x.array
+        else:
+            restore = saved = key
+            recorded_seconds += record["seconds"]
+            tag = " (recorded)"
+        study.solves.append(record["solve"])
+        if record["reference_row"] is not None:
+            study.reference_rows.append(record["reference_row"])
+        newton_steps = record["solve"]["newton"]
+        row = record["row"]
+        if row is not None:
             n += 1
-            study.rows.append(
-                {
-                    "iteration": n,
-                    "q_n": q_prev,
-                    "q_m": q,
-                    "error_VM": d["vm"],
-                    "error_H1": d["h1"],
-                    "reference": np.sqrt(h**q_prev) / 10,
-                }
-            )
+            study.rows.append(row)
             say(
                 f"batch 1 [{study.quadrature}, h = {h:.4g}]: q {q_prev:g}→{q:g}: "
-                f"‖Δζ‖_VM = {d['vm']:.3e} ({r.iterations} Newton steps)"
+                f"‖Δζ‖_VM = {row['error_VM']:.3e} ({newton_steps} Newton steps){tag}"
             )
-            if d["vm"] < opts.tol:
+            if row["error_VM"] < opts.tol:
                 study.reached_tol = True
                 break
         else:
             say(
                 f"batch 1 [{study.quadrature}, h = {h:.4g}]: q = {q:g} "
-                f"({r.iterations} Newton steps)"
+                f"({newton_steps} Newton steps){tag}"
             )
-            previous = dolfinx.fem.Function(problem.V)
-        previous.x.array[:] = problem.zeta.x.array
         q_prev = q
         q += opts.step
-    study.seconds = time.perf_counter() - t_start
+    cp.drop_vector(saved)  # the sweep is complete: no later step starts from it
+    study.seconds = time.perf_counter() - t_start + recorded_seconds
     return study
+
+
+def _solve_step(
+    problem: PenalizedProblem,
+    solver: NewtonSolver,
+    norms: DifferenceNorms,
+    h: float,
+    step: tuple[float, float | None, int],
+    previous: dolfinx.fem.Function | None,
+    reference: Any,
+    newton_progress: Callable[[int, float], Any] | None,
+) -> dict[str, Any]:
+    """Solve for κ = h^q from ``problem.zeta``; the step's record (solve, rows, seconds).
+
+    ``step`` is ``(q, q_prev, iteration)``: the exponent, the previous one (None for the first
+    κ) and the number of the difference row.
+    """
+    q, q_prev, iteration = step
+    t0 = time.perf_counter()
+    problem.set_kappa(h**q)
+    r = solver.solve(newton_progress)
+    newton_finished(newton_progress, r)
+    solve = {
+        "q": q,
+        "kappa": h**q,
+        "newton": r.iterations,
+        "reason": r.reason,
+        "relative_residual": r.relative_residual,
+        "seconds": time.perf_counter() - t0,
+    }
+    reference_row = None
+    ref = reference_of(reference)
+    if ref is not None:
+        e = norms(problem.zeta, ref)
+        reference_row = {"h": h, "kappa": h**q, "q": q, "error_VM": e["vm"], "error_H1": e["h1"]}
+    row = None
+    if q_prev is not None:
+        assert previous is not None
+        d = norms(previous, problem.zeta)
+        row = {
+            "iteration": iteration,
+            "q_n": q_prev,
+            "q_m": q,
+            "error_VM": d["vm"],
+            "error_H1": d["h1"],
+            "reference": np.sqrt(h**q_prev) / 10,
+        }
+    return {
+        "q": q,
+        "solve": solve,
+        "reference_row": reference_row,
+        "row": row,
+        "seconds": time.perf_counter() - t0,
+    }
 
 
 def write_penalty_study(study: PenaltyStudy, folder: Path) -> Path:

@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 from mpi4py import MPI
 
+from shellobstacle.checkpoint import Checkpoint
 from shellobstacle.config import Config, PenaltySpec, load_config
 from shellobstacle.domains import DomainSpec
-from shellobstacle.experiments.common import exact_solution, fit_rate, write_csv
+from shellobstacle.experiments.common import LazyReference, exact_solution, fit_rate, write_csv
 from shellobstacle.experiments.load import (
     PAPER_BATCH3_LOAD,
     load_study,
@@ -41,6 +42,7 @@ from shellobstacle.results import atomic_write, versions
 __all__ = ["SIZES", "reproduce", "run_load", "run_mesh", "run_penalty"]
 
 Say = Callable[[str], Any]
+NewtonProgress = Callable[[int, float], Any] | None
 PAPER_CONFIG = Path(__file__).parents[1] / "configs" / "paper.toml"
 #: gmsh targets ≈ h / 1.34 give largest cell diameters h ≈ 0.0312, 0.0156, 0.0078, 0.0039
 GMSH_TARGET = {0.0312: 0.0233, 0.0156: 0.0116, 0.0078: 0.0058, 0.0039: 0.0029}
@@ -104,13 +106,18 @@ def run_penalty(
     options: PenaltyStudyOptions | None = None,
     quadratures: Sequence[str] = ("gauss", "vertex"),
     batch4: list[dict[str, Any]] | None = None,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: NewtonProgress = None,
 ) -> str:
     """Batch 1 on each mesh, for each penalty quadrature; returns the report section.
 
     With a ``batch4`` list, the vertex-penalty solutions are also compared with the exact
-    nodal VI solution on the same mesh, and the rows are appended to it.
+    nodal VI solution on the same mesh, and the rows are appended to it. With ``checkpoint``
+    every κ is recorded (keys: mesh number and target size, quadrature, q) and recorded κ
+    are not solved again.
     """
     opts = options or PenaltyStudyOptions()
+    cp = checkpoint or Checkpoint(None)
     text = ["## Batch 1: κ → 0 on a fixed mesh (Theorems 5.1, 7.1)", ""]
     text.append(
         f"κ = h^q with q = {opts.start:g}, {opts.start + opts.step:g}, …; the Cauchy differences "
@@ -121,16 +128,25 @@ def run_penalty(
     )
     text.append("")
     summary = []
-    for spec in meshes:
+    for i, spec in enumerate(meshes):
         mesh = make_mesh(spec)
         studies = []
         for quadrature in quadratures:
             disc = dataclasses.replace(cfg.discretization, penalty_quadrature=quadrature)
             reference = None
             if batch4 is not None and quadrature == "vertex":
-                reference, r = exact_solution(cfg.shell, mesh, disc)
-                say(f"batch 4: exact VI on h-mesh: {r.iterations} steps, KKT {r.kkt}")
-            s = penalty_study(cfg.shell, mesh, disc, opts, cfg.solver, say, reference)
+                reference = LazyReference(_exact(cfg, mesh, disc, say, "the h-mesh"))
+            s = penalty_study(
+                cfg.shell,
+                mesh,
+                disc,
+                opts,
+                cfg.solver,
+                say,
+                reference,
+                cp.scope(f"batch1_mesh{i}_h{spec.h:.10g}_{quadrature}"),
+                newton_progress,
+            )
             if batch4 is not None:
                 batch4.extend(s.reference_rows)
             write_penalty_study(s, folder)
@@ -180,12 +196,16 @@ def run_mesh(
     say: Say,
     tol: float = 2e-6,
     batch4: list[dict[str, Any]] | None = None,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: NewtonProgress = None,
 ) -> str:
     """Batch 2 on nested meshes for each q; returns the report section.
 
     With a ``batch4`` list, every level's solution is also compared with the exact nodal VI
-    solution on the finest mesh, and the rows are appended to it.
+    solution on the finest mesh, and the rows are appended to it. With ``checkpoint`` every
+    (q, level) is recorded and recorded ones are not solved again.
     """
+    cp = (checkpoint or Checkpoint(None)).scope("batch2")
     text = [
         "## Batch 2: h → 0 with κ = h^q (Theorem 8.1)",
         "",
@@ -195,15 +215,23 @@ def run_mesh(
         "",
     ]
     levels = mesh_levels(
-        cfg.shell, make_mesh(base), refinements, cfg.discretization, cfg.solver, say
+        cfg.shell, make_mesh(base), refinements, cfg.discretization, cfg.solver, say, cp
     )
     reference = None
     if batch4 is not None:
-        reference, r = exact_solution(cfg.shell, levels[-1].mesh, cfg.discretization)
-        say(f"batch 4: exact VI on the finest mesh (h = {levels[-1].h:.4g}): KKT {r.kkt}")
+        where = f"the finest mesh (h = {levels[-1].h:.4g})"
+        reference = LazyReference(_exact(cfg, levels[-1].mesh, cfg.discretization, say, where))
     summary = []
     for q in q_values:
-        s = mesh_study(levels, q, tol, say, reference)
+        s = mesh_study(
+            levels,
+            q,
+            tol,
+            say,
+            reference,
+            checkpoint=cp,
+            newton_progress=newton_progress,
+        )
         if batch4 is not None:
             batch4.extend(s.reference_rows)
         write_mesh_study(s, folder)
@@ -228,8 +256,25 @@ def run_mesh(
             f"![batch 2, q = {q:g}]({png.name})",
             "",
         ]
+    for level in levels:  # the sweep is complete: no later step starts from these
+        cp.drop_vector(level.saved)
     text += ["### Summary", "", _table(summary, list(summary[0])), ""]
     return "\n".join(text)
+
+
+def _exact(cfg: Config, mesh: Any, disc: Any, say: Say, where: str) -> Callable[[], Any]:
+    """The batch-4 reference on ``mesh``, to be computed when a step first needs it.
+
+    It is not recorded: a resumed run recomputes it (deterministically, the same numbers)
+    only if a step that compares with it is still to be solved.
+    """
+
+    def make() -> Any:
+        reference, r = exact_solution(cfg.shell, mesh, disc)
+        say(f"batch 4: exact VI on {where}: {r.iterations} steps, KKT {r.kkt}")
+        return reference
+
+    return make
 
 
 def write_batch4(
@@ -334,8 +379,13 @@ def run_load(
     exponent: float,
     say: Say,
     parameter: str = "ell",
+    checkpoint: Checkpoint | None = None,
+    newton_progress: NewtonProgress = None,
 ) -> str:
-    """Batch 3 (load sweep); returns the report section."""
+    """Batch 3 (load sweep); returns the report section.
+
+    With ``checkpoint`` every value is recorded and recorded values are not solved again.
+    """
     s = load_study(
         cfg.shell,
         make_mesh(domain),
@@ -345,6 +395,8 @@ def run_load(
         parameter,
         cfg.solver,
         say,
+        (checkpoint or Checkpoint(None)).scope("batch3"),
+        newton_progress,
     )
     write_load_study(s, folder)
     png_area = folder / "batch3_contact_area.png"
@@ -389,11 +441,29 @@ def run_load(
     )
 
 
-def run_solvers(cfg: Config, folder: Path, meshes: Sequence[Any], q: float, say: Say) -> str:
-    """Newton against Brezis–Sibony (the paper's section 9); returns the report section."""
+def run_solvers(
+    cfg: Config,
+    folder: Path,
+    meshes: Sequence[Any],
+    q: float,
+    say: Say,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: NewtonProgress = None,
+) -> str:
+    """Newton against Brezis–Sibony (the paper's section 9); returns the report section.
+
+    With ``checkpoint`` every mesh's row is recorded and recorded meshes are not solved again.
+    """
     from shellobstacle.experiments.solvers import compare_solvers, write_solver_comparison
 
-    rows = compare_solvers(cfg, meshes, q, progress=say)
+    rows = compare_solvers(
+        cfg,
+        meshes,
+        q,
+        progress=say,
+        checkpoint=(checkpoint or Checkpoint(None)).scope("solvers"),
+        newton_progress=newton_progress,
+    )
     out = write_solver_comparison(rows, folder)
     columns = (
         "h",
@@ -443,15 +513,39 @@ def _solver_verdict(rows: Sequence[dict[str, Any]], slope: float) -> str:
     )
 
 
+def _resumed_note(cp: Checkpoint) -> list[str]:
+    """A paragraph saying that steps came from the records of an interrupted run, if any."""
+    if not cp.stats["loaded"]:
+        return []
+    return [
+        f"Resumed: {cp.stats['loaded']} finished step(s) were taken from the records of an "
+        "interrupted run (`steps/`), not recomputed; the times above are this invocation's, "
+        "the `seconds` in the tables include the recorded steps' times.",
+        "",
+    ]
+
+
 def batch3_config(cfg: Config) -> Config:
     """The paper's configuration with the ℓ-dependent load of batch 3."""
     shell = dataclasses.replace(cfg.shell, load=Load(("0", "0", PAPER_BATCH3_LOAD), {"ell": 0.0}))
     return dataclasses.replace(cfg, shell=shell)
 
 
-def reproduce(folder: Path, mode: str, say: Say) -> Path:
-    """All batches of the paper's section 10 with ``report.md``; returns the report path."""
+def reproduce(
+    folder: Path,
+    mode: str,
+    say: Say,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: NewtonProgress = None,
+) -> Path:
+    """All batches of the paper's section 10 with ``report.md``; returns the report path.
+
+    With ``checkpoint`` every step of every batch is recorded as it finishes, and recorded
+    steps (of an interrupted run) are not solved again.
+    """
     sizes = SIZES[mode]
+    cp = checkpoint or Checkpoint(None)
+    kw: dict[str, Any] = {"checkpoint": cp, "newton_progress": newton_progress}
     cfg = load_config(PAPER_CONFIG)
     t0 = time.perf_counter()
     sections, times = [], {}
@@ -463,12 +557,21 @@ def reproduce(folder: Path, mode: str, say: Say) -> Path:
     mesh_rows: list[dict[str, Any]] = []
     t = time.perf_counter()
     batch1_meshes = [disk(h) for h in sizes.batch1_h]
-    sections.append(run_penalty(cfg, folder, batch1_meshes, say, batch4=penalty_rows))
+    sections.append(run_penalty(cfg, folder, batch1_meshes, say, batch4=penalty_rows, **kw))
     times["batch 1"] = time.perf_counter() - t
     t = time.perf_counter()
     base = disk(sizes.batch2_base_h)
     sections.append(
-        run_mesh(cfg, folder, base, sizes.batch2_refinements, sizes.batch2_q, say, batch4=mesh_rows)
+        run_mesh(
+            cfg,
+            folder,
+            base,
+            sizes.batch2_refinements,
+            sizes.batch2_q,
+            say,
+            batch4=mesh_rows,
+            **kw,
+        )
     )
     times["batch 2"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -480,12 +583,13 @@ def reproduce(folder: Path, mode: str, say: Say) -> Path:
             sizes.batch3_ell,
             sizes.batch3_exponent,
             say,
+            **kw,
         )
     )
     times["batch 3"] = time.perf_counter() - t
     sections.append(write_batch4(folder, penalty_rows, mesh_rows))
     t = time.perf_counter()
-    sections.append(run_solvers(cfg, folder, [disk(h) for h in sizes.solver_h], 1.5, say))
+    sections.append(run_solvers(cfg, folder, [disk(h) for h in sizes.solver_h], 1.5, say, **kw))
     times["solvers"] = time.perf_counter() - t
     total = time.perf_counter() - t0
     v = versions()
@@ -500,6 +604,7 @@ def reproduce(folder: Path, mode: str, say: Say) -> Path:
         f"{v['shellobstacle']}, DOLFINx {v['dolfinx']}, PETSc {v['petsc']}, Python {v['python']}; "
         f"{v['date']}.",
         "",
+        *_resumed_note(cp),
         f"Problem: {cfg.shell.surface.description}; ω = disk of radius 0.5; ε = 0.001, λ = 0.4, "
         "μ = 0.012; q = (0, 0, 1); load (0, 0, g) with the paper's discontinuous g; P1 for all "
         "components, ζ_3 clamped; each penalized problem solved by Newton's method with an exact "

@@ -25,6 +25,7 @@ import dolfinx
 import numpy as np
 from mpi4py import MPI
 
+from shellobstacle.checkpoint import Checkpoint
 from shellobstacle.config import Config, PenaltySpec
 from shellobstacle.domains import DomainSpec, create_mesh, mesh_size
 from shellobstacle.experiments.common import fit_rate, write_csv
@@ -70,6 +71,8 @@ def compare_solvers(
     newton_options: NewtonOptions | None = None,
     bs_options: BrezisSibonyOptions | None = None,
     progress: Callable[[str], Any] | None = None,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: Callable[[int, float], Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Solve ``κ = h^q`` with Newton and with Brezis–Sibony on each mesh; one row per mesh.
 
@@ -83,11 +86,16 @@ def compare_solvers(
         bs_options: Brezis–Sibony options; default: linearized start, automatic step,
             at most 200 000 iterations, its own stopping rules.
         progress: called with one-line messages.
+        checkpoint: records each mesh's row (keyed by the gmsh target size); a recorded mesh
+            is not meshed or solved again. Ready meshes are not recorded.
+        newton_progress: called as ``(iteration, relative residual)`` after every Newton
+            iteration.
 
     Returns:
         One dict per mesh with the keys of :data:`COLUMNS` (identical on every rank).
     """
     say = progress or (lambda _msg: None)
+    cp = checkpoint or Checkpoint(None)
     if isinstance(source, Config):
         shell, domain = source.shell, source.domain
         disc = discretization or source.discretization
@@ -100,6 +108,18 @@ def compare_solvers(
 
     rows: list[dict[str, Any]] = []
     for item in meshes:
+        key = None
+        if not isinstance(item, dolfinx.mesh.Mesh):
+            key = f"h{item.h if isinstance(item, DomainSpec) else float(item):.10g}"
+            record = cp.load(key)
+            if record is not None:
+                rows.append(record["row"])
+                r = record["row"]
+                say(
+                    f"h = {r['h']:.4g}: Newton {r['newton_iterations']} steps; Brezis–Sibony "
+                    f"{r['bs_iterations']} steps ({r['bs_reason']}) (recorded)"
+                )
+                continue
         mesh, target = _mesh(item, domain)
         h = mesh_size(mesh)
         kappas = PenaltySpec(exponent=q).ladder(h)
@@ -107,7 +127,9 @@ def compare_solvers(
         say(f"h = {h:.4g} ({problem.num_dofs} dofs), κ = h^{q:g} = {kappas[-1]:.3e}: Newton")
 
         t0 = time.perf_counter()
-        steps = continuation(problem, NewtonSolver(problem, nopts), kappas)
+        steps = continuation(
+            problem, NewtonSolver(problem, nopts), kappas, newton_progress=newton_progress
+        )
         newton_seconds = time.perf_counter() - t0
         newton = dolfinx.fem.Function(problem.V, name="newton")
         newton.x.array[:] = problem.zeta.x.array
@@ -155,6 +177,8 @@ def compare_solvers(
             f"{newton_seconds:.2f} s; Brezis–Sibony {r.iterations} steps {r.seconds:.1f} s "
             f"({r.reason}); relative L² difference {rows[-1]['relative_l2_difference']:.2e}"
         )
+        if key is not None:
+            cp.save(key, {"row": rows[-1]})
     return rows
 
 
