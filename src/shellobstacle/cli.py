@@ -34,13 +34,29 @@ class Reporter:
         self.start = time.perf_counter()
         self.log: Path | None = None
         self.lines: list[str] = []
+        self._status: Any = None
+        if not quiet and MPI.COMM_WORLD.rank == 0 and sys.stderr.isatty():
+            # on a terminal: a live status line (spinner, elapsed time, current step) below the
+            # log lines; in files, pipes and CI only the plain lines are written
+            from rich.console import Console
+
+            self._console = Console(stderr=True)
+            self._status = self._console.status("starting", spinner="dots")
+            self._status.start()
+
+    def __del__(self) -> None:
+        if self._status is not None:
+            self._status.stop()
 
     def __call__(self, msg: str) -> None:
         line = f"[{time.perf_counter() - self.start:7.1f}s] {msg}"
         self.lines.append(line)
         if MPI.COMM_WORLD.rank != 0:
             return
-        if not self.quiet:
+        if self._status is not None:
+            self._console.print(line, highlight=False, markup=False)
+            self._status.update(f"{time.perf_counter() - self.start:.0f} s — {msg}")
+        elif not self.quiet:
             print(line, file=sys.stderr, flush=True)
         if self.log is not None:
             with self.log.open("a") as f:
