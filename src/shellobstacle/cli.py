@@ -217,7 +217,11 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--sizes", default="0.1,0.07", help="solvers: gmsh target sizes of ω")
     e.add_argument("--exponent", type=float, default=1.5, help="solvers: κ = h^exponent")
 
-    sub.add_parser("config-reference", help="print the configuration reference (Markdown)")
+    sub.add_parser(
+        "config-reference",
+        help="print the configuration reference (Markdown)",
+        epilog="example: shellobstacle config-reference > docs/config-reference.md",
+    )
     return p
 
 
