@@ -204,6 +204,7 @@ class NewtonSolver:
         zeta.x.array[:] = z0 + t * self._dz_local
         zeta.x.scatter_forward()
         self._residual(zeta, self.R)
+        self._last_t = t  # self.R now holds R(ζ_0 + tδ)
         return self.R.dot(self.dz)
 
     def _line_search(self, z0: np.ndarray, slope0: float, noise: float) -> tuple[float, int]:
@@ -268,6 +269,7 @@ class NewtonSolver:
             step = self.dz.norm(PETSc.NormType.NORM_INFINITY)
             unorm = zeta.x.petsc_vec.norm(PETSc.NormType.NORM_INFINITY)
             small_step = step <= opts.stol * unorm
+            self._last_t = None
             if small_step:  # take the (tiny) full step, then stop: nothing left to gain
                 t, evals = 1.0, 0
             elif slope0 >= 0 or not math.isfinite(slope0):
@@ -282,10 +284,12 @@ class NewtonSolver:
                     result.reason = "Newton decrement below the round-off of the energy slope"
                     break
                 t, evals = self._line_search(z0, slope0, noise)
-            # leave ζ = ζ_0 + tδ and R(ζ) in place (the last line-search evaluation may differ)
-            zeta.x.array[:] = z0 + t * self._dz_local
-            zeta.x.scatter_forward()
-            self._residual(zeta, self.R)
+            # leave ζ = ζ_0 + tδ and R(ζ) in place; the last slope evaluation usually was at
+            # this t already (always for a full step), which saves an assembly
+            if self._last_t != t:
+                zeta.x.array[:] = z0 + t * self._dz_local
+                zeta.x.scatter_forward()
+                self._residual(zeta, self.R)
             self.timings["line_search"] += time.perf_counter() - tl
             result.line_search_evaluations += evals
             result.step_lengths.append(t)
