@@ -142,3 +142,21 @@ def exact_solution(shell: Any, mesh: dolfinx.mesh.Mesh, discretization: Any) -> 
     zeta = dolfinx.fem.Function(problem.V, name="zeta_exact")
     zeta.x.array[:] = problem.zeta.x.array
     return zeta, result
+
+
+def finish_figure(
+    fig: Any, ax: Any, path: Path, xlabel: str, ylabel: str, title: str, loglog: bool = True
+) -> Path:
+    """Label, grid, legend, save (rank 0, 150 dpi) and close a one-panel figure."""
+    import matplotlib.pyplot as plt
+
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.grid(True, which="both" if loglog else "major", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    if MPI.COMM_WORLD.rank == 0:
+        fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return path

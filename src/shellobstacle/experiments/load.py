@@ -16,7 +16,7 @@ from shellobstacle import compat  # noqa: F401
 from shellobstacle.checkpoint import Checkpoint
 from shellobstacle.config import PenaltySpec
 from shellobstacle.domains import mesh_size
-from shellobstacle.experiments.common import write_csv
+from shellobstacle.experiments.common import finish_figure, write_csv
 from shellobstacle.model import Shell
 from shellobstacle.pipeline import continuation
 from shellobstacle.postprocess import CrossSection, Postprocessor
@@ -154,14 +154,12 @@ def plot_contact_area(study: LoadStudy, path: Path) -> Path:
     ax.plot(ell, [r["contact_area"] for r in study.rows], "o-", label="area with √a dy")
     ax.plot(ell, [r["contact_area_projected"] for r in study.rows], "s--", label="projected (dy)")
     ax.axhline(np.pi * 0.06**2, color="grey", ls=":", label="loaded disk |y| < 0.06 (π·0.06²)")
-    ax.set_xlabel(study.parameter)
-    ax.set_ylabel("contact area")
-    ax.set_title(
-        f"Batch 3: contact area vs {study.parameter} (h = {study.h:.4g}, κ = {study.kappa:.2e})"
+    return finish_figure(
+        fig,
+        ax,
+        path,
+        study.parameter,
+        "contact area",
+        f"Batch 3: contact area vs {study.parameter} (h = {study.h:.4g}, κ = {study.kappa:.2e})",
+        loglog=False,
     )
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return path

@@ -19,6 +19,7 @@ from shellobstacle.domains import mesh_size, refine_uniformly
 from shellobstacle.experiments.common import (
     DifferenceNorms,
     LazyReference,
+    finish_figure,
     fit_rate,
     reference_of,
     transfer,
@@ -243,12 +244,11 @@ def plot_mesh_study(study: MeshStudy, path: Path, tol: float = 2e-6) -> Path:
     if h.size:
         ax.loglog(h, e[0] * h / h[0], "k:", lw=1, label="slope 1")
     ax.axhline(tol, color="grey", lw=0.8, ls=":")
-    ax.set_xlabel("h_2 (finer mesh)")
-    ax.set_ylabel("difference")
-    ax.set_title(f"Batch 2: κ = h^{study.q:g}, nested meshes (fitted rate {study.rate():.2f})")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return path
+    return finish_figure(
+        fig,
+        ax,
+        path,
+        "h_2 (finer mesh)",
+        "difference",
+        f"Batch 2: κ = h^{study.q:g}, nested meshes (fitted rate {study.rate():.2f})",
+    )

@@ -18,6 +18,7 @@ from shellobstacle.domains import mesh_size
 from shellobstacle.experiments.common import (
     DifferenceNorms,
     LazyReference,
+    finish_figure,
     fit_rate,
     newton_finished,
     reference_of,
@@ -247,12 +248,11 @@ def plot_penalty_study(studies: list[PenaltyStudy], path: Path, tol: float = 2e-
         ref = np.array([lo, hi])
         ax.loglog(ref, ref, "k--", lw=1, label="the paper's reference √κ_n / 10")
     ax.axhline(tol, color="grey", lw=0.8, ls=":", label=f"tolerance {tol:g}")
-    ax.set_xlabel("√κ_n / 10,  κ_n = h^q_n")
-    ax.set_ylabel("Cauchy difference ‖ζ(κ_n) − ζ(κ_n+1)‖ in V_M")
-    ax.set_title("Batch 1: Cauchy differences in κ = h^q on a fixed mesh")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
-    return path
+    return finish_figure(
+        fig,
+        ax,
+        path,
+        "√κ_n / 10,  κ_n = h^q_n",
+        "Cauchy difference ‖ζ(κ_n) − ζ(κ_n+1)‖ in V_M",
+        "Batch 1: Cauchy differences in κ = h^q on a fixed mesh",
+    )

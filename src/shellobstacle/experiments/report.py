@@ -15,7 +15,13 @@ from mpi4py import MPI
 from shellobstacle.checkpoint import Checkpoint
 from shellobstacle.config import Config, PenaltySpec, load_config
 from shellobstacle.domains import DomainSpec
-from shellobstacle.experiments.common import LazyReference, exact_solution, fit_rate, write_csv
+from shellobstacle.experiments.common import (
+    LazyReference,
+    exact_solution,
+    finish_figure,
+    fit_rate,
+    write_csv,
+)
 from shellobstacle.experiments.load import (
     PAPER_BATCH3_LOAD,
     load_study,
@@ -323,16 +329,14 @@ def write_batch4(
                 "κ values": len(rows),
             }
         )
-    ax.set_xlabel("κ")
-    ax.set_ylabel("‖ζ_κ − ζ^h‖ (vertex penalty vs exact VI)")
-    ax.set_title("Batch 4: penalty error against the exact discrete solution")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    png1 = folder / "batch4_penalty_error.png"
-    if MPI.COMM_WORLD.rank == 0:
-        fig.savefig(png1, dpi=150)
-    plt.close(fig)
+    png1 = finish_figure(
+        fig,
+        ax,
+        folder / "batch4_penalty_error.png",
+        "κ",
+        "‖ζ_κ − ζ^h‖ (vertex penalty vs exact VI)",
+        "Batch 4: penalty error against the exact discrete solution",
+    )
     text += [
         _table(summary, list(summary[0])) if summary else "(no rows)",
         "",
@@ -352,16 +356,14 @@ def write_batch4(
         summary.append(
             {"q": q, "fitted rate in h (V_M)": fit_rate(h, e), "Theorem 8.1 bound": 1 - q / 2}
         )
-    ax.set_xlabel("h")
-    ax.set_ylabel("‖ζ^h_{h^q} − ζ_ref‖ in V_M")
-    ax.set_title("Batch 4: κ = h^q solutions against the exact fine-mesh solution")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    png2 = folder / "batch4_mesh_error.png"
-    if MPI.COMM_WORLD.rank == 0:
-        fig.savefig(png2, dpi=150)
-    plt.close(fig)
+    png2 = finish_figure(
+        fig,
+        ax,
+        folder / "batch4_mesh_error.png",
+        "h",
+        "‖ζ^h_{h^q} − ζ_ref‖ in V_M",
+        "Batch 4: κ = h^q solutions against the exact fine-mesh solution",
+    )
     text += [
         _table(summary, list(summary[0])) if summary else "(no rows)",
         "",
