@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import functools
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 import sympy as sp
 
-from shellobstacle.expressions import ExpressionError, is_safe_name, parse, y1, y2
+from shellobstacle.expressions import is_safe_name, parse, y1, y2
 from shellobstacle.surface import Surface
 
 __all__ = ["Load", "Material", "Obstacle", "Shell"]
@@ -118,14 +118,4 @@ class Shell:
 
     def load_expressions(self) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
         """``p^{i,ε}`` as SymPy expressions (see :meth:`Load.expressions`)."""
-        try:
-            return self.load.expressions(self.material)
-        except ExpressionError:
-            raise
-        except Exception as err:  # pragma: no cover - defensive
-            raise ExpressionError(f"load.p: {err}") from err
-
-
-def load_from_strings(p: Sequence[str], **parameters: float) -> Load:
-    """Convenience: ``Load(tuple(p), parameters)``."""
-    return Load(tuple(str(v) for v in p), dict(parameters))  # type: ignore[arg-type]
+        return self.load.expressions(self.material)

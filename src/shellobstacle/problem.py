@@ -12,6 +12,7 @@ from typing import Any
 import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
+import sympy as sp
 import ufl
 from petsc4py import PETSc
 
@@ -105,8 +106,6 @@ class PenalizedProblem:
 
         self.G = G = shell.surface.geometry_ufl(mesh)
         x = ufl.SpatialCoordinate(mesh)
-        import sympy as sp
-
         symbols: dict[sp.Symbol, Any] = {y1: x[0], y2: x[1]}
         symbols |= {sp.Symbol(k, real=True): c for k, c in self.parameters.items()}
         # a component that is identically 0 stays a Constant so that UFL keeps the load forms
