@@ -59,13 +59,13 @@ class Solves:
 NUMBER = re.compile(r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?|nan|inf")
 
 
-def assert_same_numbers(a: str, b: str, what: str) -> None:
-    """The texts agree, numbers to 1e-12 relative (values below 1e-20 are round-off zeros)."""
+def assert_same_numbers(a: str, b: str, what: str, abs_tol: float = 1e-20) -> None:
+    """The texts agree, numbers to 1e-12 relative (values below ``abs_tol`` are round-off)."""
     ta, tb = NUMBER.split(a), NUMBER.split(b)
     assert ta == tb, f"{what}: the texts differ"
     for x, y in zip(NUMBER.findall(a), NUMBER.findall(b), strict=True):
         fx, fy = float(x), float(y)
-        assert math.isclose(fx, fy, rel_tol=1e-12, abs_tol=1e-20), f"{what}: {x} != {y}"
+        assert math.isclose(fx, fy, rel_tol=1e-12, abs_tol=abs_tol), f"{what}: {x} != {y}"
 
 
 def without_times(report: str) -> str:
@@ -104,19 +104,21 @@ def without_seconds(record):
     return record
 
 
-def assert_same_results(a: Path, b: Path) -> None:
+def assert_same_results(a: Path, b: Path, abs_tol: float = 1e-20) -> None:
     """CSV tables, report and step records agree (numbers to 1e-12 relative, times aside)."""
     csvs = sorted(p.name for p in a.glob("*.csv"))
     assert csvs and csvs == sorted(p.name for p in b.glob("*.csv"))
     for name in csvs:
-        assert_same_numbers((a / name).read_text(), (b / name).read_text(), name)
+        assert_same_numbers((a / name).read_text(), (b / name).read_text(), name, abs_tol)
     ra, rb = (without_times((p / "report.md").read_text()) for p in (a, b))
-    assert_same_numbers(ra.replace(str(a), "OUT"), rb.replace(str(b), "OUT"), "report.md")
+    assert_same_numbers(ra.replace(str(a), "OUT"), rb.replace(str(b), "OUT"), "report.md", abs_tol)
     records = sorted(p.name for p in (a / "steps").glob("*.json") if p.name != "meta.json")
     assert records == sorted(p.name for p in (b / "steps").glob("*.json") if p.name != "meta.json")
     for name in records:
         ja, jb = (json.loads((p / "steps" / name).read_text()) for p in (a, b))
-        assert_same_numbers(json.dumps(without_seconds(ja)), json.dumps(without_seconds(jb)), name)
+        assert_same_numbers(
+            json.dumps(without_seconds(ja)), json.dumps(without_seconds(jb)), name, abs_tol
+        )
 
 
 @pytest.fixture
@@ -138,7 +140,11 @@ def run(args: list[str]) -> int:
 
 
 def interrupted_then_resumed(
-    monkeypatch: pytest.MonkeyPatch, folder: Path, args: list[str], stop: int
+    monkeypatch: pytest.MonkeyPatch,
+    folder: Path,
+    args: list[str],
+    stop: int,
+    abs_tol: float = 1e-20,
 ) -> None:
     """Run ``args`` uninterrupted, then interrupted at solve ``stop`` and resumed; compare."""
     with monkeypatch.context() as m:
@@ -158,7 +164,7 @@ def interrupted_then_resumed(
     assert second.calls == full.calls - finished, "finished steps were solved again"
     assert "--- resumed ---" in (out / "log.txt").read_text()
     assert not list((out / "steps").glob("*.npy")), "vectors are kept after the run finished"
-    assert_same_results(folder / "full", out)
+    assert_same_results(folder / "full", out, abs_tol)
 
 
 @serial
@@ -189,7 +195,13 @@ def test_load_sweep_resumes_without_recomputing(
 @pytest.mark.mpi
 def test_penalty_sweep_resumes_under_mpi(monkeypatch: pytest.MonkeyPatch, shared_dir: Path) -> None:
     """The same as the serial penalty test on every rank (resume with the same ranks)."""
-    interrupted_then_resumed(monkeypatch, shared_dir, PENALTY, stop=3)
+    # Two uninterrupted 2-rank runs already differ in the last digits (parallel reductions in
+    # a different order); the recorded numbers are norms of differences of solutions of size
+    # ~1e-2, so their round-off is absolute, ~1e-16·‖ζ‖ times the conditioning: compare them
+    # to 1e-15 absolute (a resume bug changes them by far more).
+    interrupted_then_resumed(
+        monkeypatch, shared_dir, PENALTY, stop=3, abs_tol=1e-15 if COMM.size > 1 else 1e-20
+    )
 
 
 @serial
