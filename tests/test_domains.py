@@ -216,3 +216,49 @@ def test_silent_and_leaves_a_users_gmsh_session_alone(capfd):
         gmsh.finalize()
     out, err = capfd.readouterr()
     assert out == "" and err == ""
+
+
+def _boundary_points(mesh) -> np.ndarray:
+    import dolfinx
+
+    nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, 1, boundary_facets(mesh)).ravel())
+    return mesh.geometry.x[nodes, :2]
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(
+    "spec",
+    [
+        DomainSpec(kind="disk", h=0.02, radius=0.5, center=(0.1, -0.2)),
+        DomainSpec(kind="ellipse", h=0.02, semi_axes=(0.6, 0.3)),
+        DomainSpec(kind="polygon", h=0.02, vertices=L_SHAPE),
+    ],
+    ids=["disk", "ellipse", "polygon"],
+)
+def test_large_meshes_are_refined_coarse_gmsh_meshes(spec: DomainSpec):
+    """Above gmsh_max_vertices: gmsh at 2^k h, k uniform refinements, boundary on the curve."""
+    import dataclasses
+
+    direct = create_mesh(dataclasses.replace(spec, gmsh_max_vertices=0))
+    n_direct = direct.topology.index_map(0).size_global
+    refined = create_mesh(dataclasses.replace(spec, gmsh_max_vertices=n_direct // 10))
+    n_refined = refined.topology.index_map(0).size_global
+    # k = 2 refinements of a mesh of size 4h: about as many vertices and the same h
+    assert 0.8 < n_refined / n_direct < 1.25
+    assert 0.75 < mesh_size(refined) / mesh_size(direct) < 1.33
+    # every boundary vertex lies on the boundary curve (chord midpoints were moved onto it)
+    x = _boundary_points(refined)
+    if spec.kind == "disk":
+        off = np.abs(np.linalg.norm(x - np.array(spec.center), axis=1) - spec.radius)
+    elif spec.kind == "ellipse":
+        a, b = spec.semi_axes
+        off = np.abs(np.hypot(x[:, 0] / a, x[:, 1] / b) - 1.0)
+    else:  # polygon: new vertices at edge midpoints are on the edges already
+        off = np.zeros(0)
+    assert COMM.allreduce(float(off.max(initial=0.0)), op=MPI.MAX) < 1e-14
+    assert domain_area(refined) == pytest.approx(domain_area(direct), rel=2e-4)
+
+
+def test_gmsh_max_vertices_must_not_be_negative():
+    with pytest.raises(ValueError, match="gmsh_max_vertices must be >= 0"):
+        create_mesh(DomainSpec(kind="disk", h=0.1, gmsh_max_vertices=-1))

@@ -77,6 +77,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "refinements": Key("int", 0, "uniform refinements after meshing (nested meshes)"),
         "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
         "central_radius": Key("float", OPTIONAL, "disk/ellipse: radius of the finer region"),
+        "gmsh_max_vertices": Key(
+            "int", 60_000, "above this, gmsh meshes coarser and the mesh is refined (0: never)"
+        ),
     },
     "material": {
         "epsilon": Key("float", REQUIRED, "half-thickness ε > 0"),

@@ -8,6 +8,7 @@ mesh. All meshes are affine (linear) triangles with geometric dimension 2.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import os
 from collections.abc import Iterator
@@ -58,6 +59,10 @@ class DomainSpec:
         refinements: Number of uniform refinements applied after generation.
         central_h: Disk/ellipse only: mesh size inside ``|y - center| < central_radius``.
         central_radius: Radius of the centrally refined zone (needed with ``central_h``).
+        gmsh_max_vertices: Disk, ellipse and polygon: when the mesh would have more vertices
+            than this, gmsh meshes with a size ``2^k`` times larger and the mesh is refined
+            uniformly ``k`` times in parallel (new boundary vertices moved onto the curved
+            boundary), which is several times faster than gmsh at full size. 0: never.
     """
 
     kind: str
@@ -71,6 +76,7 @@ class DomainSpec:
     refinements: int = 0
     central_h: float | None = None
     central_radius: float | None = None
+    gmsh_max_vertices: int = 60_000
 
 
 def _diameter(spec: DomainSpec) -> float:
@@ -134,6 +140,8 @@ def _validate(spec: DomainSpec) -> None:
         raise ValueError(f"unknown domain kind {spec.kind!r}; valid kinds: {', '.join(KINDS)}")
     if spec.refinements < 0:
         raise ValueError(f"refinements must be >= 0, got {spec.refinements}")
+    if spec.gmsh_max_vertices < 0:
+        raise ValueError(f"gmsh_max_vertices must be >= 0 (0: never), got {spec.gmsh_max_vertices}")
     if spec.kind == "file":
         if not spec.path:
             raise ValueError("kind 'file' needs path=<gmsh .msh file>")
@@ -295,12 +303,79 @@ def create_mesh(spec: DomainSpec, comm: MPI.Comm = MPI.COMM_WORLD) -> dolfinx.me
             comm, [np.array([x0, y0]), np.array([x1, y1])], n,
             cell_type=dolfinx.mesh.CellType.triangle, diagonal=dolfinx.mesh.DiagonalType.right,
         )  # fmt: skip
+        steps = 0
     else:
-        mesh = _gmsh_mesh(spec, comm)
+        steps = _coarsening_steps(spec)
+        coarse = spec
+        if steps:
+            grow = 2.0**steps
+            coarse = dataclasses.replace(
+                spec, h=spec.h * grow, central_h=spec.central_h and spec.central_h * grow
+            )
+        mesh = _gmsh_mesh(coarse, comm)
+    for _ in range(steps):
+        mesh = refine_uniformly(mesh)
+        _snap_boundary(mesh, spec)
     for _ in range(spec.refinements):
         mesh = refine_uniformly(mesh)
     _prepare(mesh)
     return mesh
+
+
+def _estimated_vertices(spec: DomainSpec, h: float, central_h: float | None) -> float:
+    """Vertices of a mesh of ``spec`` with sizes ``h`` (and ``central_h``): area / (√3/2 h²)."""
+    if spec.kind == "disk":
+        area = math.pi * spec.radius**2
+    elif spec.kind == "ellipse":
+        area = math.pi * spec.semi_axes[0] * spec.semi_axes[1]
+    else:
+        v = np.asarray(spec.vertices, dtype=float)
+        area = 0.5 * abs(float(np.dot(v[:, 0], np.roll(v[:, 1], -1) - np.roll(v[:, 1], 1))))
+    count = area / (math.sqrt(3.0) / 2.0 * h * h)
+    if central_h is not None:
+        zone = min(area, math.pi * spec.central_radius**2)
+        count += zone / (math.sqrt(3.0) / 2.0) * (1.0 / central_h**2 - 1.0 / h**2)
+    return count
+
+
+def _coarsening_steps(spec: DomainSpec) -> int:
+    """How many uniform refinements replace gmsh at full size (see ``gmsh_max_vertices``)."""
+    if spec.kind not in ("disk", "ellipse", "polygon") or spec.gmsh_max_vertices <= 0:
+        return 0
+    steps = 0
+    while (
+        _estimated_vertices(
+            spec, spec.h * 2.0**steps, spec.central_h and spec.central_h * 2.0**steps
+        )
+        > spec.gmsh_max_vertices
+    ):
+        steps += 1
+    # the coarse mesh must still resolve the domain (a few cells across)
+    while steps and spec.h * 2.0**steps > _diameter(spec) / 8:
+        steps -= 1
+    return steps
+
+
+def _snap_boundary(mesh: dolfinx.mesh.Mesh, spec: DomainSpec) -> None:
+    """Move the boundary vertices of a refined disk or ellipse mesh onto the curve.
+
+    Uniform refinement puts the new boundary vertices at chord midpoints, a distance
+    ``O(h²)`` inside; they are moved along the ray from the centre onto the boundary (polygon
+    edges are straight: nothing to do).
+    """
+    if spec.kind not in ("disk", "ellipse"):
+        return
+    tdim = mesh.topology.dim
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+    nodes = dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, facets).ravel()
+    nodes = np.unique(nodes)
+    x = mesh.geometry.x
+    c = np.asarray(spec.center, dtype=float)
+    a, b = (spec.radius, spec.radius) if spec.kind == "disk" else spec.semi_axes
+    d = x[nodes, :2] - c
+    scale = np.sqrt((d[:, 0] / a) ** 2 + (d[:, 1] / b) ** 2)
+    x[nodes, :2] = c + d / scale[:, None]
 
 
 def _prepare(mesh: dolfinx.mesh.Mesh) -> None:

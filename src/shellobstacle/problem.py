@@ -136,19 +136,14 @@ class PenalizedProblem:
         residual = ufl.derivative(energy, zeta, v)
         jacobian = ufl.derivative(residual, zeta, du)
         load = sum(self.p[i] * v[i] for i in range(3)) * sqrt_a * self.dx
-        # Size of the terms whose cancellation makes g(ζ) = θ·q + ζ_j c_j: the round-off in the
-        # penalty residual is about machine epsilon times this vector (used by the solver).
-        theta_q = sum(G.theta[k] * self.q[k] for k in range(3))
-        g_terms = abs(theta_q) + sum(abs(zeta[j] * self.c[j]) for j in range(3))
-        active = ufl.conditional(ufl.lt(self.g, 0), 1.0, 0.0)
-        c_v = sum(self.c[j] * v[j] for j in range(3))
-        penalty_scale = (eps / self.kappa) * active * g_terms * c_v / self.c_norm * self.dx_penalty
-
         self.forms = {
             "residual": dolfinx.fem.form(residual),
             "jacobian": dolfinx.fem.form(jacobian),
+            # K: the (constant) Hessian of the membrane energy; J_κ'' = K + penalty part
+            "stiffness": dolfinx.fem.form(
+                ufl.derivative(ufl.derivative(elastic, zeta, v), zeta, du)
+            ),
             "load": dolfinx.fem.form(load),
-            "penalty_scale": dolfinx.fem.form(penalty_scale),
             "elastic_energy": dolfinx.fem.form(elastic),
             "work": dolfinx.fem.form(work),
             "penalty_energy": dolfinx.fem.form(penalty),

@@ -6,6 +6,15 @@ quadratic and ``φ'(t) = R(ζ + tδ)·δ`` is monotone and piecewise linear. The
 length is the root of ``φ'`` (found by safeguarded secant steps, exact once the
 active set along the segment is fixed), which makes every step decrease the
 energy and the iteration globally convergent from any start.
+
+The membrane part of ``J_κ`` is quadratic: its Hessian ``K`` is assembled once, and the
+penalty part lives at its quadrature points (:class:`~shellobstacle.penalty.QuadraturePenalty`).
+A residual is then one product with ``K`` and one with the point matrix ``M``, a Jacobian
+``K`` plus a product over the active points only, and a line-search evaluation a sum over
+the points. With the direct solver a solve factorizes its first Jacobian only: later Newton
+steps, whose Jacobians differ from it only where the active set moved, are solved by
+conjugate gradients preconditioned with that factorization, and a new one is computed only
+when that does not converge quickly.
 """
 
 from __future__ import annotations
@@ -22,6 +31,7 @@ import numpy as np
 from petsc4py import PETSc
 
 from shellobstacle import compat  # noqa: F401
+from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.line_search import piecewise_linear_root
 
@@ -43,7 +53,16 @@ class NewtonOptions:
             stirs round-off.
         max_iterations: give up (and raise) after this many Newton steps.
         linear_solver: ``"direct"`` (MUMPS LU) or ``"iterative"`` (CG + GAMG).
-        linear_rtol: relative tolerance of the iterative linear solver.
+        linear_rtol: relative tolerance of the iterative linear solver, and of the conjugate
+            gradients that reuse a factorization.
+        reuse_factorization: with the direct solver, keep one factorization per κ and solve
+            later Newton steps at that κ by conjugate gradients preconditioned with it.
+        reuse_max_iterations: give up reusing (and factorize) after this many CG iterations;
+            None: after as many as cost one factorization (measured as the solve goes).
+        reuse_max_changed_fraction: factorize at once, without trying CG, when more than
+            this fraction of the active quadrature points changed between active and
+            inactive since the last factorization (each change is a rank-one change of the
+            Jacobian, one more outlying eigenvalue for CG to find).
     """
 
     rtol: float = 1e-10
@@ -53,6 +72,9 @@ class NewtonOptions:
     max_iterations: int = 100
     linear_solver: str = "direct"
     linear_rtol: float = 1e-12
+    reuse_factorization: bool = True
+    reuse_max_iterations: int | None = None
+    reuse_max_changed_fraction: float = 0.25
 
     def __post_init__(self) -> None:
         if self.linear_solver not in ("direct", "iterative"):
@@ -74,6 +96,7 @@ class NewtonResult:
     step_lengths: list[float] = field(default_factory=list)
     linear_iterations: list[int] = field(default_factory=list)
     line_search_evaluations: int = 0
+    factorizations: int = 0
     timings: dict[str, float] = field(default_factory=dict)
     reference: float = 0.0  # ‖R(0)‖, the scale of the relative residual
 
@@ -113,104 +136,209 @@ class NewtonSolver:
         self.problem = problem
         self.options = opts = options or NewtonOptions()
         comm = problem.mesh.comm
-        self.A = dolfinx.fem.petsc.create_matrix(problem.forms["jacobian"])
+        t0 = time.perf_counter()
+        self.penalty = QuadraturePenalty(problem)
+        self.K = dolfinx.fem.petsc.assemble_matrix(problem.forms["stiffness"], bcs=problem.bcs)
+        self.K.assemble()
+        self.A = self.K.duplicate(copy=True)  # the Jacobian K + penalty part
         self.R = dolfinx.fem.petsc.create_vector(problem.V)
+        self.f = dolfinx.fem.petsc.create_vector(problem.V)  # load vector (Dirichlet rows 0)
         self.dz = dolfinx.fem.petsc.create_vector(problem.V)
-        self.trial = dolfinx.fem.Function(problem.V)  # ζ + tδ for line-search evaluations
+        self.Kdz = self.K.createVecLeft()
         self.ksp = PETSc.KSP().create(comm)
-        self.ksp.setOperators(self.A)
         prefix = f"shellobstacle_{id(self)}_"
         self.ksp.setOptionsPrefix(prefix)
         pc = self.ksp.getPC()
+        self.reuse = opts.linear_solver == "direct" and opts.reuse_factorization
         if opts.linear_solver == "direct":
-            self.ksp.setType("preonly")
             pc.setType("lu")
             pc.setFactorSolverType("mumps")
+            if self.reuse:
+                # the factored matrix is kept apart from the current Jacobian
+                self.A_factored = self.K.duplicate(copy=True)
+                self.ksp.setOperators(self.A, self.A_factored)
+                self.ksp.setType("cg")
+                self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+                self.ksp.setTolerances(rtol=opts.linear_rtol, atol=0.0)
+                self.ksp.setInitialGuessNonzero(False)
+            else:
+                self.ksp.setOperators(self.A)
+                self.ksp.setType("preonly")
         else:
+            self.ksp.setOperators(self.A)
             self.ksp.setType("cg")
             pc.setType("gamg")
             self.ksp.setTolerances(rtol=opts.linear_rtol, atol=1e-50, max_it=2000)
         self.ksp.setFromOptions()
-        self.timings: dict[str, float] = {"assemble": 0.0, "solve": 0.0, "line_search": 0.0}
-        self._factored_kappa: float | None = None  # κ of the Jacobian held by the KSP
+        self.timings: dict[str, float] = {
+            "setup": time.perf_counter() - t0,
+            "assemble": 0.0,
+            "factorize": 0.0,
+            "solve": 0.0,
+            "line_search": 0.0,
+        }
+        self._factored_kappa: float | None = None  # κ of the factorization held by the KSP
+        self.factorizations = 0  # in the current solve
+        self._reuse_failures = 0
+        self._g = np.zeros(0)  # gap at the quadrature points of the current iterate
+        self._factored_active = np.zeros(0, dtype=bool)  # active points of the factorization
+        self._factorization_seconds = 0.0  # of the last factorization
+        self._iteration_seconds = 0.0  # of one CG iteration reusing it
 
-    # -- assembly ---------------------------------------------------------------------------
-    def _residual(self, u: dolfinx.fem.Function, b: PETSc.Vec) -> None:
-        """``b ← R(u)`` with zero rows at Dirichlet dofs (``u`` satisfies the homogeneous bcs)."""
-        with b.localForm() as loc:
+    @property
+    def kappa(self) -> float:
+        """The current penalty parameter."""
+        return float(self.problem.kappa.value)
+
+    # -- residual and Jacobian ----------------------------------------------------------------
+    def _load(self) -> None:
+        """``f ←`` the load vector (load parameters may have changed since the last solve)."""
+        with self.f.localForm() as loc:
             loc.set(0.0)
-        if u is not self.problem.zeta:
-            raise RuntimeError("residual forms are tied to problem.zeta")
-        dolfinx.fem.petsc.assemble_vector(b, self.problem.forms["residual"])
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
+        dolfinx.fem.petsc.assemble_vector(self.f, self.problem.forms["load"])
+        self.f.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(self.f, self.problem.bcs)
+
+    def _residual(self) -> None:
+        """``R ← R(ζ) = Kζ − f + (1/κ) Mᵀ min(g, 0)`` and ``g ← g(ζ)`` at the points.
+
+        ``ζ`` satisfies the homogeneous Dirichlet conditions, so the Dirichlet rows are 0.
+        """
+        zeta = self.problem.zeta.x.petsc_vec
+        self.K.mult(zeta, self.R)
+        self.R.axpy(-1.0, self.f)
+        self._g = self.penalty.gap(zeta)
+        self.penalty.add_residual(np.minimum(self._g, 0.0), self.kappa, self.R)
 
     def _jacobian(self) -> None:
-        self._factored_kappa = float(self.problem.kappa.value)
-        self.A.zeroEntries()
-        dolfinx.fem.petsc.assemble_matrix(
-            self.A, self.problem.forms["jacobian"], bcs=self.problem.bcs
-        )
-        self.A.assemble()
+        """``A ← K + (1/κ) M_Aᵀ diag(1/D_A) M_A`` at the current active points."""
+        self.K.copy(self.A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        P = self.penalty.jacobian(self._g, self.kappa)
+        if P is not None:
+            self.A.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            P.destroy()
 
-    def _norm_of(self, name: str) -> float:
-        """Norm of an assembled linear form of the problem (Dirichlet rows zeroed)."""
-        b = dolfinx.fem.petsc.assemble_vector(self.problem.forms[name])
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
-        norm = b.norm()
-        b.destroy()
-        return norm
+    def _factorize(self) -> None:
+        """Factorize the current Jacobian (kept for later steps at the same κ)."""
+        t0 = time.perf_counter()
+        if self.reuse:
+            self.A.copy(self.A_factored, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        self.ksp.getPC().setUp()  # the numeric factorization (the symbolic one is kept)
+        self._factored_kappa = self.kappa
+        self._factored_active = self._g < 0
+        self.factorizations += 1
+        self._factorization_seconds = time.perf_counter() - t0
+        self.timings["factorize"] += self._factorization_seconds
 
     def _floor(self, load_norm: float) -> float:
-        """Estimated round-off floor of ``‖R(ζ)‖`` at the current iterate."""
+        """Estimated round-off floor of ``‖R(ζ)‖`` at the current iterate.
+
+        ``u (‖f‖ + ‖S‖)`` with ``S = (1/κ) Mᵀ (χ_A · (|θ·q| + Σ_j |ζ_j c_j|))``: the rounding
+        of the terms of ``g`` amplified by the penalty.
+        """
         u = np.finfo(PETSc.ScalarType).eps
-        return self.options.floor_factor * u * (load_norm + self._norm_of("penalty_scale"))
+        scale = self.penalty.gap_scale(self.problem.zeta.x.petsc_vec)
+        S = self.R.duplicate()
+        S.set(0.0)
+        self.penalty.add_residual(np.where(self._g < 0, scale, 0.0), self.kappa, S)
+        norm = S.norm()
+        S.destroy()
+        return self.options.floor_factor * u * (load_norm + norm)
 
     def _direction(self) -> None:
-        """``δ ← A⁻¹ (−R)`` (``self.R`` holds ``−R``)."""
-        self.ksp.solve(self.R, self.dz)
+        """``δ ← A⁻¹ (−R)`` (``self.R`` holds ``−R``).
+
+        With a kept factorization of another Jacobian at this κ, conjugate gradients
+        preconditioned by it; if they do not converge in ``reuse_max_iterations``, a new
+        factorization.
+        """
+        if not self.reuse:
+            if self.options.linear_solver == "direct":
+                self._factorize()
+            self.ksp.solve(self.R, self.dz)
+            self._factored_kappa = self.kappa  # the preconditioner held is for this κ
+        else:
+            if self._factored_kappa is None or self._active_set_moved():
+                self._factorize()
+            self.ksp.setTolerances(max_it=self._reuse_budget())
+            t0 = time.perf_counter()
+            self.ksp.solve(self.R, self.dz)
+            its = self.ksp.getIterationNumber()
+            if its > 1:  # seconds per preconditioned CG iteration (back-substitutions)
+                self._iteration_seconds = (time.perf_counter() - t0) / its
+            if self.ksp.getConvergedReason() < 0:
+                self._reuse_failures += 1
+                self._factorize()
+                self.ksp.solve(self.R, self.dz)
         self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+
+    def _active_set_moved(self) -> bool:
+        """Whether too many points changed activity since the factorization to try CG."""
+        active = self._g < 0
+        comm = self.problem.mesh.comm
+        changed = comm.allreduce(int(np.count_nonzero(self._factored_active != active)))
+        size = comm.allreduce(max(int(active.sum()), int(self._factored_active.sum())))
+        return changed > self.options.reuse_max_changed_fraction * size
+
+    def _reuse_budget(self) -> int:
+        """CG iterations allowed before factorizing instead (about one factorization's cost)."""
+        if self.options.reuse_max_iterations is not None:
+            return self.options.reuse_max_iterations
+        if self._iteration_seconds <= 0.0:
+            return 15
+        return int(min(200, max(5, self._factorization_seconds / self._iteration_seconds)))
 
     def predict(self, kappa_new: float) -> bool:
         """Euler predictor along κ: ``ζ ← ζ + (κ_new − κ) dζ/dκ`` with ``J dζ/dκ = −∂R/∂κ``.
 
-        ``∂R/∂κ = −(1/κ) (ε/κ)∫β(ζ)·v dy`` and ``J`` is the Jacobian already factored at the
-        end of the last solve, so the prediction costs one assembly and one back-substitution.
-        Returns False (and changes nothing) when no factorization for the current κ exists.
+        ``∂R/∂κ = −(1/κ²) Mᵀ min(g, 0)`` and ``J`` is approximated by the factorization kept
+        from the last solve, so the prediction costs one back-substitution (or a few
+        preconditioned CG iterations). Returns False (and changes nothing) when no
+        factorization for the current κ exists.
         """
-        kappa = float(self.problem.kappa.value)
-        if self._factored_kappa != kappa:
+        kappa = self.kappa
+        if self._factored_kappa != kappa or self._g.size != self.penalty.D.size:
             return False
         t0 = time.perf_counter()
-        b = dolfinx.fem.petsc.assemble_vector(self.problem.forms["penalty_residual"])
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
-        b.scale(1.0 / kappa)  # −∂R/∂κ
+        b = self.R.duplicate()
+        b.set(0.0)
+        self.penalty.add_residual(np.minimum(self._g, 0.0), kappa * kappa, b)  # −∂R/∂κ
+        if self.reuse:  # the Jacobian at ζ for the CG that reuses the factorization
+            self._jacobian()
         self.ksp.solve(b, self.dz)
-        self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        ok = self.ksp.getConvergedReason() > 0
         b.destroy()
-        zeta = self.problem.zeta
-        with self.dz.localForm() as dz_loc:
-            zeta.x.array[:] += (kappa_new - kappa) * dz_loc.array_r
-        zeta.x.scatter_forward()
+        if ok:
+            self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+            zeta = self.problem.zeta
+            with self.dz.localForm() as dz_loc:
+                zeta.x.array[:] += (kappa_new - kappa) * dz_loc.array_r
+            zeta.x.scatter_forward()
         self.timings["predict"] = self.timings.get("predict", 0.0) + time.perf_counter() - t0
-        return True
+        return ok
 
     # -- line search --------------------------------------------------------------------------
-    def _slope(self, t: float, z0: np.ndarray) -> float:
-        """``φ'(t) = R(ζ_0 + tδ)·δ`` (sets ``problem.zeta`` to ``ζ_0 + tδ``)."""
-        zeta = self.problem.zeta
-        zeta.x.array[:] = z0 + t * self._dz_local
-        zeta.x.scatter_forward()
-        self._residual(zeta, self.R)
-        self._last_t = t  # self.R now holds R(ζ_0 + tδ)
-        return self.R.dot(self.dz)
+    def _line_search(self, slope0: float, noise: float) -> tuple[float, int]:
+        """Exact step along δ: the root of ``φ'(t) = R(ζ + tδ)·δ`` (round-off aware).
 
-    def _line_search(self, z0: np.ndarray, slope0: float, noise: float) -> tuple[float, int]:
-        """Exact step along δ: the root of ``φ'(t) = R(ζ_0 + tδ)·δ`` (round-off aware)."""
+        ``φ'(t) = R_el(ζ)·δ + t δᵀKδ + (1/κ) (Mδ)·min(g + t Bδ, 0)``: the membrane part is
+        linear in ``t`` and the penalty part a sum over the quadrature points.
+        """
+        comm, pen, kappa = self.problem.mesh.comm, self.penalty, self.kappa
+        Bd = pen.apply_B(self.dz)
+        Md = pen.D * Bd
+        g = self._g
+        self.K.mult(self.dz, self.Kdz)
+        curvature = self.Kdz.dot(self.dz)
+        pen0 = comm.allreduce(float(np.dot(Md, np.minimum(g, 0.0)))) / kappa
+        elastic0 = slope0 - pen0
+
+        def slope(t: float) -> float:
+            local = float(np.dot(Md, np.minimum(g + t * Bd, 0.0)))
+            return elastic0 + t * curvature + comm.allreduce(local) / kappa
+
         tol = max(1e-10 * abs(slope0), noise)
-        return piecewise_linear_root(lambda t: self._slope(t, z0), slope0, tol)
+        return piecewise_linear_root(slope, slope0, tol)
 
     # -- Newton -------------------------------------------------------------------------------
     def solve(self, progress: Callable[[int, float], Any] | None = None) -> NewtonResult:
@@ -228,10 +356,15 @@ class NewtonSolver:
         t_start = time.perf_counter()
         dolfinx.fem.petsc.set_bc(zeta.x.petsc_vec, problem.bcs)  # homogeneous bcs on the start
         zeta.x.scatter_forward()
-        ref = self._norm_of("load")
         result = NewtonResult(False, 0, "")
+        self.factorizations, self._reuse_failures = 0, 0
+        # every solve starts with a new factorization, so its result depends only on the
+        # start ζ and not on earlier solves (resumed runs repeat uninterrupted ones exactly)
+        self._factored_kappa = None
         ta = time.perf_counter()
-        self._residual(zeta, self.R)
+        self._load()
+        ref = self.f.norm()
+        self._residual()
         self.timings["assemble"] += time.perf_counter() - ta
         rnorm = self.R.norm()
         result.residual_norms.append(rnorm)
@@ -253,8 +386,10 @@ class NewtonSolver:
             self.timings["assemble"] += time.perf_counter() - ta
             ts = time.perf_counter()
             self.R.scale(-1.0)
+            factorize_before = self.timings["factorize"]
             self._direction()
             self.timings["solve"] += time.perf_counter() - ts
+            self.timings["solve"] -= self.timings["factorize"] - factorize_before
             result.linear_iterations.append(self.ksp.getIterationNumber())
             if self.ksp.getConvergedReason() < 0:
                 result.reason = (
@@ -263,13 +398,9 @@ class NewtonSolver:
                 break
             slope0 = -self.R.dot(self.dz)  # R·δ = −δᵀAδ < 0
             tl = time.perf_counter()
-            with self.dz.localForm() as dz_loc:
-                self._dz_local = np.array(dz_loc.array_r)
-            z0 = zeta.x.array.copy()
             step = self.dz.norm(PETSc.NormType.NORM_INFINITY)
             unorm = zeta.x.petsc_vec.norm(PETSc.NormType.NORM_INFINITY)
             small_step = step <= opts.stol * unorm
-            self._last_t = None
             if small_step:  # take the (tiny) full step, then stop: nothing left to gain
                 t, evals = 1.0, 0
             elif slope0 >= 0 or not math.isfinite(slope0):
@@ -283,13 +414,11 @@ class NewtonSolver:
                     result.converged = True
                     result.reason = "Newton decrement below the round-off of the energy slope"
                     break
-                t, evals = self._line_search(z0, slope0, noise)
-            # leave ζ = ζ_0 + tδ and R(ζ) in place; the last slope evaluation usually was at
-            # this t already (always for a full step), which saves an assembly
-            if self._last_t != t:
-                zeta.x.array[:] = z0 + t * self._dz_local
-                zeta.x.scatter_forward()
-                self._residual(zeta, self.R)
+                t, evals = self._line_search(slope0, noise)
+            with self.dz.localForm() as dz_loc:
+                zeta.x.array[:] += t * dz_loc.array_r
+            zeta.x.scatter_forward()
+            self._residual()
             self.timings["line_search"] += time.perf_counter() - tl
             result.line_search_evaluations += evals
             result.step_lengths.append(t)
@@ -303,6 +432,7 @@ class NewtonSolver:
                 break
         else:
             result.reason = f"no convergence in {opts.max_iterations} Newton iterations"
+        result.factorizations = self.factorizations
         result.timings = {"total": time.perf_counter() - t_start}
         if not result.converged:
             if not result.reason:

@@ -1,0 +1,86 @@
+"""Batch 1 of the paper (MODEL.md §7) end to end, timed by phase: the issue's headline figure.
+
+Mesh (gmsh), geometry checks, compilation and solver set-up, then the κ-sweep κ = h^q,
+q = 0.5, 1.0, …, q_max (each κ warm-started from the previous one, with the Cauchy
+differences of batch 1 computed as the experiment does), for one penalty quadrature.
+Prints one JSON line on rank 0: phase seconds, Newton steps, factorizations and CG
+iterations per κ, dofs, h, peak RSS.
+
+    .venv/bin/python benchmarks/batch1.py --target 0.0029
+    .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/batch1.py --target 0.0029
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import time
+from pathlib import Path
+
+from mpi4py import MPI
+
+from shellobstacle.checks import check_assumptions
+from shellobstacle.config import load_config
+from shellobstacle.domains import mesh_size
+from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
+from shellobstacle.pipeline import make_mesh
+from shellobstacle.problem import Discretization
+from shellobstacle.solvers.newton import NewtonOptions
+
+PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
+
+
+def main() -> None:
+    """Run batch 1 once and print a JSON line on rank 0."""
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--target", type=float, default=0.0029, help="gmsh target mesh size")
+    ap.add_argument("--qmax", type=float, default=2.0)
+    ap.add_argument("--quadrature", default="gauss", choices=("gauss", "vertex"))
+    ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
+    ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
+    args = ap.parse_args()
+    comm = MPI.COMM_WORLD
+    t_all = time.perf_counter()
+    cfg = load_config(PAPER, [f"domain.h={args.target}"])
+    rec: dict = {"benchmark": "batch1", "target": args.target, "ranks": comm.size}
+    rec |= {"quadrature": args.quadrature, "linear_solver": args.linear_solver}
+    rec["reuse_factorization"] = not args.no_reuse
+    t = time.perf_counter()
+    mesh = make_mesh(cfg.domain)
+    h = mesh_size(mesh)
+    rec["mesh_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    check_assumptions(cfg.shell, mesh)
+    rec["checks_s"] = time.perf_counter() - t
+    newton = NewtonOptions(linear_solver=args.linear_solver, reuse_factorization=not args.no_reuse)
+    t = time.perf_counter()
+    study = penalty_study(
+        cfg.shell,
+        mesh,
+        Discretization(penalty_quadrature=args.quadrature),
+        PenaltyStudyOptions(q_max=args.qmax),
+        newton,
+    )
+    rec["study_s"] = time.perf_counter() - t  # compile + set-up + sweep + differences
+    rec["total_s"] = time.perf_counter() - t_all
+    rec["h"], rec["dofs"] = h, study.dofs
+    rec["q"] = [s["q"] for s in study.solves]
+    rec["newton"] = [s["newton"] for s in study.solves]
+    rec["newton_mean_after_first"] = study.mean_newton()
+    for key in ("factorizations", "linear_iterations", "seconds"):
+        rec[key] = [s.get(key) for s in study.solves]
+    rec["timings"] = study.timings
+    rec["error_VM"] = [r["error_VM"] for r in study.rows]
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    rec["peak_rss_mb_per_rank_max"] = comm.allreduce(rss, op=MPI.MAX)
+    rec["peak_rss_mb_total"] = comm.allreduce(rss, op=MPI.SUM)
+    if comm.rank == 0:
+        print(
+            json.dumps({k: round(v, 4) if isinstance(v, float) else v for k, v in rec.items()}),
+            flush=True,
+        )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,146 @@
+"""The penalty term of ``J_κ`` evaluated at its quadrature points (MODEL.md §4–5).
+
+The penalty ``(ε/(2κ)) ∫ ({g(ζ)}^-)² / |c| dy`` is a sum over the points ``x_k`` of its
+quadrature rule (Gauss or vertex) with weights ``w_k`` (including ``|det J|``). The gap is
+affine in ``ζ``: ``g(x_k) = θ·q(x_k) + ζ_j c_j(x_k) = g⁰_k + (B ζ)_k``. With
+``D_k = w_k ε / |c|(x_k)`` and ``M = diag(D) B`` (assembled once per mesh, as the matrix of
+``∫ (c·u) r ε/|c| dy`` for ``u`` in the displacement space and ``r`` in the quadrature space)
+the penalty and its first two derivatives are
+
+    energy    (1/(2κ)) Σ_k D_k (min(g_k, 0))²
+    residual  (1/κ) Mᵀ min(g, 0)
+    Jacobian  (1/κ) M_Aᵀ diag(1/D_A) M_A         (A: the points with g_k < 0)
+
+exactly the values the UFL forms of :class:`~shellobstacle.problem.PenalizedProblem`
+assemble with the same rule. The membrane part of ``J_κ`` is quadratic, so Newton needs
+the membrane stiffness ``K`` once per mesh, and an exact line search needs only vector
+operations at the quadrature points (:mod:`shellobstacle.solvers.newton`).
+"""
+
+from __future__ import annotations
+
+import basix
+import basix.ufl
+import dolfinx
+import dolfinx.fem.petsc
+import numpy as np
+import ufl
+from petsc4py import PETSc
+
+from shellobstacle import compat  # noqa: F401
+from shellobstacle.problem import PenalizedProblem
+
+__all__ = ["QuadraturePenalty"]
+
+
+def _quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
+    """Scalar quadrature space whose points are those of the problem's penalty rule."""
+    cell = problem.mesh.basix_cell()
+    if problem.disc.penalty_quadrature == "vertex":
+        points = basix.geometry(cell)
+        volume = basix.cell.volume(cell)
+        weights = np.full(points.shape[0], volume / points.shape[0])
+        element = basix.ufl.quadrature_element(cell, points=points, weights=weights)
+    else:
+        element = basix.ufl.quadrature_element(cell, degree=problem.disc.qdegree)
+    return dolfinx.fem.functionspace(problem.mesh, element)
+
+
+class QuadraturePenalty:
+    """The penalty of one :class:`PenalizedProblem` as operators on quadrature-point values.
+
+    Attributes:
+        M: ``diag(D) B`` (rows: owned quadrature points; Dirichlet columns zeroed).
+        D: ``w_k ε / |c|(x_k)`` at the owned points.
+        g0: ``θ·q`` at the owned points.
+    """
+
+    def __init__(self, problem: PenalizedProblem) -> None:
+        self.problem = problem
+        G, q = problem.G, problem.q
+        self.Q = Q = _quadrature_space(problem)
+        r = ufl.TestFunction(Q)
+        u = ufl.TrialFunction(problem.V)
+        eps = problem.shell.material.epsilon
+        weight = eps / problem.c_norm
+        dxq = problem.dx_penalty
+        c = problem.c
+        theta_q = sum(G.theta[k] * q[k] for k in range(3))
+        self.M = dolfinx.fem.petsc.assemble_matrix(
+            dolfinx.fem.form(sum(c[j] * u[j] for j in range(3)) * r * weight * dxq),
+            bcs=problem.bcs,
+        )
+        self.M.assemble()
+        n = Q.dofmap.index_map.size_local
+        D = dolfinx.fem.assemble_vector(dolfinx.fem.form(weight * r * dxq))
+        gD = dolfinx.fem.assemble_vector(dolfinx.fem.form(theta_q * weight * r * dxq))
+        self.D = np.array(D.array[:n])
+        self.g0 = np.array(gD.array[:n]) / self.D
+        # |θ·q| and the per-component columns of M, for the round-off scale of g
+        self._theta_abs = np.abs(self.g0)
+        self._work_q = self.M.createVecLeft()
+        self._work_v = self.M.createVecRight()
+        bs = problem.V.dofmap.index_map_bs
+        nv = problem.V.dofmap.index_map.size_local * bs
+        self._component = np.arange(nv) % bs
+        self._active_is: PETSc.IS | None = None
+
+    @property
+    def num_points(self) -> int:
+        """Global number of quadrature points of the penalty."""
+        return self.Q.dofmap.index_map.size_global
+
+    # -- values at the points ----------------------------------------------------------------
+    def apply_B(self, x: PETSc.Vec) -> np.ndarray:
+        """``B x`` at the owned points (``x`` a displacement vector)."""
+        self.M.mult(x, self._work_q)
+        return self._work_q.array_r / self.D
+
+    def gap(self, zeta: PETSc.Vec) -> np.ndarray:
+        """``g(ζ)`` at the owned points."""
+        return self.g0 + self.apply_B(zeta)
+
+    def gap_scale(self, zeta: PETSc.Vec) -> np.ndarray:
+        """``|θ·q| + Σ_j |ζ_j c_j|`` at the owned points: the size of the terms of ``g``."""
+        total = self._theta_abs.copy()
+        x = self._work_v
+        for j in range(int(self._component.max(initial=-1)) + 1):
+            with zeta.localForm() as z:
+                x.array[:] = np.where(self._component == j, z.array_r[: x.getLocalSize()], 0.0)
+            total += np.abs(self.apply_B(x))
+        return total
+
+    # -- derivatives -------------------------------------------------------------------------
+    def energy(self, g: np.ndarray, kappa: float) -> float:
+        """``(1/(2κ)) Σ D_k min(g_k, 0)²`` (global)."""
+        local = float(np.dot(self.D, np.minimum(g, 0.0) ** 2)) / (2.0 * kappa)
+        return self.problem.mesh.comm.allreduce(local)
+
+    def add_residual(self, values: np.ndarray, kappa: float, b: PETSc.Vec) -> None:
+        """``b ← b + (1/κ) Mᵀ values`` (``values`` at the owned points, e.g. ``min(g, 0)``)."""
+        self._work_q.array[:] = values / kappa
+        self.M.multTransposeAdd(self._work_q, b, b)
+
+    def jacobian(self, g: np.ndarray, kappa: float) -> PETSc.Mat | None:
+        """``(1/κ) M_Aᵀ diag(1/D_A) M_A`` for the active points ``g < 0`` (None if A = ∅)."""
+        comm = self.problem.mesh.comm
+        active = np.flatnonzero(g < 0)
+        if comm.allreduce(active.size) == 0:
+            return None
+        start = self.M.getOwnershipRange()[0]
+        rows = PETSc.IS().createGeneral((start + active).astype(PETSc.IntType), comm=comm)
+        c0, c1 = self.M.getOwnershipRangeColumn()
+        cols = PETSc.IS().createStride(c1 - c0, c0, 1, comm=comm)
+        MA = self.M.createSubMatrix(rows, cols)
+        scale = MA.createVecLeft()
+        scale.array[:] = 1.0 / np.sqrt(kappa * self.D[active])
+        MA.diagonalScale(L=scale)
+        P = MA.transposeMatMult(MA)
+        for obj in (rows, cols, MA, scale):
+            obj.destroy()
+        return P
+
+    def destroy(self) -> None:
+        """Free the PETSc objects."""
+        for obj in (self.M, self._work_q, self._work_v):
+            obj.destroy()

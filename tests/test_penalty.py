@@ -1,0 +1,107 @@
+"""The penalty at its quadrature points equals the UFL forms; factorization reuse (§4–5)."""
+
+from __future__ import annotations
+
+import dolfinx
+import dolfinx.fem.petsc
+import numpy as np
+import pytest
+from petsc4py import PETSc
+
+from shellobstacle.penalty import QuadraturePenalty
+from shellobstacle.pipeline import continuation
+from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from tests.test_newton import paper_shell, square
+
+KAPPA = 1e-3
+
+
+def pressed(problem: PenalizedProblem) -> None:
+    """A displacement that pushes the middle of the cap through the plane (g < 0 there)."""
+    problem.zeta.interpolate(
+        lambda x: np.vstack([0.01 * x[1], -0.02 * x[0], -0.2 + 2.0 * (x[0] ** 2 + x[1] ** 2)])
+    )
+    dolfinx.fem.petsc.set_bc(problem.zeta.x.petsc_vec, problem.bcs)
+    problem.zeta.x.scatter_forward()
+
+
+def assembled_vector(problem: PenalizedProblem, name: str) -> PETSc.Vec:
+    b = dolfinx.fem.petsc.assemble_vector(problem.forms[name])
+    b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+    dolfinx.fem.petsc.set_bc(b, problem.bcs)
+    return b
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(("degree", "quadrature"), [(1, "gauss"), (1, "vertex"), (2, "gauss")])
+def test_point_penalty_equals_the_forms(degree: int, quadrature: str) -> None:
+    """Energy, residual and Jacobian from the point matrix M equal the UFL forms' values."""
+    disc = Discretization(degree=degree, penalty_quadrature=quadrature)
+    problem = PenalizedProblem(paper_shell(), square(n=10), disc, kappa=KAPPA)
+    pressed(problem)
+    pen = QuadraturePenalty(problem)
+    g = pen.gap(problem.zeta.x.petsc_vec)
+    num_active = problem.mesh.comm.allreduce(int(np.sum(g < 0)))
+    assert 0 < num_active < pen.num_points  # both sides of the kink are exercised
+
+    energy = problem.scalar("penalty_energy")
+    assert pen.energy(g, KAPPA) == pytest.approx(energy, rel=1e-12)
+
+    expected = assembled_vector(problem, "penalty_residual")
+    ours = expected.duplicate()
+    ours.set(0.0)
+    pen.add_residual(np.minimum(g, 0.0), KAPPA, ours)
+    ours.axpy(-1.0, expected)
+    assert ours.norm() <= 1e-12 * expected.norm()
+
+    J = dolfinx.fem.petsc.assemble_matrix(problem.forms["jacobian"], bcs=problem.bcs)
+    J.assemble()
+    K = dolfinx.fem.petsc.assemble_matrix(problem.forms["stiffness"], bcs=problem.bcs)
+    K.assemble()
+    K.axpy(1.0, pen.jacobian(g, KAPPA), structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+    K.axpy(-1.0, J)
+    assert K.norm() <= 1e-12 * J.norm()
+
+
+def test_no_active_point_no_penalty_jacobian() -> None:
+    """At ζ = 0 the cap is above the plane: no active point, no penalty Jacobian."""
+    problem = PenalizedProblem(paper_shell(), square(n=8), kappa=KAPPA)
+    pen = QuadraturePenalty(problem)
+    g = pen.gap(problem.zeta.x.petsc_vec)
+    assert np.all(g > 0)
+    assert pen.jacobian(g, KAPPA) is None
+    assert pen.energy(g, KAPPA) == 0.0
+
+
+@pytest.mark.mpi
+def test_factorization_reuse_same_solution_fewer_factorizations() -> None:
+    """Reusing one factorization per solve gives the same ζ as factorizing at every step."""
+    kappas = [1e-2, 1e-3, 1e-4, 1e-5]
+    results = {}
+    for reuse in (False, True):
+        problem = PenalizedProblem(paper_shell(), square(n=32))
+        solver = NewtonSolver(problem, NewtonOptions(reuse_factorization=reuse))
+        steps = continuation(problem, solver, kappas)
+        results[reuse] = (problem.zeta.x.petsc_vec.copy(), steps)
+    (z_fresh, fresh), (z_reuse, reused) = results[False], results[True]
+    assert all(s.converged for s in fresh + reused)
+    assert all(s.newton.relative_residual <= 1e-10 or s.newton.round_off_limited for s in reused)
+    # every Newton step of the fresh solver factorizes; the reusing one at least once less
+    assert [s.newton.factorizations for s in fresh] == [s.iterations for s in fresh]
+    total_fresh = sum(s.newton.factorizations for s in fresh)
+    total_reused = sum(s.newton.factorizations for s in reused)
+    assert total_reused < total_fresh
+    assert max(max(s.newton.linear_iterations) for s in reused) > 1  # CG did run
+    z_reuse.axpy(-1.0, z_fresh)
+    assert z_reuse.norm() <= 1e-8 * z_fresh.norm()
+
+
+def test_reuse_gives_up_and_factorizes_when_cg_is_slow() -> None:
+    """With a CG budget of one iteration reuse fails and a new factorization is computed."""
+    problem = PenalizedProblem(paper_shell(), square(n=24))
+    options = NewtonOptions(reuse_max_iterations=1, reuse_max_changed_fraction=1.0)
+    solver = NewtonSolver(problem, options)
+    steps = continuation(problem, solver, [1e-2, 1e-3])
+    assert all(s.converged for s in steps)
+    assert solver._reuse_failures > 0
