@@ -97,11 +97,13 @@ def test_factorization_reuse_same_solution_fewer_factorizations() -> None:
     assert z_reuse.norm() <= 1e-8 * z_fresh.norm()
 
 
-def test_reuse_gives_up_and_factorizes_when_cg_is_slow() -> None:
-    """With a CG budget of one iteration reuse fails and a new factorization is computed."""
+def test_reuse_gives_up_and_factorizes_when_cg_is_slow(monkeypatch: pytest.MonkeyPatch) -> None:
+    """CG that does not converge within its budget falls back to a new factorization."""
     problem = PenalizedProblem(paper_shell(), square(n=24))
-    options = NewtonOptions(reuse_max_iterations=1, reuse_max_changed_fraction=1.0)
-    solver = NewtonSolver(problem, options)
+    solver = NewtonSolver(problem, NewtonOptions(reuse_max_iterations=1))
+    # always try CG, however much the active set moved: with one iteration it must fail
+    monkeypatch.setattr(solver, "_active_set_moved", lambda: False)
     steps = continuation(problem, solver, [1e-2, 1e-3])
     assert all(s.converged for s in steps)
     assert solver._reuse_failures > 0
+    assert sum(s.newton.factorizations for s in steps) > len(steps)
