@@ -39,6 +39,7 @@ def main() -> None:
     ap.add_argument("--quadrature", default="gauss", choices=("gauss", "vertex"))
     ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
     ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
+    ap.add_argument("--factorization", default="lu", choices=("lu", "cholesky"))
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
     t_all = time.perf_counter()
@@ -46,6 +47,7 @@ def main() -> None:
     rec: dict = {"benchmark": "batch1", "target": args.target, "ranks": comm.size}
     rec |= {"quadrature": args.quadrature, "linear_solver": args.linear_solver}
     rec["reuse_factorization"] = not args.no_reuse
+    rec["factorization"] = args.factorization
     t = time.perf_counter()
     mesh = make_mesh(cfg.domain)
     h = mesh_size(mesh)
@@ -53,7 +55,11 @@ def main() -> None:
     t = time.perf_counter()
     check_assumptions(cfg.shell, mesh)
     rec["checks_s"] = time.perf_counter() - t
-    newton = NewtonOptions(linear_solver=args.linear_solver, reuse_factorization=not args.no_reuse)
+    newton = NewtonOptions(
+        linear_solver=args.linear_solver,
+        reuse_factorization=not args.no_reuse,
+        factorization=args.factorization,
+    )
     t = time.perf_counter()
     study = penalty_study(
         cfg.shell,

@@ -20,9 +20,12 @@ PHASES = (
     "mesh_s",
     "checks_s",
     "compile_s",
+    "newton_setup_s",
     "newton_assemble_s",
+    "newton_factorize_s",
     "newton_solve_s",
     "newton_line_search_s",
+    "newton_predict_s",
     "continuation_s",
     "output_s",
 )
@@ -40,10 +43,11 @@ def main() -> None:
         dofs = np.array([r["dofs"] for r in rows], float)
         ranks = rows[0]["ranks"]
         print(f"\n### {Path(name).name}: {ranks} rank(s), {rows[0]['linear_solver']} solver\n")
-        head = ["dofs", "h", "Newton", *(p[:-2] for p in PHASES), "peak RSS MB"]
+        head = ["dofs", "h", "Newton", "LU", *(p[:-2] for p in PHASES), "peak RSS MB"]
         print("| " + " | ".join(head) + " |\n|" + "---|" * len(head))
         for r in rows:
             cells = [str(r["dofs"]), f"{r['h']:.4g}", "/".join(map(str, r["newton"]))]
+            cells.append("/".join(map(str, r.get("factorizations", []))) or "–")
             cells += [f"{r.get(p, float('nan')):.2f}" for p in PHASES]
             cells.append(f"{r['peak_rss_mb_total']:.0f}")
             print("| " + " | ".join(cells) + " |")

@@ -107,3 +107,17 @@ def test_reuse_gives_up_and_factorizes_when_cg_is_slow(monkeypatch: pytest.Monke
     assert all(s.converged for s in steps)
     assert solver._reuse_failures > 0
     assert sum(s.newton.factorizations for s in steps) > len(steps)
+
+
+@pytest.mark.mpi
+def test_cholesky_and_lu_give_the_same_solution() -> None:
+    """The Jacobian is symmetric positive definite: MUMPS Cholesky solves the same problem."""
+    solutions = []
+    for factorization in ("lu", "cholesky"):
+        problem = PenalizedProblem(paper_shell(), square(n=24))
+        solver = NewtonSolver(problem, NewtonOptions(factorization=factorization))
+        steps = continuation(problem, solver, [1e-2, 1e-4])
+        assert all(s.converged for s in steps)
+        solutions.append(problem.zeta.x.petsc_vec.copy())
+    solutions[1].axpy(-1.0, solutions[0])
+    assert solutions[1].norm() <= 1e-8 * solutions[0].norm()

@@ -78,7 +78,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
         "central_radius": Key("float", OPTIONAL, "disk/ellipse: radius of the finer region"),
         "gmsh_max_vertices": Key(
-            "int", 60_000, "above this, gmsh meshes coarser and the mesh is refined (0: never)"
+            "int", 30_000, "above this, gmsh meshes coarser and the mesh is refined (0: never)"
         ),
     },
     "material": {
@@ -114,7 +114,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "active-set: the exact nodal variational inequality (κ = 0, no [penalty])",
             ("newton", "brezis-sibony", "active-set"),
         ),
-        "linear_solver": Key("str", "direct", "MUMPS LU or CG + GAMG", ("direct", "iterative")),
+        "linear_solver": Key("str", "direct", "MUMPS or CG + GAMG", ("direct", "iterative")),
+        "factorization": Key(
+            "str", "lu", "direct solver: LU, or Cholesky (half the memory)", ("lu", "cholesky")
+        ),
         "rtol": Key("float", 1e-10, "relative residual tolerance"),
         "stol": Key("float", 1e-12, "relative Newton-correction tolerance"),
         "max_iterations": Key("int", 100, "Newton (or active-set) iterations per κ"),
@@ -377,6 +380,7 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         stol=sv["stol"],
         max_iterations=sv["max_iterations"],
         linear_solver=sv["linear_solver"],
+        factorization=sv["factorization"],
     )
     return Config(shell, domain, disc, penalty, solver, sv["method"], dict(r["output"]), r, source)
 

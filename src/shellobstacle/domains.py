@@ -76,7 +76,7 @@ class DomainSpec:
     refinements: int = 0
     central_h: float | None = None
     central_radius: float | None = None
-    gmsh_max_vertices: int = 60_000
+    gmsh_max_vertices: int = 30_000
 
 
 def _diameter(spec: DomainSpec) -> float:
