@@ -13,12 +13,11 @@ iterations per κ, dofs, h, peak RSS.
 from __future__ import annotations
 
 import argparse
-import json
-import resource
 import time
 from pathlib import Path
 
 from mpi4py import MPI
+from record import emit
 
 from shellobstacle.checks import check_assumptions
 from shellobstacle.config import load_config
@@ -78,14 +77,7 @@ def main() -> None:
         rec[key] = [s.get(key) for s in study.solves]
     rec["timings"] = study.timings
     rec["error_VM"] = [r["error_VM"] for r in study.rows]
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    rec["peak_rss_mb_per_rank_max"] = comm.allreduce(rss, op=MPI.MAX)
-    rec["peak_rss_mb_total"] = comm.allreduce(rss, op=MPI.SUM)
-    if comm.rank == 0:
-        print(
-            json.dumps({k: round(v, 4) if isinstance(v, float) else v for k, v in rec.items()}),
-            flush=True,
-        )
+    emit(rec, comm)
 
 
 if __name__ == "__main__":

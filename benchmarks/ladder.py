@@ -15,14 +15,13 @@ the penalty's point matrix M, assembled once per mesh).
 from __future__ import annotations
 
 import argparse
-import json
 import os
-import resource
 import tempfile
 import time
 from pathlib import Path
 
 from mpi4py import MPI
+from record import emit
 
 from shellobstacle.checks import check_assumptions
 from shellobstacle.config import load_config
@@ -89,14 +88,7 @@ def main() -> None:
             plot_cross_section([("κ", post.cross_section())], problem.q, folder / "x.png")
             rec["output_s"] = time.perf_counter() - t
         rec |= {"h": h, "dofs": problem.num_dofs, "contact_area": summary["contact_area"]}
-        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-        rec["peak_rss_mb_per_rank_max"] = comm.allreduce(rss, op=MPI.MAX)
-        rec["peak_rss_mb_total"] = comm.allreduce(rss, op=MPI.SUM)
-        if comm.rank == 0:
-            print(
-                json.dumps({k: round(v, 4) if isinstance(v, float) else v for k, v in rec.items()}),
-                flush=True,
-            )
+        emit(rec, comm)
 
 
 if __name__ == "__main__":

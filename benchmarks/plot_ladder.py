@@ -39,6 +39,7 @@ def main() -> None:
     args = ap.parse_args()
     fig, axes = plt.subplots(1, len(args.files), figsize=(6 * len(args.files), 4.5), squeeze=False)
     for ax, name in zip(axes[0], args.files, strict=True):
+        ax.set_prop_cycle(color=plt.cm.tab20(np.linspace(0, 1, len(PHASES))))
         rows = [json.loads(line) for line in Path(name).read_text().splitlines() if line.strip()]
         dofs = np.array([r["dofs"] for r in rows], float)
         ranks = rows[0]["ranks"]
