@@ -13,6 +13,7 @@ iterations per κ, dofs, h, peak RSS.
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -47,6 +48,7 @@ def main() -> None:
     rec |= {"quadrature": args.quadrature, "linear_solver": args.linear_solver}
     rec["reuse_factorization"] = not args.no_reuse
     rec["factorization"] = args.factorization
+    rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
     t = time.perf_counter()
     mesh = make_mesh(cfg.domain)
     h = mesh_size(mesh)
