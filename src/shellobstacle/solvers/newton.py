@@ -185,11 +185,12 @@ class NewtonSolver:
             # measured on the paper's problem (docs/performance.md): SOR smoothing and a
             # 0.02 aggregation threshold halve the CG iterations of the defaults and make
             # them grow less with ε/κ; the rigid motions as near-null space did not help
+            gamg = {"pc_gamg_threshold": 0.02, "mg_levels_pc_type": "sor"}
             options = PETSc.Options()
-            options[f"{prefix}pc_gamg_threshold"] = 0.02
-            options[f"{prefix}mg_levels_pc_type"] = "sor"
+            for key, value in gamg.items():
+                options[prefix + key] = value
             self.ksp.setTolerances(rtol=opts.linear_rtol, atol=1e-50, max_it=2000)
-        self.ksp.setFromOptions()
+        self.ksp.setFromOptions()  # (the GAMG options stay: levels are made at every set-up)
         self.timings: dict[str, float] = {
             "setup": time.perf_counter() - t0,
             "assemble": 0.0,
@@ -237,7 +238,7 @@ class NewtonSolver:
             P.destroy()
 
     def _factorize(self) -> None:
-        """Factorize the current Jacobian (kept for later steps at the same κ)."""
+        """Factorize the current Jacobian (kept for the later steps of this solve)."""
         t0 = time.perf_counter()
         pc = self.ksp.getPC()
         pc.setReusePreconditioner(False)
