@@ -114,7 +114,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "active-set: the exact nodal variational inequality (κ = 0, no [penalty])",
             ("newton", "brezis-sibony", "active-set"),
         ),
-        "linear_solver": Key("str", "direct", "MUMPS or CG + GAMG", ("direct", "iterative")),
+        "linear_solver": Key(
+            "str",
+            "direct",
+            "MUMPS, or CG with a field split (GAMG on ζ_α)",
+            ("direct", "iterative"),
+        ),
         "factorization": Key(
             "str", "lu", "direct solver: LU, or Cholesky (half the memory)", ("lu", "cholesky")
         ),
