@@ -13,20 +13,15 @@ iterations per κ, dofs, h, peak RSS.
 from __future__ import annotations
 
 import argparse
-import os
 import time
 from pathlib import Path
 
 from mpi4py import MPI
-from record import emit
+from record import add_solver_arguments, emit, solver_options, timed_mesh
 
-from shellobstacle.checks import check_assumptions
 from shellobstacle.config import load_config
-from shellobstacle.domains import mesh_size
 from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
-from shellobstacle.pipeline import make_mesh
 from shellobstacle.problem import Discretization
-from shellobstacle.solvers.newton import NewtonOptions
 
 PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 
@@ -37,30 +32,15 @@ def main() -> None:
     ap.add_argument("--target", type=float, default=0.0029, help="gmsh target mesh size")
     ap.add_argument("--qmax", type=float, default=2.0)
     ap.add_argument("--quadrature", default="gauss", choices=("gauss", "vertex"))
-    ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
-    ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
-    ap.add_argument("--factorization", default="lu", choices=("lu", "cholesky"))
+    add_solver_arguments(ap)
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
     t_all = time.perf_counter()
     cfg = load_config(PAPER, [f"domain.h={args.target}"])
     rec: dict = {"benchmark": "batch1", "target": args.target, "ranks": comm.size}
-    rec |= {"quadrature": args.quadrature, "linear_solver": args.linear_solver}
-    rec["reuse_factorization"] = not args.no_reuse
-    rec["factorization"] = args.factorization
-    rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
-    t = time.perf_counter()
-    mesh = make_mesh(cfg.domain)
-    h = mesh_size(mesh)
-    rec["mesh_s"] = time.perf_counter() - t
-    t = time.perf_counter()
-    check_assumptions(cfg.shell, mesh)
-    rec["checks_s"] = time.perf_counter() - t
-    newton = NewtonOptions(
-        linear_solver=args.linear_solver,
-        reuse_factorization=not args.no_reuse,
-        factorization=args.factorization,
-    )
+    rec["quadrature"] = args.quadrature
+    newton = solver_options(args, rec)
+    mesh, h = timed_mesh(cfg, rec)
     t = time.perf_counter()
     study = penalty_study(
         cfg.shell,

@@ -15,23 +15,20 @@ the penalty's point matrix M, assembled once per mesh).
 from __future__ import annotations
 
 import argparse
-import os
 import tempfile
 import time
 from pathlib import Path
 
 from mpi4py import MPI
-from record import emit
+from record import add_solver_arguments, emit, solver_options, timed_mesh
 
-from shellobstacle.checks import check_assumptions
 from shellobstacle.config import load_config
-from shellobstacle.domains import mesh_size
 from shellobstacle.output import write_paraview
-from shellobstacle.pipeline import continuation, make_mesh
+from shellobstacle.pipeline import continuation
 from shellobstacle.plotting import plot_cross_section
 from shellobstacle.postprocess import Postprocessor
 from shellobstacle.problem import PenalizedProblem
-from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton import NewtonSolver
 
 PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 
@@ -40,33 +37,18 @@ def main() -> None:
     """Run the ladder and print JSON lines on rank 0."""
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--sizes", default="0.02,0.01,0.005")
-    ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
+    add_solver_arguments(ap)
     ap.add_argument("--exponent", type=float, default=1.5)
     ap.add_argument("--no-output", action="store_true", help="skip ParaView/figure output")
-    ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
-    ap.add_argument("--factorization", default="lu", choices=("lu", "cholesky"))
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
     for size in (float(s) for s in args.sizes.split(",")):
         cfg = load_config(PAPER, [f"domain.h={size}"])
-        rec: dict = {"target": size, "ranks": comm.size, "linear_solver": args.linear_solver}
-        rec["reuse_factorization"] = not args.no_reuse
-        rec["factorization"] = args.factorization
-        rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
-        t = time.perf_counter()
-        mesh = make_mesh(cfg.domain)
-        h = mesh_size(mesh)
-        rec["mesh_s"] = time.perf_counter() - t
-        t = time.perf_counter()
-        check_assumptions(cfg.shell, mesh)
-        rec["checks_s"] = time.perf_counter() - t
+        rec: dict = {"target": size, "ranks": comm.size}
+        options = solver_options(args, rec)
+        mesh, h = timed_mesh(cfg, rec)
         t = time.perf_counter()
         problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization)
-        options = NewtonOptions(
-            linear_solver=args.linear_solver,
-            reuse_factorization=not args.no_reuse,
-            factorization=args.factorization,
-        )
         solver = NewtonSolver(problem, options)
         rec["compile_s"] = time.perf_counter() - t
         kappas = [h**q for q in (0.5, 1.0, args.exponent)]

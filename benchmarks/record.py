@@ -1,12 +1,22 @@
-"""Shared tail of the benchmark scripts: peak memory and one JSON line on rank 0."""
+"""Shared parts of the benchmark scripts: solver arguments, peak memory, one JSON line."""
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import resource
+import time
 from typing import Any
 
+import dolfinx
 from mpi4py import MPI
+
+from shellobstacle.checks import check_assumptions
+from shellobstacle.config import Config
+from shellobstacle.domains import mesh_size
+from shellobstacle.pipeline import make_mesh
+from shellobstacle.solvers.newton import NewtonOptions
 
 
 def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
@@ -20,3 +30,35 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     if comm.rank == 0:
         values = {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in rec.items()}
         print(json.dumps(values), flush=True)
+
+
+def add_solver_arguments(ap: argparse.ArgumentParser) -> None:
+    """The linear-solver choices shared by the benchmarks."""
+    ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
+    ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
+    ap.add_argument("--factorization", default="lu", choices=("lu", "cholesky"))
+
+
+def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptions:
+    """The Newton options the arguments ask for; records them (and OMP_NUM_THREADS) in ``rec``."""
+    rec["linear_solver"] = args.linear_solver
+    rec["reuse_factorization"] = not args.no_reuse
+    rec["factorization"] = args.factorization
+    rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
+    return NewtonOptions(
+        linear_solver=args.linear_solver,
+        reuse_factorization=not args.no_reuse,
+        factorization=args.factorization,
+    )
+
+
+def timed_mesh(cfg: Config, rec: dict[str, Any]) -> tuple[dolfinx.mesh.Mesh, float]:
+    """The config's mesh and its h; records the seconds of meshing and of the checks."""
+    t = time.perf_counter()
+    mesh = make_mesh(cfg.domain)
+    h = mesh_size(mesh)
+    rec["mesh_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    check_assumptions(cfg.shell, mesh)
+    rec["checks_s"] = time.perf_counter() - t
+    return mesh, h
