@@ -143,3 +143,26 @@ def test_serial_and_parallel_agree() -> None:
     assert par["nodes"] == ser["nodes"] and par["nodes"] > 0
     for key in ("energy", "area", "violation", "zeta3_min", "norm"):
         assert par[key] == pytest.approx(ser[key], rel=1e-9, abs=1e-15), key
+
+
+def test_an_iterative_solvers_options_never_reach_a_later_direct_solver() -> None:
+    """Solver options live under a prefix of their own and leave with the solver.
+
+    (Regression: prefixes made from id() were reused by later solvers, and a direct solver
+    then picked up a freed iterative solver's field split and failed intermittently.)
+    """
+    import gc
+
+    from petsc4py import PETSc
+
+    problem = PenalizedProblem(paper_shell(), square(n=8))
+    iterative = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))
+    prefix = iterative.ksp.getOptionsPrefix()
+    assert PETSc.Options().hasName(prefix + "pc_type")
+    del iterative
+    gc.collect()
+    assert not PETSc.Options().hasName(prefix + "pc_type")
+    for _ in range(5):
+        direct = NewtonSolver(problem)
+        assert direct.ksp.getOptionsPrefix() != prefix
+        assert direct.ksp.getPC().getType() == "lu"

@@ -19,8 +19,10 @@ when that does not converge quickly.
 
 from __future__ import annotations
 
+import itertools
 import math
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -140,6 +142,16 @@ class ConvergenceError(RuntimeError):
         self.result = result
 
 
+_SOLVER_NUMBERS = itertools.count()
+
+
+def _forget_options(names: list[str]) -> None:
+    """Remove a freed solver's entries from PETSc's global options database."""
+    options = PETSc.Options()
+    for name in names:
+        options.delValue(name)
+
+
 class NewtonSolver:
     """Newton's method for one :class:`PenalizedProblem`, reusable across ``κ`` values."""
 
@@ -157,7 +169,9 @@ class NewtonSolver:
         self.dz = dolfinx.fem.petsc.create_vector(problem.V)
         self.Kdz = self.K.createVecLeft()
         self.ksp = PETSc.KSP().create(comm)
-        prefix = f"shellobstacle_{id(self)}_"
+        # a prefix of its own: PETSc options set below must never reach another solver (an
+        # id() is reused once an object is freed, and with it a dead solver's options)
+        prefix = f"shellobstacle_newton{next(_SOLVER_NUMBERS)}_"
         self.ksp.setOptionsPrefix(prefix)
         pc = self.ksp.getPC()
         self.reuse = opts.linear_solver == "direct" and opts.reuse_factorization
@@ -201,6 +215,7 @@ class NewtonSolver:
             options = PETSc.Options()
             for key, value in split.items():
                 options[prefix + key] = value
+            weakref.finalize(self, _forget_options, [prefix + key for key in split])
             self.ksp.setTolerances(rtol=opts.linear_rtol, atol=1e-50, max_it=2000)
         self.ksp.setFromOptions()  # (the options stay: the levels are made at every set-up)
         self.timings: dict[str, float] = {
