@@ -76,14 +76,8 @@ class QuadraturePenalty:
         gD = dolfinx.fem.assemble_vector(dolfinx.fem.form(theta_q * weight * r * dxq))
         self.D = np.array(D.array[:n])
         self.g0 = np.array(gD.array[:n]) / self.D
-        # |θ·q| and the per-component columns of M, for the round-off scale of g
-        self._theta_abs = np.abs(self.g0)
         self._work_q = self.M.createVecLeft()
         self._work_v = self.M.createVecRight()
-        bs = problem.V.dofmap.index_map_bs
-        nv = problem.V.dofmap.index_map.size_local * bs
-        self._component = np.arange(nv) % bs
-        self._active_is: PETSc.IS | None = None
 
     @property
     def num_points(self) -> int:
@@ -101,13 +95,19 @@ class QuadraturePenalty:
         return self.g0 + self.apply_B(zeta)
 
     def gap_scale(self, zeta: PETSc.Vec) -> np.ndarray:
-        """``|θ·q| + Σ_j |ζ_j c_j|`` at the owned points: the size of the terms of ``g``."""
-        total = self._theta_abs.copy()
+        """``|θ·q| + Σ_j |ζ_j c_j|`` at the owned points: the size of the terms of ``g``.
+
+        ``c_j ζ_j`` is ``B`` applied to ``ζ`` with every component but ``j`` set to 0.
+        """
+        total = np.abs(self.g0)
         x = self._work_v
-        for j in range(int(self._component.max(initial=-1)) + 1):
-            with zeta.localForm() as z:
-                x.array[:] = np.where(self._component == j, z.array_r[: x.getLocalSize()], 0.0)
-            total += np.abs(self.apply_B(x))
+        with zeta.localForm() as z:
+            owned = z.array_r[: x.getLocalSize()].reshape(-1, 3)  # (ζ_1, ζ_2, ζ_3) per node
+            for j in range(3):
+                component = np.zeros_like(owned)
+                component[:, j] = owned[:, j]
+                x.array[:] = component.ravel()
+                total += np.abs(self.apply_B(x))
         return total
 
     # -- derivatives -------------------------------------------------------------------------
@@ -139,8 +139,3 @@ class QuadraturePenalty:
         for obj in (rows, cols, MA, scale):
             obj.destroy()
         return P
-
-    def destroy(self) -> None:
-        """Free the PETSc objects."""
-        for obj in (self.M, self._work_q, self._work_v):
-            obj.destroy()

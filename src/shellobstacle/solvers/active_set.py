@@ -63,6 +63,7 @@ from shellobstacle.membrane import elastic_product
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.line_search import piecewise_linear_root
 from shellobstacle.solvers.newton import ConvergenceError
+from shellobstacle.solvers.options import unique_prefix
 
 __all__ = ["ActiveSetOptions", "ActiveSetResult", "ActiveSetSolver", "nodal_rotations"]
 
@@ -288,7 +289,7 @@ class ActiveSetSolver:
         self.W = self.Kr.duplicate(copy=True)
         self.W.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
         self.ksp = PETSc.KSP().create(self.comm)
-        self.ksp.setOptionsPrefix(f"shellobstacle_as_{id(self)}_")
+        self.ksp.setOptionsPrefix(unique_prefix("as"))
         self.ksp.setOperators(self.W)
         self.ksp.setType("preonly")
         pc = self.ksp.getPC()

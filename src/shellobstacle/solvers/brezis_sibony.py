@@ -56,6 +56,7 @@ from slepc4py import SLEPc
 
 from shellobstacle.membrane import elastic_product
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.options import unique_prefix
 
 __all__ = ["BrezisSibonyOptions", "BrezisSibonyResult", "BrezisSibonySolver"]
 
@@ -213,7 +214,7 @@ class BrezisSibonySolver:
             raise ValueError(
                 "mass = 'lumped' needs P1 (the row sums of the P2 mass matrix vanish at vertices)"
             )
-        self._prefix = f"shellobstacle_bs_{id(self)}_"
+        self._prefix = unique_prefix("bs")
 
         # forms: mass, elastic (K) and the safe bound K + P_all (every penalty point active)
         u, v = ufl.TrialFunction(V), ufl.TestFunction(V)

@@ -19,10 +19,8 @@ when that does not converge quickly.
 
 from __future__ import annotations
 
-import itertools
 import math
 import time
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -36,6 +34,7 @@ from shellobstacle import compat  # noqa: F401
 from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.line_search import piecewise_linear_root
+from shellobstacle.solvers.options import set_options, unique_prefix
 
 __all__ = ["ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
 
@@ -142,16 +141,6 @@ class ConvergenceError(RuntimeError):
         self.result = result
 
 
-_SOLVER_NUMBERS = itertools.count()
-
-
-def _forget_options(names: list[str]) -> None:
-    """Remove a freed solver's entries from PETSc's global options database."""
-    options = PETSc.Options()
-    for name in names:
-        options.delValue(name)
-
-
 class NewtonSolver:
     """Newton's method for one :class:`PenalizedProblem`, reusable across ``κ`` values."""
 
@@ -169,10 +158,9 @@ class NewtonSolver:
         self.dz = dolfinx.fem.petsc.create_vector(problem.V)
         self.Kdz = self.K.createVecLeft()
         self.ksp = PETSc.KSP().create(comm)
-        # a prefix of its own: PETSc options set below must never reach another solver (an
-        # id() is reused once an object is freed, and with it a dead solver's options)
-        prefix = f"shellobstacle_newton{next(_SOLVER_NUMBERS)}_"
+        prefix = unique_prefix("newton")
         self.ksp.setOptionsPrefix(prefix)
+        self.ksp.setOperators(self.A)
         pc = self.ksp.getPC()
         self.reuse = opts.linear_solver == "direct" and opts.reuse_factorization
         if opts.linear_solver == "direct":
@@ -182,7 +170,6 @@ class NewtonSolver:
             pc.setFactorSolverType("mumps")
             if self.reuse:
                 # the factorization stays that of an earlier Jacobian until _factorize
-                self.ksp.setOperators(self.A)
                 pc.setReusePreconditioner(True)
                 self.ksp.setType("cg")
                 self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
@@ -191,10 +178,8 @@ class NewtonSolver:
                 )
                 self.ksp.setInitialGuessNonzero(False)
             else:
-                self.ksp.setOperators(self.A)
                 self.ksp.setType("preonly")
         else:
-            self.ksp.setOperators(self.A)
             self.ksp.setType("cg")
             # ζ_3 enters the membrane strain without derivatives: its block is a (penalty-
             # augmented) mass matrix, Jacobi is enough there, and AMG works on ζ_α alone.
@@ -212,10 +197,7 @@ class NewtonSolver:
                 "fieldsplit_1_ksp_type": "preonly",
                 "fieldsplit_1_pc_type": "jacobi",
             }
-            options = PETSc.Options()
-            for key, value in split.items():
-                options[prefix + key] = value
-            weakref.finalize(self, _forget_options, [prefix + key for key in split])
+            set_options(self, prefix, split)
             self.ksp.setTolerances(rtol=opts.linear_rtol, atol=1e-50, max_it=2000)
         self.ksp.setFromOptions()  # (the options stay: the levels are made at every set-up)
         self.timings: dict[str, float] = {
@@ -327,7 +309,7 @@ class NewtonSolver:
         factorization for the current κ exists.
         """
         kappa = self.kappa
-        if self._factored_kappa != kappa or self._g.size != self.penalty.D.size:
+        if self._factored_kappa != kappa:
             return False
         t0 = time.perf_counter()
         b = self.R.duplicate()
