@@ -37,6 +37,12 @@ def add_solver_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
     ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
     ap.add_argument("--factorization", default="lu", choices=("lu", "cholesky"))
+    ap.add_argument(
+        "--no-zone",
+        action="store_true",
+        help="direct solver without the contact-zone condensation (one factorization per κ "
+        "reused by CG, the second session's solver)",
+    )
 
 
 def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptions:
@@ -44,11 +50,13 @@ def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptio
     rec["linear_solver"] = args.linear_solver
     rec["reuse_factorization"] = not args.no_reuse
     rec["factorization"] = args.factorization
+    rec["contact_zone"] = args.linear_solver == "direct" and not args.no_zone
     rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
     return NewtonOptions(
         linear_solver=args.linear_solver,
         reuse_factorization=not args.no_reuse,
         factorization=args.factorization,
+        contact_zone=not args.no_zone,
     )
 
 

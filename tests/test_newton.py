@@ -163,6 +163,6 @@ def test_an_iterative_solvers_options_never_reach_a_later_direct_solver() -> Non
     gc.collect()
     assert not PETSc.Options().hasName(prefix + "pc_type")
     for _ in range(5):
-        direct = NewtonSolver(problem)
+        direct = NewtonSolver(problem, NewtonOptions(contact_zone=False))
         assert direct.ksp.getOptionsPrefix() != prefix
         assert direct.ksp.getPC().getType() == "lu"

@@ -81,7 +81,7 @@ def test_factorization_reuse_same_solution_fewer_factorizations() -> None:
     results = {}
     for reuse in (False, True):
         problem = PenalizedProblem(paper_shell(), square(n=32))
-        solver = NewtonSolver(problem, NewtonOptions(reuse_factorization=reuse))
+        solver = NewtonSolver(problem, NewtonOptions(reuse_factorization=reuse, contact_zone=False))
         steps = continuation(problem, solver, kappas)
         results[reuse] = (problem.zeta.x.petsc_vec.copy(), steps)
     (z_fresh, fresh), (z_reuse, reused) = results[False], results[True]
@@ -100,7 +100,7 @@ def test_factorization_reuse_same_solution_fewer_factorizations() -> None:
 def test_reuse_gives_up_and_factorizes_when_cg_is_slow(monkeypatch: pytest.MonkeyPatch) -> None:
     """CG that does not converge within its budget falls back to a new factorization."""
     problem = PenalizedProblem(paper_shell(), square(n=24))
-    solver = NewtonSolver(problem, NewtonOptions(reuse_max_iterations=1))
+    solver = NewtonSolver(problem, NewtonOptions(reuse_max_iterations=1, contact_zone=False))
     # always try CG, however much the active set moved: with one iteration it must fail
     monkeypatch.setattr(solver, "_active_set_moved", lambda: False)
     steps = continuation(problem, solver, [1e-2, 1e-3])

@@ -233,7 +233,10 @@ def test_resume_refuses_a_different_mesh(
     with monkeypatch.context() as m:
         Solves(m, stop=3)
         assert main([*PENALTY, "-q", "-o", str(out)]) == EXIT_INTERRUPTED
-    (vector,) = (out / "steps").glob("*.npy")
+    saved = sorted((out / "steps").glob("*.npy"))
+    # the solution of the last finished step and the solver's contact zone with it
+    assert [p.name.endswith(".zone.npy") for p in saved] == [False, True]
+    vector = saved[0]
     data = np.load(vector)
     data[0, 0] += 1e-4
     np.save(vector, data)

@@ -32,6 +32,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import dolfinx
 import numpy as np
 from mpi4py import MPI
 
@@ -281,10 +282,37 @@ class Checkpoint:
         u.x.scatter_forward()
 
     def drop_vector(self, key: str | None) -> None:
-        """Delete a vector that no later step needs (rank 0; a missing file is fine)."""
+        """Delete a vector (and its solver state) that no later step needs (rank 0)."""
         if self.dir is None or key is None or self.comm.rank != 0:
             return
         self.path(key, ".npy").unlink(missing_ok=True)
+        self.path(f"{key}.zone", ".npy").unlink(missing_ok=True)
+
+    # -- solver state -------------------------------------------------------------------------
+    def save_solver(self, key: str, solver: Any) -> None:
+        """Save the state a Newton solver carries between steps (its contact zone), collective.
+
+        A resumed run restores it with :meth:`restore_solver`, so that the steps it solves
+        again are those of the uninterrupted run to the last bit.
+        """
+        if self.dir is None:
+            return
+        zone = solver.zone_indicator()
+        if zone is not None:
+            self.save_vector(f"{key}.zone", zone)
+
+    def restore_solver(self, key: str, solver: Any) -> None:
+        """Give ``solver`` the state :meth:`save_solver` saved with step ``key`` (collective)."""
+        if self.dir is None or getattr(solver, "zone", None) is None:
+            return
+        exists = self.comm.bcast(
+            self.path(f"{key}.zone", ".npy").is_file() if self.comm.rank == 0 else None, root=0
+        )
+        if not exists:
+            return
+        u = dolfinx.fem.Function(solver.problem.V)
+        self.restore_vector(f"{key}.zone", u)
+        solver.set_zone_indicator(u)
 
     def finish(self) -> None:
         """The command finished: delete the remaining vectors (the JSON records stay)."""

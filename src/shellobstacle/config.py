@@ -123,6 +123,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "factorization": Key(
             "str", "lu", "direct solver: LU, or Cholesky (half the memory)", ("lu", "cholesky")
         ),
+        "contact_zone": Key(
+            "bool",
+            True,
+            "direct solver: condense each Newton step onto the contact zone (K factorized once "
+            "per zone, kept across κ); false: one factorization per κ reused by CG",
+        ),
         "rtol": Key("float", 1e-10, "relative residual tolerance"),
         "stol": Key("float", 1e-12, "relative Newton-correction tolerance"),
         "max_iterations": Key("int", 100, "Newton (or active-set) iterations per κ"),
@@ -386,6 +392,7 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         max_iterations=sv["max_iterations"],
         linear_solver=sv["linear_solver"],
         factorization=sv["factorization"],
+        contact_zone=sv["contact_zone"],
     )
     return Config(shell, domain, disc, penalty, solver, sv["method"], dict(r["output"]), r, source)
 

@@ -93,6 +93,7 @@ def load_study(
         if record is None:
             if restore is not None:
                 cp.restore_vector(restore, problem.zeta)
+                cp.restore_solver(restore, solver)
                 restore = None
             ts = time.perf_counter()
             problem.set_parameter(parameter, value)
@@ -115,6 +116,7 @@ def load_study(
             section = dataclasses.asdict(post.cross_section())
             record = {"row": row, "section": section, "seconds": time.perf_counter() - ts}
             cp.save_vector(key, problem.zeta)
+            cp.save_solver(key, solver)
             cp.save(key, record)
             cp.drop_vector(saved)
             saved = key

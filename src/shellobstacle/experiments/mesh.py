@@ -147,9 +147,11 @@ def mesh_study(
             for lv in (level, previous):
                 if lv is not None and lv.restore is not None:
                     cp.restore_vector(lv.restore, lv.problem.zeta)
+                    cp.restore_solver(lv.restore, lv.solver)
                     lv.restore = None
             record = _solve_level(levels, k, q, previous, reference, warm, newton_progress)
             cp.save_vector(key, level.problem.zeta)
+            cp.save_solver(key, level.solver)
             cp.save(key, record)
             cp.drop_vector(level.saved)
             level.saved = key

@@ -125,6 +125,7 @@ def penalty_study(
         if record is None:
             if restore is not None:  # continue from the last recorded step
                 cp.restore_vector(restore, problem.zeta)
+                cp.restore_solver(restore, solver)
                 previous = dolfinx.fem.Function(problem.V)
                 previous.x.array[:] = problem.zeta.x.array
                 restore = None
@@ -132,6 +133,7 @@ def penalty_study(
                 problem, solver, norms, h, (q, q_prev, n + 1), previous, reference, newton_progress
             )
             cp.save_vector(key, problem.zeta)
+            cp.save_solver(key, solver)
             cp.save(key, record)
             cp.drop_vector(saved)
             saved, tag = key, ""

@@ -33,6 +33,7 @@ from petsc4py import PETSc
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.contact_zone import ContactZone
 from shellobstacle.solvers.line_search import piecewise_linear_root
 from shellobstacle.solvers.options import set_options, unique_prefix
 
@@ -69,6 +70,13 @@ class NewtonOptions:
             the cost of one factorization in back-substitutions on 1e5–1e6 dofs (measured in
             docs/performance.md); it is a fixed number, not a timing, so that the iterates do
             not depend on the machine's speed.
+        contact_zone: with the direct solver, solve every Newton step exactly by
+            condensation onto a contact zone (:mod:`shellobstacle.solvers.contact_zone`):
+            ``K`` outside the zone is factorized once per zone, kept across κ, and a step
+            factorizes only the zone's small Schur complement. Replaces
+            ``reuse_factorization``.
+        zone_max_fraction: a zone with more dofs than this fraction is not condensed (the
+            whole Jacobian is factorized at every step).
     """
 
     rtol: float = 1e-10
@@ -81,6 +89,8 @@ class NewtonOptions:
     factorization: str = "lu"
     reuse_factorization: bool = True
     reuse_max_iterations: int = 15
+    contact_zone: bool = True
+    zone_max_fraction: float = 0.3
 
     def __post_init__(self) -> None:
         if self.linear_solver not in ("direct", "iterative"):
@@ -91,6 +101,8 @@ class NewtonOptions:
             raise ValueError(
                 f"solver.factorization must be 'lu' or 'cholesky', got {self.factorization!r}"
             )
+        if not 0.0 < self.zone_max_fraction <= 1.0:
+            raise ValueError(f"zone_max_fraction must be in (0, 1], got {self.zone_max_fraction}")
         if self.reuse_max_iterations < 1:
             raise ValueError(f"reuse_max_iterations must be >= 1, got {self.reuse_max_iterations}")
         if self.max_iterations < 1:
@@ -162,8 +174,19 @@ class NewtonSolver:
         self.ksp.setOptionsPrefix(prefix)
         self.ksp.setOperators(self.A)
         pc = self.ksp.getPC()
-        self.reuse = opts.linear_solver == "direct" and opts.reuse_factorization
-        if opts.linear_solver == "direct":
+        self.zone: ContactZone | None = None
+        self._hint: np.ndarray | None = None  # points the full last Newton step penetrates
+        self.reuse = (
+            opts.linear_solver == "direct" and opts.reuse_factorization and not opts.contact_zone
+        )
+        if opts.linear_solver == "direct" and opts.contact_zone:
+            self.zone = ContactZone(
+                self.K, self.penalty, opts.zone_max_fraction, opts.factorization
+            )
+            self.ksp.setType("preonly")
+            pc.setType("python")
+            pc.setPythonContext(self.zone)
+        elif opts.linear_solver == "direct":
             if opts.factorization == "cholesky":
                 self.A.setOption(PETSc.Mat.Option.SPD, True)
             pc.setType(opts.factorization)
@@ -206,6 +229,8 @@ class NewtonSolver:
             "factorize": 0.0,
             "solve": 0.0,
             "line_search": 0.0,
+            "zone": 0.0,
+            "condense": 0.0,
         }
         self._factored_kappa: float | None = None  # κ of the factorization held by the KSP
         self.factorizations = 0  # in the current solve
@@ -280,7 +305,18 @@ class NewtonSolver:
         preconditioned by it; if they do not converge in ``reuse_max_iterations``, a new
         factorization.
         """
-        if not self.reuse:
+        if self.zone is not None:
+            zone = self.zone
+            before = zone.builds, dict(zone.timings)
+            zone.prepare(self._g < 0, self._hint)
+            self.ksp.solve(self.R, self.dz)
+            self.factorizations += zone.builds - before[0]
+            if zone.whole:
+                self.factorizations += 1
+            for key, value in zone.timings.items():
+                self.timings[key] += value - before[1][key]
+            self._factored_kappa = self.kappa
+        elif not self.reuse:
             if self.options.linear_solver == "direct":
                 self._factorize()
             self.ksp.solve(self.R, self.dz)
@@ -300,6 +336,30 @@ class NewtonSolver:
         changed = int(np.count_nonzero(self._factored_active != (self._g < 0)))
         return self.problem.mesh.comm.allreduce(changed) > self.options.reuse_max_iterations
 
+    # -- the contact zone as state (checkpoints) --------------------------------------------
+    def zone_indicator(self) -> dolfinx.fem.Function | None:
+        """The kept contact zone as a 0/1 function on the displacement space (or None).
+
+        A resumed sweep restores it (:meth:`set_zone_indicator`) so that its iterates are
+        those of the uninterrupted run to the last bit.
+        """
+        zone = self.zone
+        if zone is None or zone.Z is None:
+            return None
+        u = dolfinx.fem.Function(self.problem.V)
+        lo, hi = np.searchsorted(zone.Z, [zone.r0, zone.r1])
+        owned = zone.Z[lo:hi] - zone.r0
+        u.x.petsc_vec.array[owned] = 1.0
+        u.x.scatter_forward()
+        return u
+
+    def set_zone_indicator(self, u: dolfinx.fem.Function) -> None:
+        """Make the dofs where ``u`` is 1 the contact zone (collective)."""
+        if self.zone is None:
+            return
+        owned = np.flatnonzero(u.x.petsc_vec.array_r > 0.5) + self.zone.r0
+        self.zone.set_zone(self.zone._union(owned))
+
     def predict(self, kappa_new: float) -> bool:
         """Euler predictor along κ: ``ζ ← ζ + (κ_new − κ) dζ/dκ`` with ``J dζ/dκ = −∂R/∂κ``.
 
@@ -317,6 +377,8 @@ class NewtonSolver:
         self.penalty.add_residual(np.minimum(self._g, 0.0), kappa * kappa, b)  # −∂R/∂κ
         if self.reuse:  # the Jacobian at ζ for the CG that reuses the factorization
             self._jacobian()
+        if self.zone is not None:
+            self.zone.prepare(self._g < 0, None)
         self.ksp.solve(b, self.dz)
         ok = self.ksp.getConvergedReason() > 0
         b.destroy()
@@ -373,6 +435,7 @@ class NewtonSolver:
         # every solve starts with a new factorization, so its result depends only on the
         # start ζ and not on earlier solves (resumed runs repeat uninterrupted ones exactly)
         self._factored_kappa = None
+        self._hint = None  # (the zone itself is kept: it depends on the mesh, not on κ)
         ta = time.perf_counter()
         self._load()
         ref = self.f.norm()
@@ -398,10 +461,13 @@ class NewtonSolver:
             self.timings["assemble"] += time.perf_counter() - ta
             ts = time.perf_counter()
             self.R.scale(-1.0)
-            factorize_before = self.timings["factorize"]
+            apart = ("factorize", "zone", "condense")
+            before = sum(self.timings[k] for k in apart)
             self._direction()
             self.timings["solve"] += time.perf_counter() - ts
-            self.timings["solve"] -= self.timings["factorize"] - factorize_before
+            self.timings["solve"] -= sum(self.timings[k] for k in apart) - before
+            if self.zone is not None:
+                self._hint = (self._g + self.penalty.apply_B(self.dz)) < 0
             result.linear_iterations.append(self.ksp.getIterationNumber())
             if self.ksp.getConvergedReason() < 0:
                 result.reason = (

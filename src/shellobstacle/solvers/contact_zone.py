@@ -1,0 +1,371 @@
+"""Exact Newton solves by condensation onto the contact zone.
+
+The Jacobian of ``J_κ`` (MODEL.md §5) is ``J = K + P_A`` with the membrane stiffness ``K``
+(fixed per mesh) and the penalty part ``P_A = (1/κ) M_Aᵀ diag(1/D_A) M_A``, which couples only
+the dofs of the cells holding active points ``A``. Split the dofs into a zone ``Z`` that holds
+every active point and the rest ``I``:
+
+    J = [[K_II, K_IZ], [K_ZI, K_ZZ + P_ZZ]],   S = K_ZZ + P_ZZ − T,   T = K_ZI K_II⁻¹ K_IZ.
+
+``K_II`` depends neither on κ nor on the active set: it is factorized once per zone. ``T`` is
+nonzero only on the dofs ``Γ ⊂ Z`` coupled to ``I`` and needs only the entries of ``K_II⁻¹`` on
+the dofs ``I' ⊂ I`` coupled to ``Z``: ``T = K_ΓI' [K_II⁻¹]_{I'I'} K_I'Γ``, computed by MUMPS'
+selected entries of the inverse (ICNTL(30)). A Newton step then factorizes only ``S`` (the
+zone's sparse matrix plus a dense ``|Γ|×|Γ|`` block, a few thousand dofs) and solves
+
+    y = K_II⁻¹ r_I,   S δ_Z = r_Z − K_ZI y,   δ_I = y − K_II⁻¹ K_IZ δ_Z.
+
+When an active point leaves the zone, the zone is rebuilt around the active points and the
+penetration of the last full Newton step, then dilated by rings of the stiffness graph until its
+dofs have doubled (room for the contact region to move). A zone above ``max_fraction`` of the
+dofs is not worth condensing: the Jacobian is then factorized as a whole.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import time
+
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from shellobstacle import compat  # noqa: F401
+from shellobstacle.penalty import QuadraturePenalty
+from shellobstacle.solvers.options import unique_prefix
+
+__all__ = ["ContactZone"]
+
+_LIB: ctypes.CDLL | None = None
+
+
+def _libpetsc() -> ctypes.CDLL:
+    """The PETSc library petsc4py runs on (for ``MatMumpsGetInverse``, which it does not wrap)."""
+    global _LIB
+    if _LIB is None:
+        with open("/proc/self/maps") as maps:
+            paths = {line.split()[-1] for line in maps if "libpetsc.so" in line}
+        if len(paths) != 1:
+            raise RuntimeError(f"cannot locate the loaded libpetsc (found {sorted(paths)})")
+        _LIB = ctypes.CDLL(paths.pop())
+        _LIB.MatMumpsGetInverse.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
+        _LIB.MatMumpsGetInverse.restype = ctypes.c_int
+    return _LIB
+
+
+def _lu(comm: PETSc.Comm, A: PETSc.Mat, factorization: str = "lu") -> PETSc.KSP:
+    """A MUMPS ``factorization`` (lu or cholesky) solver for ``A``, made at its first set-up."""
+    ksp = PETSc.KSP().create(comm)
+    ksp.setOptionsPrefix(unique_prefix("zone"))
+    ksp.setOperators(A)
+    ksp.setType("preonly")
+    pc = ksp.getPC()
+    if factorization == "cholesky":
+        A.setOption(PETSc.Mat.Option.SPD, True)
+    pc.setType(factorization)
+    pc.setFactorSolverType("mumps")
+    ksp.setFromOptions()
+    return ksp
+
+
+def _csr(ip: np.ndarray, ix: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Row number of every stored entry of a CSR pattern with ``n`` rows, and its column."""
+    return np.repeat(np.arange(n), np.diff(ip)), ix
+
+
+class ContactZone:
+    """Solves with the Newton Jacobian through a factorization of ``K_II`` kept per zone.
+
+    Used as a PETSc ``python`` preconditioner: :meth:`setUp` builds ``S`` for the operator
+    (the Jacobian), :meth:`apply` solves with it exactly. :meth:`prepare` must be called
+    with the active points before every set-up.
+    """
+
+    def __init__(
+        self,
+        K: PETSc.Mat,
+        penalty: QuadraturePenalty,
+        max_fraction: float = 0.3,
+        factorization: str = "lu",
+    ) -> None:
+        self.K, self.penalty, self.max_fraction = K, penalty, max_fraction
+        self.factorization = factorization
+        self.comm = K.getComm().tompi4py()
+        self.n = K.getSize()[0]
+        self.r0, self.r1 = K.getOwnershipRange()
+        ip, ix, _ = K.getValuesCSR()
+        self._k_rows, self._k_cols = _csr(ip, ix, self.r1 - self.r0)
+        ip, ix, _ = penalty.M.getValuesCSR()
+        self._m_rows, self._m_cols = _csr(ip, ix, ip.size - 1)
+        self.num_points = ip.size - 1
+        self.points: np.ndarray | None = None  # owned points inside the zone (None: no zone)
+        self.Z: np.ndarray | None = None  # the zone's dofs (global, sorted, on all ranks)
+        self.whole = False  # the zone is too large: factorize the whole Jacobian
+        self.builds = 0  # zones built (each a factorization of K_II)
+        self.timings = {"factorize": 0.0, "zone": 0.0, "condense": 0.0}
+        self.sizes: dict[str, int] = {}
+        self._objects: list = []
+        self._J: PETSc.Mat | None = None  # the operator of the last set-up
+        self._stale = False  # the zone changed after that set-up
+        self.Jzz: PETSc.Mat | None = None
+        self.whole_ksp: PETSc.KSP | None = None
+
+    # -- the zone ------------------------------------------------------------------------------
+    def _union(self, local: np.ndarray) -> np.ndarray:
+        """Sorted union over the ranks of global dof numbers."""
+        return np.unique(np.concatenate(self.comm.allgather(np.unique(local))))
+
+    def _dofs_of(self, points: np.ndarray) -> np.ndarray:
+        """The dofs coupled to the given owned points (all ranks' points, on all ranks)."""
+        return self._union(self._m_cols[points[self._m_rows]])
+
+    def _dilate(self, Z: np.ndarray) -> np.ndarray:
+        """``Z`` and its neighbours in the graph of ``K``."""
+        rows = np.isin(np.arange(self.r0, self.r1), Z, assume_unique=True)
+        return self._union(np.concatenate([Z, self._k_cols[rows[self._k_rows]]]))
+
+    def _inside(self, Z: np.ndarray) -> np.ndarray:
+        """Owned points all of whose dofs are in ``Z``."""
+        outside = ~np.isin(self._m_cols, Z)
+        return np.bincount(self._m_rows[outside], minlength=self.num_points) == 0
+
+    def covers(self, active: np.ndarray) -> bool:
+        """Whether the current zone holds all active points (collective)."""
+        ok = self.whole or (self.points is not None and not np.any(active & ~self.points))
+        return bool(self.comm.allreduce(ok, op=MPI.LAND))
+
+    def reset(self) -> None:
+        """Forget the zone (the next :meth:`prepare` builds one)."""
+        self._destroy()
+        self.points, self.whole, self.Z = None, False, None
+
+    def prepare(self, active: np.ndarray, hint: np.ndarray | None) -> bool:
+        """Make the zone hold the active points; returns True if a zone was built.
+
+        ``hint``: more points the zone should hold (the penetration of the last full step).
+        """
+        if self.covers(active):
+            return False
+        t0, factorize0 = time.perf_counter(), self.timings["factorize"]
+        base = active.copy()
+        if hint is not None:
+            base |= hint
+        if self.points is not None:
+            base |= self.points
+        Z = self._dofs_of(base)
+        target = 2 * Z.size
+        for _ in range(50):
+            if Z.size >= target or Z.size == 0:
+                break
+            Z = self._dilate(Z)
+        self.set_zone(Z)
+        self.timings["zone"] += time.perf_counter() - t0 - (self.timings["factorize"] - factorize0)
+        return True
+
+    def set_zone(self, Z: np.ndarray) -> None:
+        """Make ``Z`` (sorted global dofs, the same on all ranks) the zone (collective).
+
+        Factorizes ``K_II`` and computes ``T``; a zone above ``max_fraction`` of the dofs
+        means "factorize the whole Jacobian" instead.
+        """
+        self._destroy()
+        self._stale = self._J is not None
+        self.whole = Z.size > self.max_fraction * self.n
+        self.Z = Z
+        if self.whole:
+            self.points = None
+            self.sizes = {"zone_dofs": int(Z.size)}
+        else:
+            self.points = self._inside(Z)
+            self._build(Z)
+            self.builds += 1
+
+    def _build(self, Z: np.ndarray) -> None:
+        """``K_II`` factorized, ``T`` on ``Γ × Γ`` and the pattern of ``S`` for the zone ``Z``."""
+        comm, K, petsc_comm = self.comm, self.K, self.K.getComm()
+        owned = np.arange(self.r0, self.r1, dtype=PETSc.IntType)
+        in_z = np.isin(owned, Z, assume_unique=True)
+        self.isI = PETSc.IS().createGeneral(owned[~in_z], comm=petsc_comm)
+        self.isZ = PETSc.IS().createGeneral(owned[in_z], comm=petsc_comm)
+        self.KII = K.createSubMatrix(self.isI, self.isI)
+        t0 = time.perf_counter()
+        self.ksp_I = _lu(petsc_comm, self.KII, self.factorization)
+        self.ksp_I.setUp()
+        self.timings["factorize"] += time.perf_counter() - t0
+        self.vI = self.KII.createVecRight()
+        self.yI = self.KII.createVecRight()
+        self.tI = self.KII.createVecRight()
+        m = Z.size
+        self.sizes = {"zone_dofs": int(m)}
+        if m == 0:
+            self._objects = [self.isI, self.isZ, self.KII, self.ksp_I, self.vI, self.yI, self.tI]
+            return
+        self.KZI = K.createSubMatrix(self.isZ, self.isI)
+        self.KIZ = K.createSubMatrix(self.isI, self.isZ)
+        self.vZ = self.KZI.createVecLeft()
+        self.dZ = self.KZI.createVecLeft()
+        # I': the dofs of I coupled to Z (nonempty rows of K_IZ), in K's numbering
+        ip, _, _ = self.KIZ.getValuesCSR()
+        I_owned = owned[~in_z]
+        Ip = self._union(I_owned[np.diff(ip) > 0])
+        Ip_II = (Ip - np.searchsorted(Z, Ip)).astype(PETSc.IntType)  # numbering of K_II
+        # Γ: the dofs of Z coupled to I (nonzero columns of K_I'Z), positions in Z
+        root = comm.rank == 0
+        seq = PETSc.COMM_SELF
+        rows_ip = PETSc.IS().createGeneral(Ip if root else Ip[:0], comm=seq)
+        cols_z = PETSc.IS().createGeneral(Z.astype(PETSc.IntType) if root else Ip[:0], comm=seq)
+        KIpZ = K.createSubMatrices(rows_ip, cols_z)[0]
+        KZIp = K.createSubMatrices(cols_z, rows_ip)[0]
+        # [K_II⁻¹]_{I'I'} by MUMPS on the factorization just made (the request lives on rank 0)
+        nI = self.KII.getSize()[0]
+        F = self.ksp_I.getPC().getFactorMatrix()
+        # the request: a parallel matrix whose rows and columns all live on rank 0 (MUMPS
+        # takes the sparse right-hand sides from the diagonal block of rank 0)
+        k = Ip_II.size
+        counts = np.zeros(nI if root else 0, dtype=PETSc.IntType)
+        if root:
+            counts[Ip_II] = k
+        indptr = np.concatenate([[0], np.cumsum(counts)]).astype(PETSc.IntType)
+        indices = np.tile(Ip_II, k if root else 0).astype(PETSc.IntType)
+        local = nI if root else 0
+        transposed = PETSc.Mat().createAIJ(
+            ((local, nI), (local, nI)),
+            csr=(indptr, indices, np.zeros(indices.size)),
+            comm=petsc_comm,
+        )
+        request = PETSc.Mat().createTranspose(transposed)
+        saved = {i: F.getMumpsIcntl(i) for i in (20, 21, 30)}
+        err = _libpetsc().MatMumpsGetInverse(F.handle, request.handle)
+        for i, value in saved.items():  # back to ordinary solves
+            F.setMumpsIcntl(i, value)
+        if comm.allreduce(err, op=MPI.MAX) != 0:
+            raise RuntimeError(f"MatMumpsGetInverse failed (PETSc error {err})")
+        if root:
+            ipT, _, vT = transposed.getValuesCSR()
+            k = Ip_II.size
+            # row Ip_II[a] of the transposed request holds (K_II⁻¹)[Ip_II[b], Ip_II[a]]
+            Ginv = np.stack([vT[ipT[r] : ipT[r + 1]] for r in Ip_II]).T
+            assert Ginv.shape == (k, k)
+            ip, ix, v = KIpZ.getValuesCSR()  # K_I'Z: its nonzero columns are Γ
+            rows, nz = np.repeat(np.arange(k), np.diff(ip)), v != 0
+            gamma = np.unique(ix[nz])
+            A_ = np.zeros((k, gamma.size))
+            A_[rows[nz], np.searchsorted(gamma, ix[nz])] = v[nz]
+            ip, ix, v = KZIp.getValuesCSR()  # K_ZI' on the rows Γ
+            B_ = np.zeros((gamma.size, k))
+            rows = np.repeat(np.arange(m), np.diff(ip))
+            keep = np.isin(rows, gamma)
+            B_[np.searchsorted(gamma, rows[keep]), ix[keep]] = v[keep]
+            T = B_ @ Ginv @ A_
+        else:
+            gamma, T = None, None
+        gamma, T = comm.bcast((gamma, T), root=0)
+        for obj in (rows_ip, cols_z, KIpZ, KZIp, transposed, request):
+            obj.destroy()
+        self.sizes |= {"interface_dofs": int(gamma.size), "coupled_dofs": int(Ip.size)}
+        # S = J_ZZ − T on every rank: pattern of K_ZZ plus the dense Γ × Γ block
+        self.isZ_all = PETSc.IS().createGeneral(Z.astype(PETSc.IntType), comm=seq)
+        Kzz = K.createSubMatrices(self.isZ_all, self.isZ_all)[0]
+        ip, ix, _ = Kzz.getValuesCSR()
+        r = np.repeat(np.arange(m), np.diff(ip))
+        keys = np.unique(
+            np.concatenate([r * m + ix, (gamma[:, None] * m + gamma[None, :]).ravel()])
+        )
+        rows, cols = keys // m, keys % m
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=m))])
+        csr = (indptr.astype(PETSc.IntType), cols.astype(PETSc.IntType), np.zeros(keys.size))
+        self.S = PETSc.Mat().createAIJ((m, m), csr=csr, comm=seq)
+        g_ptr = np.zeros(m + 1, dtype=PETSc.IntType)
+        g_ptr[1:] = np.cumsum(np.isin(np.arange(m), gamma) * gamma.size)
+        self.minusT = PETSc.Mat().createAIJ(
+            (m, m),
+            csr=(g_ptr, np.tile(gamma, gamma.size).astype(PETSc.IntType), -T.ravel()),
+            comm=seq,
+        )
+        Kzz.destroy()
+        self.ksp_S = _lu(seq, self.S)
+        self.wseq = self.S.createVecLeft()
+        self.dseq = self.S.createVecLeft()
+        self.to_all, self.zseq = PETSc.Scatter.toAll(self.vZ)
+        self.z_lo, self.z_hi = self.vZ.getOwnershipRange()
+        self._objects = [
+            self.isI, self.isZ, self.KII, self.ksp_I, self.vI, self.yI, self.tI, self.KZI,
+            self.KIZ, self.vZ, self.dZ, self.isZ_all, self.S, self.minusT, self.ksp_S,
+            self.wseq, self.dseq, self.to_all, self.zseq,
+        ]  # fmt: skip
+
+    def _destroy(self) -> None:
+        for obj in self._objects:
+            obj.destroy()
+        self._objects = []
+        if self.Jzz is not None:
+            self.Jzz.destroy()
+            self.Jzz = None
+        if self.whole_ksp is not None:
+            self.whole_ksp.destroy()
+            self.whole_ksp = None
+
+    # -- the PETSc python-preconditioner protocol ---------------------------------------------
+    def setUp(self, pc: PETSc.PC) -> None:
+        """Factorize ``S`` for the current Jacobian (or the whole Jacobian)."""
+        self._J = pc.getOperators()[0]
+        self._refresh()
+
+    def _refresh(self) -> None:
+        """``S`` (or the whole factorization) for the operator of the last set-up."""
+        t0 = time.perf_counter()
+        J = self._J
+        self._stale = False
+        if self.whole:
+            if self.whole_ksp is None:
+                self.whole_ksp = _lu(J.getComm(), J)
+            self.whole_ksp.setOperators(J)
+            self.whole_ksp.setUp()
+            self.timings["factorize"] += time.perf_counter() - t0
+            return
+        if self.points is None:
+            raise RuntimeError("ContactZone.prepare() must be called before the set-up")
+        if self.Z.size == 0:
+            return
+        if self.Jzz is None:
+            self.Jzz = J.createSubMatrices(self.isZ_all, self.isZ_all)[0]
+        else:
+            J.createSubMatrices(self.isZ_all, self.isZ_all, submats=[self.Jzz])
+        self.S.zeroEntries()
+        self.S.axpy(1.0, self.Jzz, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        self.S.axpy(1.0, self.minusT, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        self.ksp_S.setOperators(self.S)
+        self.ksp_S.setUp()
+        self.timings["condense"] += time.perf_counter() - t0
+
+    def apply(self, pc: PETSc.PC, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        """``y ← J⁻¹ x``."""
+        if self._stale:  # the zone changed since the set-up, the operator did not
+            self._refresh()
+        if self.whole:
+            self.whole_ksp.solve(x, y)
+            return
+        sub = x.getSubVector(self.isI)
+        self.ksp_I.solve(sub, self.yI)
+        x.restoreSubVector(self.isI, sub)
+        if self.Z.size == 0:
+            out = y.getSubVector(self.isI)
+            self.yI.copy(out)
+            y.restoreSubVector(self.isI, out)
+            return
+        xz = x.getSubVector(self.isZ)
+        self.KZI.mult(self.yI, self.vZ)
+        self.vZ.aypx(-1.0, xz)  # r_Z − K_ZI y
+        x.restoreSubVector(self.isZ, xz)
+        self.to_all.scatter(self.vZ, self.zseq, PETSc.InsertMode.INSERT)
+        self.ksp_S.solve(self.zseq, self.dseq)
+        self.dZ.array[:] = self.dseq.array_r[self.z_lo : self.z_hi]
+        self.KIZ.mult(self.dZ, self.vI)
+        self.ksp_I.solve(self.vI, self.tI)
+        self.yI.axpy(-1.0, self.tI)
+        out = y.getSubVector(self.isI)
+        self.yI.copy(out)
+        y.restoreSubVector(self.isI, out)
+        out = y.getSubVector(self.isZ)
+        self.dZ.copy(out)
+        y.restoreSubVector(self.isZ, out)

@@ -1,0 +1,143 @@
+"""Condensation onto the contact zone (solvers/contact_zone.py): exact, kept, grown, restored."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from petsc4py import PETSc
+
+from shellobstacle.pipeline import continuation
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from tests.test_newton import paper_shell, square
+
+KAPPAS = [1e-2, 1e-3, 1e-4]
+
+
+def solved(options: NewtonOptions, n: int = 32) -> tuple[PenalizedProblem, NewtonSolver, list]:
+    problem = PenalizedProblem(paper_shell(), square(n=n))
+    solver = NewtonSolver(problem, options)
+    steps = continuation(problem, solver, KAPPAS, predictor=False)
+    assert all(s.converged for s in steps)
+    return problem, solver, steps
+
+
+def lu_solve(A: PETSc.Mat, b: PETSc.Vec) -> PETSc.Vec:
+    ksp = PETSc.KSP().create(A.getComm())
+    ksp.setOperators(A)
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    ksp.getPC().setFactorSolverType("mumps")
+    x = b.duplicate()
+    ksp.solve(b, x)
+    ksp.destroy()
+    return x
+
+
+@pytest.mark.mpi
+def test_the_condensed_solve_is_the_jacobian_solve() -> None:
+    """With the active points inside the zone, the condensed solve is J⁻¹ (to round-off)."""
+    problem, solver, _ = solved(NewtonOptions())
+    zone = solver.zone
+    assert zone is not None and not zone.whole
+    sizes = zone.sizes
+    assert 0 < sizes["interface_dofs"] < sizes["zone_dofs"] < problem.num_dofs
+    solver._residual()
+    solver._jacobian()
+    assert zone.covers(solver._g < 0)
+    b = solver.R.duplicate()
+    rng = np.random.default_rng(problem.mesh.comm.rank)
+    b.array[:] = rng.standard_normal(b.getLocalSize())
+    x = b.duplicate()
+    solver.ksp.solve(b, x)
+    exact = lu_solve(solver.A, b)
+    r = b.duplicate()
+    solver.A.mult(x, r)
+    r.axpy(-1.0, b)
+    assert r.norm() <= 1e-10 * b.norm()
+    x.axpy(-1.0, exact)
+    assert x.norm() <= 1e-9 * exact.norm()
+
+
+@pytest.mark.mpi
+def test_zone_continuation_equals_factorizing_every_step() -> None:
+    """Same Newton steps and solution as a fresh factorization per step, far fewer of them.
+
+    The zone is built once the contact appears and kept over the smaller κ.
+    """
+    p_fresh, _, fresh = solved(NewtonOptions(contact_zone=False, reuse_factorization=False))
+    p_zone, solver, zoned = solved(NewtonOptions())
+    assert [s.iterations for s in zoned] == [s.iterations for s in fresh]
+    assert [s.newton.factorizations for s in fresh] == [s.iterations for s in fresh]
+    factorizations = [s.newton.factorizations for s in zoned]
+    # the first Newton step factorizes K (no contact yet), the second builds the zone
+    assert factorizations[0] == 2 and factorizations[1:] == [0, 0]
+    assert solver.zone.builds == sum(factorizations)
+    z_zone, z_fresh = p_zone.zeta.x.petsc_vec, p_fresh.zeta.x.petsc_vec
+    d = z_zone.copy()
+    d.axpy(-1.0, z_fresh)
+    assert d.norm() <= 1e-10 * z_fresh.norm()
+
+
+@pytest.mark.mpi
+def test_the_zone_grows_when_an_active_point_leaves_it() -> None:
+    """A zone that misses active points is rebuilt around them; the answer is unchanged."""
+    problem, solver, _ = solved(NewtonOptions())
+    reference = problem.zeta.x.petsc_vec.copy()
+    zone = solver.zone
+    small = zone.Z[:: max(1, zone.Z.size // 6)][:6]  # a few dofs: misses the contact region
+    solver.set_zone_indicator(_indicator(solver, small))
+    assert not zone.covers(solver.penalty.gap(problem.zeta.x.petsc_vec) < 0)
+    builds = zone.builds
+    problem.zeta.x.array[:] = 0.0
+    steps = continuation(problem, solver, KAPPAS, predictor=False)
+    assert all(s.converged for s in steps)
+    assert zone.builds > builds and zone.Z.size > small.size
+    d = problem.zeta.x.petsc_vec.copy()
+    d.axpy(-1.0, reference)
+    assert d.norm() <= 1e-10 * reference.norm()
+
+
+def _indicator(solver: NewtonSolver, Z: np.ndarray):
+    import dolfinx
+
+    u = dolfinx.fem.Function(solver.problem.V)
+    r0, r1 = solver.zone.r0, solver.zone.r1
+    owned = Z[(Z >= r0) & (Z < r1)] - r0  # noqa: SIM300
+    u.x.petsc_vec.array[owned] = 1.0
+    u.x.scatter_forward()
+    return u
+
+
+@pytest.mark.mpi
+def test_a_restored_zone_continues_to_the_last_bit() -> None:
+    """A solver given another's zone (a resumed run) repeats its iterates exactly."""
+    p1, s1, _ = solved(NewtonOptions())
+    p2 = PenalizedProblem(paper_shell(), square(n=32))
+    s2 = NewtonSolver(p2, NewtonOptions())
+    s2.set_zone_indicator(s1.zone_indicator())
+    assert np.array_equal(s2.zone.Z, s1.zone.Z)
+    p2.zeta.x.array[:] = p1.zeta.x.array
+    for problem, solver in ((p1, s1), (p2, s2)):
+        problem.set_kappa(1e-5)
+        solver.solve()
+    assert np.array_equal(p1.zeta.x.array, p2.zeta.x.array)
+
+
+@pytest.mark.mpi
+def test_a_zone_too_large_factorizes_the_whole_jacobian() -> None:
+    """Above zone_max_fraction the Jacobian is factorized at every step; same answer."""
+    p_small, _, small = solved(NewtonOptions(), n=24)
+    p_whole, solver, whole = solved(NewtonOptions(zone_max_fraction=1e-6), n=24)
+    assert solver.zone.whole
+    assert [s.iterations for s in whole] == [s.iterations for s in small]
+    # the first step factorizes K (no contact yet, an empty zone), every later one J
+    assert [s.newton.factorizations for s in whole] == [s.iterations for s in whole]
+    d = p_whole.zeta.x.petsc_vec.copy()
+    d.axpy(-1.0, p_small.zeta.x.petsc_vec)
+    assert d.norm() <= 1e-10 * p_small.zeta.x.petsc_vec.norm()
+
+
+def test_zone_max_fraction_is_checked() -> None:
+    with pytest.raises(ValueError, match="zone_max_fraction"):
+        NewtonOptions(zone_max_fraction=0.0)
