@@ -23,6 +23,8 @@ PHASES = (
     "newton_setup_s",
     "newton_assemble_s",
     "newton_factorize_s",
+    "newton_zone_s",
+    "newton_condense_s",
     "newton_solve_s",
     "newton_line_search_s",
     "newton_predict_s",

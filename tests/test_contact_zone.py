@@ -141,3 +141,21 @@ def test_a_zone_too_large_factorizes_the_whole_jacobian() -> None:
 def test_zone_max_fraction_is_checked() -> None:
     with pytest.raises(ValueError, match="zone_max_fraction"):
         NewtonOptions(zone_max_fraction=0.0)
+
+
+def test_without_mumps_selected_inverses_the_solver_warns_and_falls_back(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """No reachable MatMumpsGetInverse: a warning, and the factorization-reuse solver."""
+    from shellobstacle.solvers import contact_zone
+
+    def missing() -> None:
+        raise RuntimeError("cannot locate the loaded libpetsc")
+
+    monkeypatch.setattr(contact_zone, "_libpetsc", missing)
+    problem = PenalizedProblem(paper_shell(), square(n=8))
+    with pytest.warns(RuntimeWarning, match="selected inverse entries are not reachable"):
+        solver = NewtonSolver(problem, NewtonOptions())
+    assert solver.zone is None and solver.reuse
+    steps = continuation(problem, solver, [1e-2], predictor=False)
+    assert steps[0].converged

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import ctypes
 import time
+import warnings
 
 import numpy as np
 from mpi4py import MPI
@@ -34,7 +35,7 @@ from shellobstacle import compat  # noqa: F401
 from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.solvers.options import unique_prefix
 
-__all__ = ["ContactZone"]
+__all__ = ["ContactZone", "zone_available"]
 
 _LIB: ctypes.CDLL | None = None
 
@@ -43,7 +44,7 @@ def _libpetsc() -> ctypes.CDLL:
     """The PETSc library petsc4py runs on (for ``MatMumpsGetInverse``, which it does not wrap)."""
     global _LIB
     if _LIB is None:
-        with open("/proc/self/maps") as maps:
+        with open("/proc/self/maps") as maps:  # (OSError off Linux)
             paths = {line.split()[-1] for line in maps if "libpetsc.so" in line}
         if len(paths) != 1:
             raise RuntimeError(f"cannot locate the loaded libpetsc (found {sorted(paths)})")
@@ -51,6 +52,29 @@ def _libpetsc() -> ctypes.CDLL:
         _LIB.MatMumpsGetInverse.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
         _LIB.MatMumpsGetInverse.restype = ctypes.c_int
     return _LIB
+
+
+def zone_available(comm: MPI.Comm) -> bool:
+    """Whether MUMPS' selected inverse entries can be reached (else: warn, and False).
+
+    The condensation needs ``MatMumpsGetInverse`` from the PETSc library petsc4py runs on,
+    found through ``/proc/self/maps`` (Linux).
+    """
+    try:
+        _libpetsc()
+        ok = True
+    except (OSError, RuntimeError, AttributeError) as err:
+        ok, reason = False, str(err)
+    if not comm.allreduce(ok, op=MPI.LAND):
+        warnings.warn(
+            "solver.contact_zone: MUMPS' selected inverse entries are not reachable "
+            f"({reason if not ok else 'on another rank'}); using one factorization per κ "
+            "reused by CG instead",
+            RuntimeWarning,
+            stacklevel=3,
+        )
+        return False
+    return True
 
 
 def _lu(comm: PETSc.Comm, A: PETSc.Mat, factorization: str = "lu") -> PETSc.KSP:
@@ -68,9 +92,14 @@ def _lu(comm: PETSc.Comm, A: PETSc.Mat, factorization: str = "lu") -> PETSc.KSP:
     return ksp
 
 
-def _csr(ip: np.ndarray, ix: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Row number of every stored entry of a CSR pattern with ``n`` rows, and its column."""
-    return np.repeat(np.arange(n), np.diff(ip)), ix
+def _pattern(A: PETSc.Mat) -> tuple[np.ndarray, np.ndarray]:
+    """Row (local) and column (global) of every stored entry of ``A``'s owned rows.
+
+    Fetched when a zone is built (rarely) rather than kept: at 1.9 M dofs these arrays of the
+    stiffness and point matrices would take ≈ 1.5 GB.
+    """
+    ip, ix, _ = A.getValuesCSR()
+    return np.repeat(np.arange(ip.size - 1, dtype=PETSc.IntType), np.diff(ip)), ix
 
 
 class ContactZone:
@@ -93,11 +122,7 @@ class ContactZone:
         self.comm = K.getComm().tompi4py()
         self.n = K.getSize()[0]
         self.r0, self.r1 = K.getOwnershipRange()
-        ip, ix, _ = K.getValuesCSR()
-        self._k_rows, self._k_cols = _csr(ip, ix, self.r1 - self.r0)
-        ip, ix, _ = penalty.M.getValuesCSR()
-        self._m_rows, self._m_cols = _csr(ip, ix, ip.size - 1)
-        self.num_points = ip.size - 1
+        self.num_points = penalty.D.size  # owned points
         self.points: np.ndarray | None = None  # owned points inside the zone (None: no zone)
         self.Z: np.ndarray | None = None  # the zone's dofs (global, sorted, on all ranks)
         self.whole = False  # the zone is too large: factorize the whole Jacobian
@@ -106,6 +131,7 @@ class ContactZone:
         self.sizes: dict[str, int] = {}
         self._objects: list = []
         self._J: PETSc.Mat | None = None  # the operator of the last set-up
+        self._f: PETSc.Vec | None = None  # the load vector (newton_step)
         self._stale = False  # the zone changed after that set-up
         self.Jzz: PETSc.Mat | None = None
         self.whole_ksp: PETSc.KSP | None = None
@@ -117,17 +143,20 @@ class ContactZone:
 
     def _dofs_of(self, points: np.ndarray) -> np.ndarray:
         """The dofs coupled to the given owned points (all ranks' points, on all ranks)."""
-        return self._union(self._m_cols[points[self._m_rows]])
+        rows, cols = _pattern(self.penalty.M)
+        return self._union(cols[points[rows]])
 
     def _dilate(self, Z: np.ndarray) -> np.ndarray:
         """``Z`` and its neighbours in the graph of ``K``."""
         rows = np.isin(np.arange(self.r0, self.r1), Z, assume_unique=True)
-        return self._union(np.concatenate([Z, self._k_cols[rows[self._k_rows]]]))
+        k_rows, k_cols = _pattern(self.K)
+        return self._union(np.concatenate([Z, k_cols[rows[k_rows]]]))
 
     def _inside(self, Z: np.ndarray) -> np.ndarray:
         """Owned points all of whose dofs are in ``Z``."""
-        outside = ~np.isin(self._m_cols, Z)
-        return np.bincount(self._m_rows[outside], minlength=self.num_points) == 0
+        rows, cols = _pattern(self.penalty.M)
+        outside = ~np.isin(cols, Z)
+        return np.bincount(rows[outside], minlength=self.num_points) == 0
 
     def covers(self, active: np.ndarray) -> bool:
         """Whether the current zone holds all active points (collective)."""
@@ -263,14 +292,14 @@ class ContactZone:
         for obj in (rows_ip, cols_z, KIpZ, KZIp, transposed, request):
             obj.destroy()
         self.sizes |= {"interface_dofs": int(gamma.size), "coupled_dofs": int(Ip.size)}
+        self.gamma, self.T = gamma, T  # Γ (positions in Z) and T on Γ × Γ, on every rank
         # S = J_ZZ − T on every rank: pattern of K_ZZ plus the dense Γ × Γ block
         self.isZ_all = PETSc.IS().createGeneral(Z.astype(PETSc.IntType), comm=seq)
         Kzz = K.createSubMatrices(self.isZ_all, self.isZ_all)[0]
         ip, ix, _ = Kzz.getValuesCSR()
-        r = np.repeat(np.arange(m), np.diff(ip))
-        keys = np.unique(
-            np.concatenate([r * m + ix, (gamma[:, None] * m + gamma[None, :]).ravel()])
-        )
+        r = np.repeat(np.arange(m, dtype=np.int64), np.diff(ip))
+        g = gamma.astype(np.int64)  # (row·m + column overflows 32-bit integers from m ≈ 46k)
+        keys = np.unique(np.concatenate([r * m + ix, (g[:, None] * m + g[None, :]).ravel()]))
         rows, cols = keys // m, keys % m
         indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=m))])
         csr = (indptr.astype(PETSc.IntType), cols.astype(PETSc.IntType), np.zeros(keys.size))
@@ -287,11 +316,14 @@ class ContactZone:
         self.wseq = self.S.createVecLeft()
         self.dseq = self.S.createVecLeft()
         self.to_all, self.zseq = PETSc.Scatter.toAll(self.vZ)
+        self.zeta_seq = self.zseq.duplicate()
+        self.uf = self.KII.createVecRight()  # K_II⁻¹ f_I (for newton_step)
+        self._uf_valid = False
         self.z_lo, self.z_hi = self.vZ.getOwnershipRange()
         self._objects = [
             self.isI, self.isZ, self.KII, self.ksp_I, self.vI, self.yI, self.tI, self.KZI,
             self.KIZ, self.vZ, self.dZ, self.isZ_all, self.S, self.minusT, self.ksp_S,
-            self.wseq, self.dseq, self.to_all, self.zseq,
+            self.wseq, self.dseq, self.to_all, self.zseq, self.zeta_seq, self.uf,
         ]  # fmt: skip
 
     def _destroy(self) -> None:
@@ -338,6 +370,61 @@ class ContactZone:
         self.ksp_S.setUp()
         self.timings["condense"] += time.perf_counter() - t0
 
+    def set_load(self, f: PETSc.Vec) -> None:
+        """The load vector of the coming Newton steps (its values may have changed)."""
+        self._f = f
+        self._uf_valid = False
+
+    def newton_step(self, x: PETSc.Vec, zeta: PETSc.Vec, y: PETSc.Vec) -> None:
+        """``y ← J⁻¹ x`` for a Newton right-hand side ``x = −R(ζ)``, one solve with ``K_II``.
+
+        The active points lie in the zone, so on ``I`` the penalty vanishes and
+        ``x_I = f_I − K_II ζ_I − K_IZ ζ_Z``; hence ``K_ZI K_II⁻¹ x_I = K_ZI (u_f − ζ_I) − T ζ_Z``
+        with ``u_f = K_II⁻¹ f_I`` solved once per zone and load, and only
+        ``δ_I = K_II⁻¹ (x_I − K_IZ δ_Z)`` needs a back-substitution per step.
+        """
+        if self.whole or self.Z is None or self.Z.size == 0 or self._f is None:
+            self.apply(None, x, y)
+            return
+        if self._stale:
+            self._refresh()
+        if not self._uf_valid:
+            sub = self._f.getSubVector(self.isI)
+            self.ksp_I.solve(sub, self.uf)
+            self._f.restoreSubVector(self.isI, sub)
+            self._uf_valid = True
+        sub = zeta.getSubVector(self.isI)
+        self.uf.copy(self.tI)
+        self.tI.axpy(-1.0, sub)  # u_f − ζ_I
+        zeta.restoreSubVector(self.isI, sub)
+        self.KZI.mult(self.tI, self.vZ)
+        sub = x.getSubVector(self.isZ)
+        self.vZ.aypx(-1.0, sub)  # x_Z − K_ZI (u_f − ζ_I)
+        x.restoreSubVector(self.isZ, sub)
+        self.to_all.scatter(self.vZ, self.zseq, PETSc.InsertMode.INSERT)
+        sub = zeta.getSubVector(self.isZ)
+        self.to_all.scatter(sub, self.zeta_seq, PETSc.InsertMode.INSERT)
+        zeta.restoreSubVector(self.isZ, sub)
+        g = self.gamma
+        self.zseq.array[g] += self.T @ self.zeta_seq.array_r[g]  # + T ζ_Z
+        self._finish(x, y)
+
+    def _finish(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        """From the zone right-hand side ``zseq``: ``δ_Z``, ``δ_I = K_II⁻¹(x_I − K_IZ δ_Z)``."""
+        self.ksp_S.solve(self.zseq, self.dseq)
+        self.dZ.array[:] = self.dseq.array_r[self.z_lo : self.z_hi]
+        self.KIZ.mult(self.dZ, self.vI)
+        sub = x.getSubVector(self.isI)
+        self.vI.aypx(-1.0, sub)
+        x.restoreSubVector(self.isI, sub)
+        self.ksp_I.solve(self.vI, self.yI)
+        out = y.getSubVector(self.isI)
+        self.yI.copy(out)
+        y.restoreSubVector(self.isI, out)
+        out = y.getSubVector(self.isZ)
+        self.dZ.copy(out)
+        y.restoreSubVector(self.isZ, out)
+
     def apply(self, pc: PETSc.PC, x: PETSc.Vec, y: PETSc.Vec) -> None:
         """``y ← J⁻¹ x``."""
         if self._stale:  # the zone changed since the set-up, the operator did not
@@ -358,14 +445,4 @@ class ContactZone:
         self.vZ.aypx(-1.0, xz)  # r_Z − K_ZI y
         x.restoreSubVector(self.isZ, xz)
         self.to_all.scatter(self.vZ, self.zseq, PETSc.InsertMode.INSERT)
-        self.ksp_S.solve(self.zseq, self.dseq)
-        self.dZ.array[:] = self.dseq.array_r[self.z_lo : self.z_hi]
-        self.KIZ.mult(self.dZ, self.vI)
-        self.ksp_I.solve(self.vI, self.tI)
-        self.yI.axpy(-1.0, self.tI)
-        out = y.getSubVector(self.isI)
-        self.yI.copy(out)
-        y.restoreSubVector(self.isI, out)
-        out = y.getSubVector(self.isZ)
-        self.dZ.copy(out)
-        y.restoreSubVector(self.isZ, out)
+        self._finish(x, y)

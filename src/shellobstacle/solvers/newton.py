@@ -33,7 +33,7 @@ from petsc4py import PETSc
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.problem import PenalizedProblem
-from shellobstacle.solvers.contact_zone import ContactZone
+from shellobstacle.solvers.contact_zone import ContactZone, zone_available
 from shellobstacle.solvers.line_search import piecewise_linear_root
 from shellobstacle.solvers.options import set_options, unique_prefix
 
@@ -176,10 +176,9 @@ class NewtonSolver:
         pc = self.ksp.getPC()
         self.zone: ContactZone | None = None
         self._hint: np.ndarray | None = None  # points the full last Newton step penetrates
-        self.reuse = (
-            opts.linear_solver == "direct" and opts.reuse_factorization and not opts.contact_zone
-        )
-        if opts.linear_solver == "direct" and opts.contact_zone:
+        zoned = opts.linear_solver == "direct" and opts.contact_zone and zone_available(comm)
+        self.reuse = opts.linear_solver == "direct" and opts.reuse_factorization and not zoned
+        if zoned:
             self.zone = ContactZone(
                 self.K, self.penalty, opts.zone_max_fraction, opts.factorization
             )
@@ -309,7 +308,8 @@ class NewtonSolver:
             zone = self.zone
             before = zone.builds, dict(zone.timings)
             zone.prepare(self._g < 0, self._hint)
-            self.ksp.solve(self.R, self.dz)
+            self.ksp.getPC().setUp()  # S for the current Jacobian (if it changed)
+            zone.newton_step(self.R, self.problem.zeta.x.petsc_vec, self.dz)
             self.factorizations += zone.builds - before[0]
             if zone.whole:
                 self.factorizations += 1
@@ -438,6 +438,8 @@ class NewtonSolver:
         self._hint = None  # (the zone itself is kept: it depends on the mesh, not on κ)
         ta = time.perf_counter()
         self._load()
+        if self.zone is not None:
+            self.zone.set_load(self.f)
         ref = self.f.norm()
         self._residual()
         self.timings["assemble"] += time.perf_counter() - ta
@@ -468,8 +470,11 @@ class NewtonSolver:
             self.timings["solve"] -= sum(self.timings[k] for k in apart) - before
             if self.zone is not None:
                 self._hint = (self._g + self.penalty.apply_B(self.dz)) < 0
-            result.linear_iterations.append(self.ksp.getIterationNumber())
-            if self.ksp.getConvergedReason() < 0:
+            if self.zone is not None:  # an exact solve, not a Krylov method
+                result.linear_iterations.append(1)
+            else:
+                result.linear_iterations.append(self.ksp.getIterationNumber())
+            if self.zone is None and self.ksp.getConvergedReason() < 0:
                 result.reason = (
                     f"linear solver failed (PETSc reason {self.ksp.getConvergedReason()})"
                 )
