@@ -146,10 +146,10 @@ class ContactZone:
         rows, cols = _pattern(self.penalty.M)
         return self._union(cols[points[rows]])
 
-    def _dilate(self, Z: np.ndarray) -> np.ndarray:
-        """``Z`` and its neighbours in the graph of ``K``."""
+    def _dilate(self, Z: np.ndarray, pattern: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """``Z`` and its neighbours in the graph of ``K`` (``pattern``: :func:`_pattern` of K)."""
         rows = np.isin(np.arange(self.r0, self.r1), Z, assume_unique=True)
-        k_rows, k_cols = _pattern(self.K)
+        k_rows, k_cols = pattern
         return self._union(np.concatenate([Z, k_cols[rows[k_rows]]]))
 
     def _inside(self, Z: np.ndarray) -> np.ndarray:
@@ -183,10 +183,12 @@ class ContactZone:
             base |= self.points
         Z = self._dofs_of(base)
         target = 2 * Z.size
+        pattern = _pattern(self.K) if Z.size else None
         for _ in range(50):
-            if Z.size >= target or Z.size == 0:
+            if Z.size >= target or pattern is None:
                 break
-            Z = self._dilate(Z)
+            Z = self._dilate(Z, pattern)
+        del pattern
         self.set_zone(Z)
         self.timings["zone"] += time.perf_counter() - t0 - (self.timings["factorize"] - factorize0)
         return True
