@@ -13,7 +13,11 @@ the dofs ``I' ⊂ I`` coupled to ``Z``: ``T = K_ΓI' [K_II⁻¹]_{I'I'} K_I'Γ``
 selected entries of the inverse (ICNTL(30)). A Newton step then factorizes only ``S`` (the
 zone's sparse matrix plus a dense ``|Γ|×|Γ|`` block, a few thousand dofs) and solves
 
-    y = K_II⁻¹ r_I,   S δ_Z = r_Z − K_ZI y,   δ_I = y − K_II⁻¹ K_IZ δ_Z.
+    S δ_Z = r_Z − K_ZI K_II⁻¹ r_I,   δ_I = K_II⁻¹ (r_I − K_IZ δ_Z).
+
+For a Newton right-hand side ``r = −R(ζ)`` the penalty vanishes on ``I``, so
+``K_ZI K_II⁻¹ r_I = K_ZI (K_II⁻¹ f_I − ζ_I) − T ζ_Z`` and one back-substitution per step is
+enough (:meth:`ContactZone.newton_step`; ``K_II⁻¹ f_I`` once per zone and load).
 
 When an active point leaves the zone, the zone is rebuilt around the active points and the
 penetration of the last full Newton step, then dilated by rings of the stiffness graph until its
