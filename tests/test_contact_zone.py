@@ -86,7 +86,7 @@ def test_the_zone_grows_when_an_active_point_leaves_it() -> None:
     reference = problem.zeta.x.petsc_vec.copy()
     zone = solver.zone
     small = zone.Z[:: max(1, zone.Z.size // 6)][:6]  # a few dofs: misses the contact region
-    solver.set_zone_indicator(_indicator(solver, small))
+    zone.set_zone(small)
     assert not zone.covers(solver.penalty.gap(problem.zeta.x.petsc_vec) < 0)
     builds = zone.builds
     problem.zeta.x.array[:] = 0.0
@@ -96,17 +96,6 @@ def test_the_zone_grows_when_an_active_point_leaves_it() -> None:
     d = problem.zeta.x.petsc_vec.copy()
     d.axpy(-1.0, reference)
     assert d.norm() <= 1e-10 * reference.norm()
-
-
-def _indicator(solver: NewtonSolver, Z: np.ndarray):
-    import dolfinx
-
-    u = dolfinx.fem.Function(solver.problem.V)
-    r0, r1 = solver.zone.r0, solver.zone.r1
-    owned = Z[(Z >= r0) & (Z < r1)] - r0  # noqa: SIM300
-    u.x.petsc_vec.array[owned] = 1.0
-    u.x.scatter_forward()
-    return u
 
 
 @pytest.mark.mpi

@@ -167,11 +167,6 @@ class ContactZone:
         ok = self.whole or (self.points is not None and not np.any(active & ~self.points))
         return bool(self.comm.allreduce(ok, op=MPI.LAND))
 
-    def reset(self) -> None:
-        """Forget the zone (the next :meth:`prepare` builds one)."""
-        self._destroy()
-        self.points, self.whole, self.Z = None, False, None
-
     def prepare(self, active: np.ndarray, hint: np.ndarray | None) -> bool:
         """Make the zone hold the active points; returns True if a zone was built.
 
@@ -196,6 +191,17 @@ class ContactZone:
         self.set_zone(Z)
         self.timings["zone"] += time.perf_counter() - t0 - (self.timings["factorize"] - factorize0)
         return True
+
+    def owned_zone(self) -> np.ndarray:
+        """Local positions of the zone's owned dofs (empty without a zone)."""
+        if self.Z is None:
+            return np.zeros(0, dtype=np.int64)
+        lo, hi = np.searchsorted(self.Z, [self.r0, self.r1])
+        return self.Z[lo:hi] - self.r0
+
+    def set_owned_zone(self, owned: np.ndarray) -> None:
+        """Make the union over the ranks of these owned dofs (local positions) the zone."""
+        self.set_zone(self._union(owned + self.r0))
 
     def set_zone(self, Z: np.ndarray) -> None:
         """Make ``Z`` (sorted global dofs, the same on all ranks) the zone (collective).

@@ -347,9 +347,7 @@ class NewtonSolver:
         if zone is None or zone.Z is None:
             return None
         u = dolfinx.fem.Function(self.problem.V)
-        lo, hi = np.searchsorted(zone.Z, [zone.r0, zone.r1])
-        owned = zone.Z[lo:hi] - zone.r0
-        u.x.petsc_vec.array[owned] = 1.0
+        u.x.petsc_vec.array[zone.owned_zone()] = 1.0
         u.x.scatter_forward()
         return u
 
@@ -357,8 +355,7 @@ class NewtonSolver:
         """Make the dofs where ``u`` is 1 the contact zone (collective)."""
         if self.zone is None:
             return
-        owned = np.flatnonzero(u.x.petsc_vec.array_r > 0.5) + self.zone.r0
-        self.zone.set_zone(self.zone._union(owned))
+        self.zone.set_owned_zone(np.flatnonzero(u.x.petsc_vec.array_r > 0.5))
 
     def predict(self, kappa_new: float) -> bool:
         """Euler predictor along κ: ``ζ ← ζ + (κ_new − κ) dζ/dκ`` with ``J dζ/dκ = −∂R/∂κ``.
