@@ -58,6 +58,7 @@ def main() -> None:
         rec |= {f"newton_{k}_s": v for k, v in solver.timings.items()}
         rec["newton"] = [s.iterations for s in steps]
         rec["factorizations"] = [s.newton.factorizations for s in steps]
+        rec["zone_steps"] = [s.newton.zone_steps for s in steps]
         rec["zone"] = solver.zone.sizes if solver.zone is not None else None
         rec["linear_iterations"] = [s.newton.linear_iterations for s in steps]
         t = time.perf_counter()

@@ -43,6 +43,12 @@ def add_solver_arguments(ap: argparse.ArgumentParser) -> None:
         help="direct solver without the contact-zone condensation (one factorization per κ "
         "reused by CG, the second session's solver)",
     )
+    ap.add_argument(
+        "--no-zone-newton",
+        action="store_true",
+        help="contact zone, but full Newton steps (one back-substitution each) instead of steps "
+        "on the zone's own problem (the third session's solver)",
+    )
 
 
 def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptions:
@@ -51,12 +57,14 @@ def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptio
     rec["reuse_factorization"] = not args.no_reuse
     rec["factorization"] = args.factorization
     rec["contact_zone"] = args.linear_solver == "direct" and not args.no_zone
+    rec["zone_newton"] = rec["contact_zone"] and not args.no_zone_newton
     rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
     return NewtonOptions(
         linear_solver=args.linear_solver,
         reuse_factorization=not args.no_reuse,
         factorization=args.factorization,
         contact_zone=not args.no_zone,
+        zone_newton=not args.no_zone_newton,
     )
 
 

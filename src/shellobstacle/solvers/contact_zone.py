@@ -19,6 +19,12 @@ For a Newton right-hand side ``r = −R(ζ)`` the penalty vanishes on ``I``, so
 ``K_ZI K_II⁻¹ r_I = K_ZI (K_II⁻¹ f_I − ζ_I) − T ζ_Z`` and one back-substitution per step is
 enough (:meth:`ContactZone.newton_step`; ``K_II⁻¹ f_I`` once per zone and load).
 
+Better still, while no point outside the zone is active, ``ζ_I = K_II⁻¹ (f_I − K_IZ ζ_Z)``
+minimizes ``J_κ`` over ``ζ_I``, which leaves a penalized problem on the zone alone with the
+energy ``½ ζ_Zᵀ (K_ZZ − T) ζ_Z − f̃·ζ_Z`` (``f̃ = f_Z − K_ZI K_II⁻¹ f_I``) plus the penalty at the
+zone's points. Its Newton steps (``NewtonSolver._zone_newton``) are Newton steps of ``J_κ``
+that touch only the zone's small matrices; ``ζ_I`` costs one back-substitution per solve.
+
 When an active point leaves the zone, the zone is rebuilt around the active points and the
 penetration of the last full Newton step, then dilated by rings of the stiffness graph until its
 dofs have doubled (room for the contact region to move). A zone above ``max_fraction`` of the
@@ -137,6 +143,7 @@ class ContactZone:
         self._J: PETSc.Mat | None = None  # the operator of the last set-up
         self._f: PETSc.Vec | None = None  # the load vector (newton_step)
         self._stale = False  # the zone changed after that set-up
+        self.factored = False  # S is factorized for the current zone
         self.Jzz: PETSc.Mat | None = None
         self.whole_ksp: PETSc.KSP | None = None
 
@@ -192,6 +199,11 @@ class ContactZone:
         self.timings["zone"] += time.perf_counter() - t0 - (self.timings["factorize"] - factorize0)
         return True
 
+    @property
+    def usable(self) -> bool:
+        """A nonempty zone that is condensed (not "factorize the whole Jacobian")."""
+        return not self.whole and self.Z is not None and self.Z.size > 0
+
     def owned_zone(self) -> np.ndarray:
         """Local positions of the zone's owned dofs (empty without a zone)."""
         if self.Z is None:
@@ -211,6 +223,7 @@ class ContactZone:
         """
         self._destroy()
         self._stale = self._J is not None
+        self.factored = False
         self.whole = Z.size > self.max_fraction * self.n
         self.Z = Z
         if self.whole:
@@ -323,19 +336,35 @@ class ContactZone:
             csr=(g_ptr, np.tile(gamma, gamma.size).astype(PETSc.IntType), -T.ravel()),
             comm=seq,
         )
+        # the zone's own problem (ζ_I eliminated): K_ZZ − T and the penalty at the zone's points
+        self.Ks = self.S.duplicate(copy=False)
+        self.Ks.axpy(1.0, Kzz, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        self.Ks.axpy(1.0, self.minusT, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         Kzz.destroy()
+        M = self.penalty.M
+        own = np.flatnonzero(self.points)
+        P = np.concatenate(comm.allgather(own + M.getOwnershipRange()[0])).astype(PETSc.IntType)
+        self.DP = np.concatenate(comm.allgather(self.penalty.D[own]))
+        self.g0P = np.concatenate(comm.allgather(self.penalty.g0[own]))
+        isP = PETSc.IS().createGeneral(P, comm=seq)
+        self.MP = M.createSubMatrices(isP, self.isZ_all)[0]  # rows: all the zone's points
+        isP.destroy()
+        self.wP = self.MP.createVecLeft()
+        self.component = Z % K.getBlockSize()  # ζ_j of each zone dof (blocked numbering)
         self.ksp_S = _lu(seq, self.S)
         self.wseq = self.S.createVecLeft()
         self.dseq = self.S.createVecLeft()
         self.to_all, self.zseq = PETSc.Scatter.toAll(self.vZ)
         self.zeta_seq = self.zseq.duplicate()
         self.uf = self.KII.createVecRight()  # K_II⁻¹ f_I (for newton_step)
+        self.f_tilde = self.wseq.duplicate()  # f_Z − K_ZI K_II⁻¹ f_I on every rank
         self._uf_valid = False
         self.z_lo, self.z_hi = self.vZ.getOwnershipRange()
         self._objects = [
             self.isI, self.isZ, self.KII, self.ksp_I, self.vI, self.yI, self.tI, self.KZI,
             self.KIZ, self.vZ, self.dZ, self.isZ_all, self.S, self.minusT, self.ksp_S,
-            self.wseq, self.dseq, self.to_all, self.zseq, self.zeta_seq, self.uf,
+            self.wseq, self.dseq, self.to_all, self.zseq, self.zeta_seq, self.uf, self.Ks,
+            self.MP, self.wP, self.f_tilde,
         ]  # fmt: skip
 
     def _destroy(self) -> None:
@@ -380,12 +409,32 @@ class ContactZone:
         self.S.axpy(1.0, self.minusT, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         self.ksp_S.setOperators(self.S)
         self.ksp_S.setUp()
+        self.factored = True
         self.timings["condense"] += time.perf_counter() - t0
 
     def set_load(self, f: PETSc.Vec) -> None:
-        """The load vector of the coming Newton steps (its values may have changed)."""
-        self._f = f
+        """The load vector of the coming Newton steps (``K_II⁻¹ f_I`` is kept if unchanged)."""
+        if self._f is not None:
+            same = np.array_equal(self._f.array_r, f.array_r)
+            if self.comm.allreduce(same, op=MPI.LAND):
+                return
+            self._f.destroy()
+        self._f = f.copy()
         self._uf_valid = False
+
+    def _solve_load(self) -> None:
+        """``u_f = K_II⁻¹ f_I`` and ``f̃ = f_Z − K_ZI u_f`` (once per zone and load)."""
+        if self._uf_valid:
+            return
+        sub = self._f.getSubVector(self.isI)
+        self.ksp_I.solve(sub, self.uf)
+        self._f.restoreSubVector(self.isI, sub)
+        self.KZI.mult(self.uf, self.vZ)
+        sub = self._f.getSubVector(self.isZ)
+        self.vZ.aypx(-1.0, sub)
+        self._f.restoreSubVector(self.isZ, sub)
+        self.to_all.scatter(self.vZ, self.f_tilde, PETSc.InsertMode.INSERT)
+        self._uf_valid = True
 
     def newton_step(self, x: PETSc.Vec, zeta: PETSc.Vec, y: PETSc.Vec) -> None:
         """``y ← J⁻¹ x`` for a Newton right-hand side ``x = −R(ζ)``, one solve with ``K_II``.
@@ -400,11 +449,7 @@ class ContactZone:
             return
         if self._stale:
             self._refresh()
-        if not self._uf_valid:
-            sub = self._f.getSubVector(self.isI)
-            self.ksp_I.solve(sub, self.uf)
-            self._f.restoreSubVector(self.isI, sub)
-            self._uf_valid = True
+        self._solve_load()
         sub = zeta.getSubVector(self.isI)
         self.uf.copy(self.tI)
         self.tI.axpy(-1.0, sub)  # u_f − ζ_I
@@ -458,3 +503,103 @@ class ContactZone:
         x.restoreSubVector(self.isZ, xz)
         self.to_all.scatter(self.vZ, self.zseq, PETSc.InsertMode.INSERT)
         self._finish(x, y)
+
+    # -- the zone's own problem: ζ_I eliminated ------------------------------------------------
+    # While no point outside the zone is active, minimizing J_κ over ζ_I gives
+    # ζ_I = K_II⁻¹ (f_I − K_IZ ζ_Z) and leaves j(ζ_Z) = ½ ζ_Zᵀ K_S ζ_Z − f̃·ζ_Z + the penalty at
+    # the zone's points, with K_S = K_ZZ − T and f̃ = f_Z − K_ZI K_II⁻¹ f_I. Its vectors are
+    # sequential and the same on every rank (``wseq`` layout).
+    def zone_vector(self) -> PETSc.Vec:
+        """A new sequential vector on the zone's dofs."""
+        return self.wseq.duplicate()
+
+    def gather(self, x: PETSc.Vec, out: PETSc.Vec) -> None:
+        """``out ← x_Z`` on every rank."""
+        sub = x.getSubVector(self.isZ)
+        self.to_all.scatter(sub, out, PETSc.InsertMode.INSERT)
+        x.restoreSubVector(self.isZ, sub)
+
+    def zone_load(self) -> PETSc.Vec:
+        """``f̃ = f_Z − K_ZI K_II⁻¹ f_I`` (one back-substitution per zone and load)."""
+        self._solve_load()
+        return self.f_tilde
+
+    def zone_gap(self, z: PETSc.Vec) -> np.ndarray:
+        """``g`` at the zone's points for ``ζ_Z = z``."""
+        self.MP.mult(z, self.wP)
+        return self.g0P + self.wP.array_r / self.DP
+
+    def zone_residual(self, z: PETSc.Vec, kappa: float, r: PETSc.Vec) -> np.ndarray:
+        """``r ← ∇j(z) = K_S z − f̃ + (1/κ) M_Pᵀ min(g, 0)``; returns ``g`` at the zone's points."""
+        self._solve_load()
+        g = self.zone_gap(z)
+        self.Ks.mult(z, r)
+        r.axpy(-1.0, self.f_tilde)
+        self.add_zone_penalty(np.minimum(g, 0.0), kappa, r)
+        return g
+
+    def add_zone_penalty(self, values: np.ndarray, kappa: float, r: PETSc.Vec) -> None:
+        """``r ← r + (1/κ) M_Pᵀ values`` (``values`` at the zone's points)."""
+        self.wP.array[:] = values / kappa
+        self.MP.multTransposeAdd(self.wP, r, r)
+
+    def zone_gap_scale(self, z: PETSc.Vec) -> np.ndarray:
+        """``|θ·q| + Σ_j |ζ_j c_j|`` at the zone's points (:meth:`QuadraturePenalty.gap_scale`)."""
+        total = np.abs(self.g0P)
+        x = z.duplicate()
+        for j in range(self.K.getBlockSize()):
+            x.array[:] = np.where(self.component == j, z.array_r, 0.0)
+            self.MP.mult(x, self.wP)
+            total += np.abs(self.wP.array_r / self.DP)
+        x.destroy()
+        return total
+
+    def factorize_zone(self, g: np.ndarray, kappa: float) -> None:
+        """Factorize ``S = K_S + (1/κ) M_Aᵀ diag(1/D_A) M_A`` (``A``: zone points with g < 0)."""
+        t0 = time.perf_counter()
+        self.S.zeroEntries()
+        self.S.axpy(1.0, self.Ks, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        active = np.flatnonzero(g < 0).astype(PETSc.IntType)
+        if active.size:
+            seq = PETSc.COMM_SELF
+            rows = PETSc.IS().createGeneral(active, comm=seq)
+            cols = PETSc.IS().createStride(self.Z.size, 0, 1, comm=seq)
+            MA = self.MP.createSubMatrix(rows, cols)
+            scale = MA.createVecLeft()
+            scale.array[:] = 1.0 / np.sqrt(kappa * self.DP[active])
+            MA.diagonalScale(L=scale)
+            P = MA.transposeMatMult(MA)
+            self.S.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            for obj in (rows, cols, MA, scale, P):
+                obj.destroy()
+        self.ksp_S.setOperators(self.S)
+        self.ksp_S.setUp()
+        self._stale = False  # S is the Jacobian of the zone's problem at this iterate
+        self.factored = True
+        self.timings["condense"] += time.perf_counter() - t0
+
+    def solve_zone(self, b: PETSc.Vec, d: PETSc.Vec) -> None:
+        """``d ← S⁻¹ b``; rank 0's result on every rank (the ranks then decide alike)."""
+        self.ksp_S.solve(b, d)
+        self.comm.Bcast(d.array, root=0)
+
+    def extend(self, z: PETSc.Vec, out: PETSc.Vec, load: bool) -> None:
+        """``out ← (z, ζ_I)`` with ``ζ_I = K_II⁻¹ (f_I − K_IZ z)`` (``load``) or ``−K_II⁻¹ K_IZ z``.
+
+        One back-substitution with ``K_II``: the minimizer over ``ζ_I`` (with ``load``), or the
+        matching change of ``ζ_I`` for a change ``z`` of ``ζ_Z`` (without).
+        """
+        self.dZ.array[:] = z.array_r[self.z_lo : self.z_hi]
+        self.KIZ.mult(self.dZ, self.vI)
+        self.ksp_I.solve(self.vI, self.yI)
+        if load:
+            self._solve_load()
+            self.yI.aypx(-1.0, self.uf)
+        else:
+            self.yI.scale(-1.0)
+        part = out.getSubVector(self.isI)
+        self.yI.copy(part)
+        out.restoreSubVector(self.isI, part)
+        part = out.getSubVector(self.isZ)
+        self.dZ.copy(part)
+        out.restoreSubVector(self.isZ, part)

@@ -11,10 +11,13 @@ The membrane part of ``J_κ`` is quadratic: its Hessian ``K`` is assembled once,
 penalty part lives at its quadrature points (:class:`~shellobstacle.penalty.QuadraturePenalty`).
 A residual is then one product with ``K`` and one with the point matrix ``M``, a Jacobian
 ``K`` plus a product over the active points only, and a line-search evaluation a sum over
-the points. With the direct solver a solve factorizes its first Jacobian only: later Newton
-steps, whose Jacobians differ from it only where the active set moved, are solved by
-conjugate gradients preconditioned with that factorization, and a new one is computed only
-when that does not converge quickly.
+the points. The direct solver condenses the steps onto a contact zone around the active
+points (:mod:`shellobstacle.solvers.contact_zone`): the stiffness outside it is factorized once
+per zone, and the Newton steps are taken on the zone's own problem, with the dofs outside the
+zone eliminated. Without the zone (``contact_zone=False``) a solve factorizes its first
+Jacobian only: later Newton steps, whose Jacobians differ from it only where the active set
+moved, are solved by conjugate gradients preconditioned with that factorization, and a new one
+is computed only when that does not converge quickly.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ from typing import Any
 import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from shellobstacle import compat  # noqa: F401
@@ -77,6 +81,9 @@ class NewtonOptions:
             ``reuse_factorization``.
         zone_max_fraction: a zone with more dofs than this fraction is not condensed (the
             whole Jacobian is factorized at every step).
+        zone_newton: with a contact zone, take the Newton steps on the zone's own problem
+            (``ζ_I`` eliminated: :meth:`NewtonSolver._zone_newton`), with no back-substitution
+            with ``K_II`` per step; ``ζ_I`` is computed once at the end of each solve.
     """
 
     rtol: float = 1e-10
@@ -91,6 +98,7 @@ class NewtonOptions:
     reuse_max_iterations: int = 15
     contact_zone: bool = True
     zone_max_fraction: float = 0.3
+    zone_newton: bool = True
 
     def __post_init__(self) -> None:
         if self.linear_solver not in ("direct", "iterative"):
@@ -121,6 +129,7 @@ class NewtonResult:
     linear_iterations: list[int] = field(default_factory=list)
     line_search_evaluations: int = 0
     factorizations: int = 0
+    zone_steps: int = 0  # of the iterations: steps on the contact zone's own problem
     timings: dict[str, float] = field(default_factory=dict)
     reference: float = 0.0  # ‖R(0)‖, the scale of the relative residual
 
@@ -178,6 +187,7 @@ class NewtonSolver:
         self._hint: np.ndarray | None = None  # points the full last Newton step penetrates
         zoned = opts.linear_solver == "direct" and opts.contact_zone and zone_available(comm)
         self.reuse = opts.linear_solver == "direct" and opts.reuse_factorization and not zoned
+        self.reduced = zoned and opts.zone_newton  # Newton steps on the zone's own problem
         if zoned:
             self.zone = ContactZone(
                 self.K, self.penalty, opts.zone_max_fraction, opts.factorization
@@ -230,6 +240,7 @@ class NewtonSolver:
             "line_search": 0.0,
             "zone": 0.0,
             "condense": 0.0,
+            "zone_newton": 0.0,
         }
         self._factored_kappa: float | None = None  # κ of the factorization held by the KSP
         self.factorizations = 0  # in the current solve
@@ -368,6 +379,8 @@ class NewtonSolver:
         kappa = self.kappa
         if self._factored_kappa != kappa:
             return False
+        if self.reduced:
+            return self._zone_predict(kappa_new)
         t0 = time.perf_counter()
         b = self.R.duplicate()
         b.set(0.0)
@@ -387,6 +400,169 @@ class NewtonSolver:
             zeta.x.scatter_forward()
         self.timings["predict"] = self.timings.get("predict", 0.0) + time.perf_counter() - t0
         return ok
+
+    # -- Newton on the zone's own problem -------------------------------------------------------
+    def _zone_ready(self) -> bool:
+        """Whether the next steps can be taken on the zone's problem (collective).
+
+        Makes the zone hold the current active points first (builds it once contact appears);
+        without contact and without a zone, the step is a full one.
+        """
+        zone = self.zone
+        if not self.reduced or zone is None:
+            return False
+        active = self._g < 0
+        if not zone.usable:
+            contact = self.problem.mesh.comm.allreduce(bool(active.any()), op=MPI.LOR)
+            if zone.whole or not contact:
+                return False
+        t0, before, builds = time.perf_counter(), dict(zone.timings), zone.builds
+        zone.prepare(active, self._hint)
+        self.factorizations += zone.builds - builds  # (each build factorizes K_II)
+        for key, value in zone.timings.items():
+            self.timings[key] += value - before[key]
+        spent = time.perf_counter() - t0 - sum(zone.timings[k] - before[k] for k in before)
+        self.timings["zone"] += spent
+        return zone.usable
+
+    def _zone_newton(
+        self,
+        result: NewtonResult,
+        scale: float,
+        ref: float,
+        progress: Callable[[int, float], Any] | None,
+    ) -> float:
+        """Newton steps on the zone's problem, then ``ζ_I`` by one back-substitution.
+
+        While no point outside the zone is active, ``ζ_I = K_II⁻¹ (f_I − K_IZ ζ_Z)`` minimizes
+        ``J_κ`` over ``ζ_I`` and leaves ``j(ζ_Z) = ½ ζ_Zᵀ (K_ZZ − T) ζ_Z − f̃·ζ_Z`` plus the
+        penalty at the zone's points (:mod:`shellobstacle.solvers.contact_zone`). From an
+        iterate with ``R_I = 0`` a Newton step of ``J_κ`` is ``S δ_Z = −∇j``,
+        ``δ_I = −K_II⁻¹ K_IZ δ_Z``, and its exact line search is that of ``j``: these are
+        Newton steps of ``J_κ`` that need only the zone's Schur complement ``S`` and no
+        back-substitution. Their residual ``∇j(ζ_Z)`` is ``R(ζ)`` on the zone (it vanishes
+        on ``I``). At the end ``ζ_I`` is formed and ``R(ζ)`` computed in full: if a point
+        outside the zone became active, the caller takes a full step, which grows the zone.
+
+        Returns:
+            ``‖R(ζ)‖`` of the completed iterate (also the last entry of the history).
+        """
+        zone, opts, kappa = self.zone, self.options, self.kappa
+        assert zone is not None
+        t0 = time.perf_counter()
+        c0 = zone.timings["condense"]
+        zeta = self.problem.zeta
+        z, r, d = zone.zone_vector(), zone.zone_vector(), zone.zone_vector()
+        zone.gather(zeta.x.petsc_vec, z)
+        g = zone.zone_residual(z, kappa, r)
+        rnorm = r.norm()
+        while result.iterations < opts.max_iterations:
+            if rnorm <= max(opts.atol, opts.rtol * scale):
+                break
+            floor = self._zone_floor(z, g, ref)
+            if rnorm <= floor:
+                break
+            zone.factorize_zone(g, kappa)
+            self._factored_kappa = kappa
+            r.scale(-1.0)
+            zone.solve_zone(r, d)
+            r.scale(-1.0)
+            slope0 = r.dot(d)
+            small_step = d.norm(PETSc.NormType.NORM_INFINITY) <= opts.stol * z.norm(
+                PETSc.NormType.NORM_INFINITY
+            )
+            if small_step:
+                t = 1.0
+            else:
+                noise = floor * d.norm()
+                if not slope0 < -noise:  # no verifiable descent: the full step decides
+                    break
+                t, evals = self._zone_line_search(g, d, slope0, noise)
+                result.line_search_evaluations += evals
+            z.axpy(t, d)
+            g = zone.zone_residual(z, kappa, r)
+            rnorm = r.norm()
+            result.iterations += 1
+            result.zone_steps += 1
+            result.residual_norms.append(rnorm)
+            result.step_lengths.append(t)
+            result.linear_iterations.append(1)
+            if progress is not None:
+                progress(result.iterations, rnorm / scale)
+            if small_step:
+                break
+        ts = time.perf_counter()
+        zone.extend(z, zeta.x.petsc_vec, load=True)
+        zeta.x.scatter_forward()
+        self.timings["solve"] += time.perf_counter() - ts
+        ta = time.perf_counter()
+        self._residual()
+        self._hint = None
+        rnorm = self.R.norm()
+        result.residual_norms[-1] = rnorm  # the completed iterate's residual
+        for vec in (z, r, d):
+            vec.destroy()
+        te, condense = time.perf_counter(), zone.timings["condense"] - c0
+        self.timings["assemble"] += te - ta
+        self.timings["condense"] += condense
+        self.timings["zone_newton"] += te - t0 - (te - ts) - condense
+        return rnorm
+
+    def _zone_floor(self, z: PETSc.Vec, g: np.ndarray, ref: float) -> float:
+        """:meth:`_floor` for the zone's problem (the active points are the zone's)."""
+        zone = self.zone
+        u = np.finfo(PETSc.ScalarType).eps
+        scale = zone.zone_gap_scale(z)
+        S = z.duplicate()
+        S.set(0.0)
+        zone.add_zone_penalty(np.where(g < 0, scale, 0.0), self.kappa, S)
+        norm = S.norm()
+        S.destroy()
+        return self.options.floor_factor * u * (ref + norm)
+
+    def _zone_line_search(
+        self, g: np.ndarray, d: PETSc.Vec, slope0: float, noise: float
+    ) -> tuple[float, int]:
+        """:meth:`_line_search` for the zone's problem (the same step length on every rank)."""
+        zone, kappa = self.zone, self.kappa
+        zone.MP.mult(d, zone.wP)
+        Md = zone.wP.array_r.copy()
+        Bd = Md / zone.DP
+        Kd = d.duplicate()
+        zone.Ks.mult(d, Kd)
+        curvature = Kd.dot(d)
+        Kd.destroy()
+        elastic0 = slope0 - float(np.dot(Md, np.minimum(g, 0.0))) / kappa
+
+        def slope(t: float) -> float:
+            return elastic0 + t * curvature + float(np.dot(Md, np.minimum(g + t * Bd, 0.0))) / kappa
+
+        t, evals = piecewise_linear_root(slope, slope0, max(1e-10 * abs(slope0), noise))
+        return self.problem.mesh.comm.bcast((t, evals), root=0)
+
+    def _zone_predict(self, kappa_new: float) -> bool:
+        """:meth:`predict` through the zone: ``∂R/∂κ`` lives on the zone's points, so
+        ``dζ_Z/dκ`` is one solve with the kept ``S`` and ``dζ_I/dκ = −K_II⁻¹ K_IZ dζ_Z/dκ``
+        one back-substitution."""
+        zone, kappa = self.zone, self.kappa
+        if zone is None or not zone.usable or not zone.factored:
+            return False
+        t0 = time.perf_counter()
+        z, b, d = zone.zone_vector(), zone.zone_vector(), zone.zone_vector()
+        zone.gather(self.problem.zeta.x.petsc_vec, z)
+        b.set(0.0)
+        zone.add_zone_penalty(np.minimum(zone.zone_gap(z), 0.0), kappa * kappa, b)  # −∂∇j/∂κ
+        zone.solve_zone(b, d)
+        zone.extend(d, self.dz, load=False)
+        for vec in (z, b, d):
+            vec.destroy()
+        self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        zeta = self.problem.zeta
+        with self.dz.localForm() as dz_loc:
+            zeta.x.array[:] += (kappa_new - kappa) * dz_loc.array_r
+        zeta.x.scatter_forward()
+        self.timings["predict"] = self.timings.get("predict", 0.0) + time.perf_counter() - t0
+        return True
 
     # -- line search --------------------------------------------------------------------------
     def _line_search(self, slope0: float, noise: float) -> tuple[float, int]:
@@ -444,7 +620,8 @@ class NewtonSolver:
         result.residual_norms.append(rnorm)
         scale = ref if ref > 0.0 else 1.0
         result.reference = ref
-        for it in range(1, opts.max_iterations + 1):
+        just_reduced = False  # the last iterations were on the zone's problem
+        while True:
             if not math.isfinite(rnorm):
                 result.reason = "residual is not finite (NaN/Inf)"
                 break
@@ -455,6 +632,16 @@ class NewtonSolver:
             if rnorm <= floor:
                 result.converged, result.reason = True, "residual at its round-off floor"
                 break
+            if result.iterations >= opts.max_iterations:
+                result.reason = f"no convergence in {opts.max_iterations} Newton iterations"
+                break
+            if not just_reduced and self._zone_ready():
+                rnorm = self._zone_newton(result, scale, ref, progress)
+                just_reduced = True
+                continue
+            # a full Newton step (no zone yet, a zone too large, or an active point outside it)
+            just_reduced = False
+            it = result.iterations + 1
             ta = time.perf_counter()
             self._jacobian()
             self.timings["assemble"] += time.perf_counter() - ta
@@ -510,8 +697,6 @@ class NewtonSolver:
             if small_step:
                 result.converged, result.reason = True, "Newton correction below stol"
                 break
-        else:
-            result.reason = f"no convergence in {opts.max_iterations} Newton iterations"
         result.factorizations = self.factorizations
         result.timings = {"total": time.perf_counter() - t_start}
         if not result.converged:
