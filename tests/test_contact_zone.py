@@ -63,20 +63,22 @@ def test_the_condensed_solve_is_the_jacobian_solve() -> None:
 def test_zone_continuation_equals_factorizing_every_step() -> None:
     """Same Newton steps and solution as a fresh factorization per step, far fewer of them.
 
-    The zone is built once the contact appears and kept over the smaller κ.
+    The zone is built before the first step (seeded by the coarse-grid first step) or, without
+    the seed, once the contact appears; it is kept over the smaller κ.
     """
     p_fresh, _, fresh = solved(NewtonOptions(contact_zone=False, reuse_factorization=False))
-    p_zone, solver, zoned = solved(NewtonOptions())
-    assert [s.iterations for s in zoned] == [s.iterations for s in fresh]
     assert [s.newton.factorizations for s in fresh] == [s.iterations for s in fresh]
-    factorizations = [s.newton.factorizations for s in zoned]
-    # the first Newton step factorizes K (no contact yet), the second builds the zone
-    assert factorizations[0] == 2 and factorizations[1:] == [0, 0]
-    assert solver.zone.builds == sum(factorizations)
-    z_zone, z_fresh = p_zone.zeta.x.petsc_vec, p_fresh.zeta.x.petsc_vec
-    d = z_zone.copy()
-    d.axpy(-1.0, z_fresh)
-    assert d.norm() <= 1e-10 * z_fresh.norm()
+    z_fresh = p_fresh.zeta.x.petsc_vec
+    # seeded: K_II only; unseeded: K at the first Newton step (no contact yet), then K_II
+    for seed, first in ((True, 1), (False, 2)):
+        p_zone, solver, zoned = solved(NewtonOptions(seed_zone=seed))
+        assert [s.iterations for s in zoned] == [s.iterations for s in fresh]
+        factorizations = [s.newton.factorizations for s in zoned]
+        assert factorizations == [first, 0, 0]
+        assert solver.zone.builds == first
+        d = p_zone.zeta.x.petsc_vec.copy()
+        d.axpy(-1.0, z_fresh)
+        assert d.norm() <= 1e-10 * z_fresh.norm()
 
 
 @pytest.mark.mpi
@@ -154,21 +156,23 @@ def test_without_mumps_selected_inverses_the_solver_warns_and_falls_back(
 def test_newton_on_the_zone_problem_solves_the_whole_problem() -> None:
     """Steps on the zone's problem (ζ_I eliminated) reach the solution of J_κ itself.
 
-    After the cold first step every step is taken on the zone; the answer agrees with full
-    Newton steps through the same zone and with a fresh factorization of every Jacobian, and
-    the completed iterate's residual R(ζ) is the one the history reports.
+    With a seeded zone every step is taken on the zone (without the seed, all but the cold
+    first step); the answer agrees with full Newton steps through the same zone and with a
+    fresh factorization of every Jacobian, and the completed iterate's residual R(ζ) is the
+    one the history reports.
     """
     p_red, s_red, reduced = solved(NewtonOptions())
+    p_cold, _, cold = solved(NewtonOptions(seed_zone=False))
     p_full, _, full = solved(NewtonOptions(zone_newton=False))
     p_fresh, _, _ = solved(NewtonOptions(contact_zone=False, reuse_factorization=False))
-    assert [s.newton.zone_steps for s in reduced] == [
-        reduced[0].iterations - 1,
-        *[s.iterations for s in reduced[1:]],
+    assert [s.newton.zone_steps for s in reduced] == [s.iterations for s in reduced]
+    assert [s.newton.zone_steps for s in cold] == [
+        cold[0].iterations - 1,
+        *[s.iterations for s in cold[1:]],
     ]
     assert all(s.newton.zone_steps == 0 for s in full)
-    assert [s.newton.factorizations for s in reduced] == [2, 0, 0]
     ref = p_fresh.zeta.x.petsc_vec
-    for problem in (p_red, p_full):
+    for problem in (p_red, p_cold, p_full):
         d = problem.zeta.x.petsc_vec.copy()
         d.axpy(-1.0, ref)
         assert d.norm() <= 1e-10 * ref.norm()

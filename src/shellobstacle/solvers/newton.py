@@ -37,6 +37,7 @@ from petsc4py import PETSc
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.coarse_space import CoarseSpace
 from shellobstacle.solvers.contact_zone import ContactZone, zone_available
 from shellobstacle.solvers.line_search import piecewise_linear_root
 from shellobstacle.solvers.options import set_options, unique_prefix
@@ -84,6 +85,11 @@ class NewtonOptions:
         zone_newton: with a contact zone, take the Newton steps on the zone's own problem
             (``ζ_I`` eliminated: :meth:`NewtonSolver._zone_newton`), with no back-substitution
             with ``K_II`` per step; ``ζ_I`` is computed once at the end of each solve.
+        seed_zone: with ``zone_newton``, build the first zone before the first Newton step,
+            where a coarse-grid approximation of that step
+            (:class:`~shellobstacle.solvers.coarse_space.CoarseSpace`) penetrates the
+            obstacle, instead of factorizing ``K`` for the first step and ``K_II`` for the
+            second.
     """
 
     rtol: float = 1e-10
@@ -99,6 +105,7 @@ class NewtonOptions:
     contact_zone: bool = True
     zone_max_fraction: float = 0.3
     zone_newton: bool = True
+    seed_zone: bool = True
 
     def __post_init__(self) -> None:
         if self.linear_solver not in ("direct", "iterative"):
@@ -411,11 +418,17 @@ class NewtonSolver:
         zone = self.zone
         if not self.reduced or zone is None:
             return False
+        comm = self.problem.mesh.comm
         active = self._g < 0
         if not zone.usable:
-            contact = self.problem.mesh.comm.allreduce(bool(active.any()), op=MPI.LOR)
-            if zone.whole or not contact:
+            if zone.whole:
                 return False
+            if not comm.allreduce(bool(active.any()), op=MPI.LOR):
+                if zone.Z is not None or not self.options.seed_zone:
+                    return False  # no contact: a full step
+                self._hint = self._coarse_hint()
+                if not comm.allreduce(bool(self._hint.any()), op=MPI.LOR):
+                    return False  # no contact expected either
         t0, before, builds = time.perf_counter(), dict(zone.timings), zone.builds
         zone.prepare(active, self._hint)
         self.factorizations += zone.builds - builds  # (each build factorizes K_II)
@@ -424,6 +437,21 @@ class NewtonSolver:
         spent = time.perf_counter() - t0 - sum(zone.timings[k] - before[k] for k in before)
         self.timings["zone"] += spent
         return zone.usable
+
+    def _coarse_hint(self) -> np.ndarray:
+        """The points that ``ζ + δ̃`` penetrates, ``δ̃`` a coarse-grid approximation of the
+        Newton step ``K⁻¹(−R(ζ))`` at an iterate without contact."""
+        t0 = time.perf_counter()
+        problem = self.problem
+        coarse = CoarseSpace(problem.V, self.K, problem.bcs)
+        r = self.R.copy()
+        r.scale(-1.0)
+        coarse.solve(r, self.dz)
+        hint = self._g + self.penalty.apply_B(self.dz) < 0
+        r.destroy()
+        coarse.destroy()
+        self.timings["coarse"] = self.timings.get("coarse", 0.0) + time.perf_counter() - t0
+        return hint
 
     def _zone_newton(
         self,

@@ -1,0 +1,125 @@
+"""A cheap approximate solve with the membrane stiffness: Galerkin on a coarse background grid.
+
+The contact zone (:mod:`shellobstacle.solvers.contact_zone`) must be known before its
+factorization; before any contact it is where the first Newton step ``δ = K⁻¹ r`` would
+penetrate the obstacle. That set needs only an approximation of ``δ``: the Galerkin
+projection onto the piecewise-linear functions of a uniform triangle grid over the bounding
+box of the domain, ``H ≈ 4h`` (about 1/16 of the nodes),
+
+    δ̃ = P (Pᵀ K P)⁻¹ Pᵀ r,
+
+where ``P`` interpolates the grid's nodal values at the dofs of the displacement space (its
+rows zero at the Dirichlet dofs, so ``P`` maps into the discrete space). ``δ̃`` is the best
+approximation of ``δ`` in the energy norm from that subspace; it works for any mesh, domain
+and degree, serially and in parallel, and costs one product ``PᵀKP`` and a factorization of a
+matrix about 1/16 the size of ``K``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import dolfinx
+import dolfinx.fem.petsc
+import numpy as np
+from mpi4py import MPI
+from petsc4py import PETSc
+
+from shellobstacle import compat  # noqa: F401
+from shellobstacle.solvers.options import unique_prefix
+
+__all__ = ["CoarseSpace"]
+
+
+class CoarseSpace:
+    """Galerkin approximation of ``K⁻¹`` on the P1 functions of a uniform background grid.
+
+    Args:
+        V: The displacement space (blocked, its dofs at points of the plane).
+        K: The membrane stiffness on ``V`` (Dirichlet rows and columns identity).
+        bcs: The homogeneous Dirichlet conditions of ``V``.
+        ratio: About how many nodes of ``V`` per grid node (16: ``H ≈ 4h`` for P1).
+    """
+
+    def __init__(
+        self,
+        V: dolfinx.fem.FunctionSpace,
+        K: PETSc.Mat,
+        bcs: list,
+        ratio: float = 16.0,
+    ) -> None:
+        comm = V.mesh.comm
+        imap, bs = V.dofmap.index_map, V.dofmap.index_map_bs
+        n_own = imap.size_local
+        x = V.tabulate_dof_coordinates()[:n_own, :2]
+        lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+        if n_own:
+            lo, hi = x.min(axis=0), x.max(axis=0)
+        comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+        comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+        extent = np.maximum(hi - lo, 1e-300)
+        spacing = math.sqrt(extent[0] * extent[1] * ratio / max(imap.size_global, 1))
+        nx, ny = (max(1, math.ceil(e / spacing)) for e in extent)
+        # barycentric weights of every owned node in its grid triangle (cells split along
+        # the diagonal from (i, j) to (i+1, j+1))
+        u = (x - lo) / extent * [nx, ny]
+        i = np.clip(np.floor(u[:, 0]).astype(np.int64), 0, nx - 1)
+        j = np.clip(np.floor(u[:, 1]).astype(np.int64), 0, ny - 1)
+        s, t = u[:, 0] - i, u[:, 1] - j
+        upper = s < t
+        node = j * (nx + 1) + i
+        corners = np.stack([node, np.where(upper, node + nx + 1, node + 1), node + nx + 2], 1)
+        weights = np.stack(
+            [np.where(upper, 1 - t, 1 - s), np.where(upper, t - s, s - t), np.where(upper, s, t)],
+            1,
+        )
+        # one row per owned dof (node b, component c: local row b·bs + c), zero where Dirichlet
+        free = K.createVecLeft()
+        free.set(1.0)
+        dolfinx.fem.petsc.set_bc(free, bcs)  # (homogeneous conditions: 0 at the Dirichlet dofs)
+        keep = free.array_r.reshape(n_own, bs) != 0.0
+        free.destroy()
+        rows = np.repeat(np.arange(n_own * bs, dtype=np.int64), 3)
+        cols = np.repeat(corners, bs, axis=0) * bs + np.tile(np.arange(bs), n_own)[:, None]
+        vals = np.repeat(weights, bs, axis=0) * keep.reshape(-1, 1)
+        cols, vals = cols.ravel(), vals.ravel()
+        # grid functions used: those with weight (≥ 1/2 in all) at free dofs; renumbered
+        mass = np.bincount(cols, weights=vals, minlength=(nx + 1) * (ny + 1) * bs)
+        comm.Allreduce(MPI.IN_PLACE, mass, op=MPI.SUM)
+        used = mass >= 0.5
+        number = np.cumsum(used) - 1
+        ok = used[cols] & (vals > 0.0)
+        rows, cols, vals = rows[ok], number[cols[ok]], vals[ok]
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=n_own * bs))])
+        order = np.lexsort((cols, rows))
+        self.size = int(used.sum())
+        self.P = PETSc.Mat().createAIJ(
+            ((n_own * bs, K.getSize()[0]), (PETSc.DECIDE, self.size)),
+            csr=(
+                indptr.astype(PETSc.IntType),
+                cols[order].astype(PETSc.IntType),
+                vals[order],
+            ),
+            comm=K.getComm(),
+        )
+        self.Kc = K.ptap(self.P)
+        self.ksp = PETSc.KSP().create(K.getComm())
+        self.ksp.setOptionsPrefix(unique_prefix("coarse"))
+        self.ksp.setOperators(self.Kc)
+        self.ksp.setType("preonly")
+        self.ksp.getPC().setType("lu")
+        self.ksp.getPC().setFactorSolverType("mumps")
+        self.ksp.setFromOptions()
+        self.ksp.setUp()
+        self._rc = self.Kc.createVecRight()
+        self._yc = self.Kc.createVecRight()
+
+    def solve(self, r: PETSc.Vec, out: PETSc.Vec) -> None:
+        """``out ← P (PᵀKP)⁻¹ Pᵀ r``."""
+        self.P.multTranspose(r, self._rc)
+        self.ksp.solve(self._rc, self._yc)
+        self.P.mult(self._yc, out)
+
+    def destroy(self) -> None:
+        for obj in (self.P, self.Kc, self.ksp, self._rc, self._yc):
+            obj.destroy()

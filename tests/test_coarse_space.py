@@ -1,0 +1,60 @@
+"""The coarse-grid Galerkin solve that seeds the contact zone (solvers/coarse_space.py)."""
+
+from __future__ import annotations
+
+import dolfinx.fem.petsc
+import numpy as np
+import pytest
+from petsc4py import PETSc
+
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.coarse_space import CoarseSpace
+from shellobstacle.solvers.newton import NewtonSolver
+from tests.test_contact_zone import lu_solve
+from tests.test_newton import paper_shell, square
+
+
+def energy(K: PETSc.Mat, x: PETSc.Vec) -> float:
+    y = x.duplicate()
+    K.mult(x, y)
+    return float(np.sqrt(y.dot(x)))
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("ratio", [16.0, 64.0])
+def test_the_coarse_solve_is_the_galerkin_projection(ratio: float) -> None:
+    """δ̃ = P(PᵀKP)⁻¹Pᵀf: zero at the Dirichlet dofs, Pᵀ(Kδ̃ − f) = 0, and closer to K⁻¹f
+    in the energy norm than the other vectors of the subspace (here: δ̃ perturbed in it)."""
+    problem = PenalizedProblem(paper_shell(), square(n=32))
+    solver = NewtonSolver(problem)
+    solver._load()
+    K, f = solver.K, solver.f
+    coarse = CoarseSpace(problem.V, K, problem.bcs, ratio)
+    n_dofs = K.getSize()[0]
+    assert 0 < coarse.size < 3 * n_dofs / ratio
+    d = f.duplicate()
+    coarse.solve(f, d)
+    mask = f.duplicate()
+    mask.set(1.0)
+    dolfinx.fem.petsc.set_bc(mask, problem.bcs)
+    assert np.all(d.array_r[mask.array_r == 0.0] == 0.0)
+    r = f.duplicate()
+    K.mult(d, r)
+    r.axpy(-1.0, f)
+    rc = coarse.P.createVecRight()
+    coarse.P.multTranspose(r, rc)
+    assert rc.norm() <= 1e-10 * f.norm()
+    exact = lu_solve(K, f)
+    e = exact.copy()
+    e.axpy(-1.0, d)
+    best = energy(K, e)
+    assert best < energy(K, exact)  # it captures part of the solution
+    yc = coarse.P.createVecRight()
+    rng = np.random.default_rng(0)
+    yc.array[:] = rng.standard_normal(yc.getLocalSize())
+    other = d.duplicate()
+    coarse.P.mult(yc, other)
+    other.scale(1e-3 * d.norm() / max(other.norm(), 1e-300))
+    other.axpy(1.0, e)  # K⁻¹f − (δ̃ − the perturbation)
+    assert energy(K, other) >= best
+    coarse.destroy()
