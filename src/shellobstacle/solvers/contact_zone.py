@@ -87,8 +87,13 @@ def zone_available(comm: MPI.Comm) -> bool:
     return True
 
 
-def _lu(comm: PETSc.Comm, A: PETSc.Mat, factorization: str = "lu") -> PETSc.KSP:
-    """A MUMPS ``factorization`` (lu or cholesky) solver for ``A``, made at its first set-up."""
+def _lu(
+    comm: PETSc.Comm, A: PETSc.Mat, factorization: str = "lu", ordering: int | None = None
+) -> PETSc.KSP:
+    """A MUMPS ``factorization`` (lu or cholesky) solver for ``A``, made at its first set-up.
+
+    ``ordering``: MUMPS' ICNTL(7) (default: its own choice).
+    """
     ksp = PETSc.KSP().create(comm)
     ksp.setOptionsPrefix(unique_prefix("zone"))
     ksp.setOperators(A)
@@ -98,18 +103,31 @@ def _lu(comm: PETSc.Comm, A: PETSc.Mat, factorization: str = "lu") -> PETSc.KSP:
         A.setOption(PETSc.Mat.Option.SPD, True)
     pc.setType(factorization)
     pc.setFactorSolverType("mumps")
+    if ordering is not None:
+        pc.setFactorSetUpSolverType()
+        pc.getFactorMatrix().setMumpsIcntl(7, ordering)
     ksp.setFromOptions()
     return ksp
 
 
-def _pattern(A: PETSc.Mat) -> tuple[np.ndarray, np.ndarray]:
-    """Row (local) and column (global) of every stored entry of ``A``'s owned rows.
+def _csr(A: PETSc.Mat) -> tuple[np.ndarray, np.ndarray]:
+    """Row pointers and (global) columns of ``A``'s owned rows.
 
-    Fetched when a zone is built (rarely) rather than kept: at 1.9 M dofs these arrays of the
+    Fetched when a zone is built (rarely) rather than kept: at 1.9 M dofs the patterns of the
     stiffness and point matrices would take ≈ 1.5 GB.
     """
     ip, ix, _ = A.getValuesCSR()
-    return np.repeat(np.arange(ip.size - 1, dtype=PETSc.IntType), np.diff(ip)), ix
+    return ip, ix
+
+
+def _columns(csr: tuple[np.ndarray, np.ndarray], rows: np.ndarray) -> np.ndarray:
+    """The columns of the given local rows of ``csr``, concatenated."""
+    ip, ix = csr
+    if rows.size == 0:
+        return ix[:0]
+    start, count = ip[rows], ip[rows + 1] - ip[rows]
+    offsets = np.repeat(start - np.concatenate([[0], np.cumsum(count)[:-1]]), count)
+    return ix[np.arange(offsets.size) + offsets]
 
 
 class ContactZone:
@@ -152,22 +170,44 @@ class ContactZone:
         """Sorted union over the ranks of global dof numbers."""
         return np.unique(np.concatenate(self.comm.allgather(np.unique(local))))
 
-    def _dofs_of(self, points: np.ndarray) -> np.ndarray:
-        """The dofs coupled to the given owned points (all ranks' points, on all ranks)."""
-        rows, cols = _pattern(self.penalty.M)
-        return self._union(cols[points[rows]])
+    def _dofs_of(self, points: np.ndarray, csr: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """The dofs coupled to the given owned points (all ranks' points, on all ranks).
 
-    def _dilate(self, Z: np.ndarray, pattern: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
-        """``Z`` and its neighbours in the graph of ``K`` (``pattern``: :func:`_pattern` of K)."""
-        rows = np.isin(np.arange(self.r0, self.r1), Z, assume_unique=True)
-        k_rows, k_cols = pattern
-        return self._union(np.concatenate([Z, k_cols[rows[k_rows]]]))
+        ``csr``: :func:`_csr` of the point matrix.
+        """
+        return self._union(_columns(csr, np.flatnonzero(points)))
 
-    def _inside(self, Z: np.ndarray) -> np.ndarray:
-        """Owned points all of whose dofs are in ``Z``."""
-        rows, cols = _pattern(self.penalty.M)
-        outside = ~np.isin(cols, Z)
-        return np.bincount(rows[outside], minlength=self.num_points) == 0
+    def _dilate(self, Z: np.ndarray, target: int) -> np.ndarray:
+        """``Z`` grown by rings of neighbours in the graph of ``K`` until it has ``target`` dofs
+        (or stops growing)."""
+        csr = _csr(self.K)
+        zone = np.zeros(self.n, dtype=np.uint8)
+        zone[Z] = 1
+        lo, hi = np.searchsorted(Z, [self.r0, self.r1])
+        front = Z[lo:hi] - self.r0  # the owned rows added last
+        size = Z.size
+        for _ in range(50):
+            if size >= target:
+                break
+            ring = np.zeros(self.n, dtype=np.uint8)
+            ring[_columns(csr, front)] = 1
+            self.comm.Allreduce(MPI.IN_PLACE, ring, op=MPI.BOR)
+            ring &= 1 - zone
+            grown = int(np.count_nonzero(ring))
+            if grown == 0:
+                break
+            zone |= ring
+            size += grown
+            front = np.flatnonzero(ring[self.r0 : self.r1])
+        return np.flatnonzero(zone)
+
+    def _inside(self, Z: np.ndarray, csr: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
+        """Owned points all of whose dofs are in ``Z`` (``csr``: of the point matrix)."""
+        ip, ix = csr
+        in_zone = np.zeros(self.n, dtype=bool)
+        in_zone[Z] = True
+        outside = np.concatenate([[0], np.cumsum(~in_zone[ix])])
+        return outside[ip[1:]] == outside[ip[:-1]]
 
     def covers(self, active: np.ndarray) -> bool:
         """Whether the current zone holds all active points (collective)."""
@@ -187,15 +227,11 @@ class ContactZone:
             base |= hint
         if self.points is not None:
             base |= self.points
-        Z = self._dofs_of(base)
-        target = 2 * Z.size
-        pattern = _pattern(self.K) if Z.size else None
-        for _ in range(50):
-            if Z.size >= target or pattern is None:
-                break
-            Z = self._dilate(Z, pattern)
-        del pattern
-        self.set_zone(Z)
+        csr = _csr(self.penalty.M)
+        Z = self._dofs_of(base, csr)
+        if Z.size:
+            Z = self._dilate(Z, 2 * Z.size)
+        self.set_zone(Z, csr)
         self.timings["zone"] += time.perf_counter() - t0 - (self.timings["factorize"] - factorize0)
         return True
 
@@ -215,11 +251,12 @@ class ContactZone:
         """Make the union over the ranks of these owned dofs (local positions) the zone."""
         self.set_zone(self._union(owned + self.r0))
 
-    def set_zone(self, Z: np.ndarray) -> None:
+    def set_zone(self, Z: np.ndarray, csr: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Make ``Z`` (sorted global dofs, the same on all ranks) the zone (collective).
 
         Factorizes ``K_II`` and computes ``T``; a zone above ``max_fraction`` of the dofs
-        means "factorize the whole Jacobian" instead.
+        means "factorize the whole Jacobian" instead. ``csr``: the point matrix's pattern,
+        if the caller has it.
         """
         self._destroy()
         self._stale = self._J is not None
@@ -230,7 +267,7 @@ class ContactZone:
             self.points = None
             self.sizes = {"zone_dofs": int(Z.size)}
         else:
-            self.points = self._inside(Z)
+            self.points = self._inside(Z, csr or _csr(self.penalty.M))
             self._build(Z)
             self.builds += 1
 
@@ -351,7 +388,9 @@ class ContactZone:
         isP.destroy()
         self.wP = self.MP.createVecLeft()
         self.component = Z % K.getBlockSize()  # ζ_j of each zone dof (blocked numbering)
-        self.ksp_S = _lu(seq, self.S)
+        # S: sparse plus a dense |Γ|² block; approximate minimum fill (ICNTL(7) = 2) orders it
+        # for a 30 % faster factorization than MUMPS' default (METIS) at 326k dofs (measured)
+        self.ksp_S = _lu(seq, self.S, ordering=2)
         self.wseq = self.S.createVecLeft()
         self.dseq = self.S.createVecLeft()
         self.to_all, self.zseq = PETSc.Scatter.toAll(self.vZ)
