@@ -290,3 +290,22 @@ def test_surface_mesh_carries_the_nodal_values(paper):
         op=MPI.SUM,
     )
     assert area == pytest.approx(paper["post"].total_mass()[0], rel=(2 * HALF / N) ** 2)
+
+
+@pytest.mark.mpi
+def test_a_moved_surface_mesh_is_the_surface_at_the_new_coordinates(paper):
+    """SurfaceMesh.move (the deformed surface of write_paraview) puts every node where a
+    surface built at the new coordinates has it."""
+    mesh = paper["problem"].mesh
+    y = mesh.geometry.x
+    G = paper["problem"].shell.surface.geometry_numpy(y)
+    theta = np.column_stack([np.broadcast_to(t, len(y)) for t in G.theta])
+    shifted = theta + np.column_stack([np.sin(y[:, 0]), y[:, 1] ** 2, 0.1 + 0 * y[:, 0]])
+    moved = SurfaceMesh(mesh, theta)
+    moved.move(shifted)
+    built = SurfaceMesh(mesh, shifted)
+    for surface in (moved, built):
+        assert np.allclose(surface.mesh.geometry.x, shifted[surface.node], atol=0, rtol=0)
+    key = np.argsort(moved.mesh.geometry.input_global_indices)
+    other = np.argsort(built.mesh.geometry.input_global_indices)
+    assert np.array_equal(moved.mesh.geometry.x[key], built.mesh.geometry.x[other])

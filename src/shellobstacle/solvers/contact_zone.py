@@ -130,6 +130,16 @@ def _columns(csr: tuple[np.ndarray, np.ndarray], rows: np.ndarray) -> np.ndarray
     return ix[np.arange(offsets.size) + offsets]
 
 
+class _Preconditioner:
+    """A PETSc ``python`` preconditioner that solves with a kept factorization."""
+
+    def __init__(self, ksp: PETSc.KSP) -> None:
+        self.ksp = ksp
+
+    def apply(self, pc: PETSc.PC, x: PETSc.Vec, y: PETSc.Vec) -> None:
+        self.ksp.solve(x, y)
+
+
 class ContactZone:
     """Solves with the Newton Jacobian through a factorization of ``K_II`` kept per zone.
 
@@ -162,6 +172,8 @@ class ContactZone:
         self._f: PETSc.Vec | None = None  # the load vector (newton_step)
         self._stale = False  # the zone changed after that set-up
         self.factored = False  # S is factorized for the current zone
+        self._S_state: tuple[float, np.ndarray] | None = None  # κ and active points of S
+        self.ksp_cg: PETSc.KSP | None = None  # CG on the zone, preconditioned by S's factors
         self.Jzz: PETSc.Mat | None = None
         self.whole_ksp: PETSc.KSP | None = None
 
@@ -261,6 +273,7 @@ class ContactZone:
         self._destroy()
         self._stale = self._J is not None
         self.factored = False
+        self._S_state = None
         self.whole = Z.size > self.max_fraction * self.n
         self.Z = Z
         if self.whole:
@@ -391,6 +404,7 @@ class ContactZone:
         # S: sparse plus a dense |Γ|² block; approximate minimum fill (ICNTL(7) = 2) orders it
         # for a 30 % faster factorization than MUMPS' default (METIS) at 326k dofs (measured)
         self.ksp_S = _lu(seq, self.S, ordering=2)
+        self.S_now = self.S.duplicate(copy=False)  # the current Jacobian when S's are reused
         self.wseq = self.S.createVecLeft()
         self.dseq = self.S.createVecLeft()
         self.to_all, self.zseq = PETSc.Scatter.toAll(self.vZ)
@@ -403,7 +417,7 @@ class ContactZone:
             self.isI, self.isZ, self.KII, self.ksp_I, self.vI, self.yI, self.tI, self.KZI,
             self.KIZ, self.vZ, self.dZ, self.isZ_all, self.S, self.minusT, self.ksp_S,
             self.wseq, self.dseq, self.to_all, self.zseq, self.zeta_seq, self.uf, self.Ks,
-            self.MP, self.wP, self.f_tilde,
+            self.MP, self.wP, self.f_tilde, self.S_now,
         ]  # fmt: skip
 
     def _destroy(self) -> None:
@@ -416,6 +430,9 @@ class ContactZone:
         if self.whole_ksp is not None:
             self.whole_ksp.destroy()
             self.whole_ksp = None
+        if self.ksp_cg is not None:
+            self.ksp_cg.destroy()
+            self.ksp_cg = None
 
     # -- the PETSc python-preconditioner protocol ---------------------------------------------
     def setUp(self, pc: PETSc.PC) -> None:
@@ -449,6 +466,7 @@ class ContactZone:
         self.ksp_S.setOperators(self.S)
         self.ksp_S.setUp()
         self.factored = True
+        self._S_state = None  # (a full step's Jacobian: not compared by active points)
         self.timings["condense"] += time.perf_counter() - t0
 
     def set_load(self, f: PETSc.Vec) -> None:
@@ -593,11 +611,10 @@ class ContactZone:
         x.destroy()
         return total
 
-    def factorize_zone(self, g: np.ndarray, kappa: float) -> None:
-        """Factorize ``S = K_S + (1/κ) M_Aᵀ diag(1/D_A) M_A`` (``A``: zone points with g < 0)."""
-        t0 = time.perf_counter()
-        self.S.zeroEntries()
-        self.S.axpy(1.0, self.Ks, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+    def _zone_jacobian(self, S: PETSc.Mat, g: np.ndarray, kappa: float) -> None:
+        """``S ← K_S + (1/κ) M_Aᵀ diag(1/D_A) M_A`` (``A``: zone points with g < 0)."""
+        S.zeroEntries()
+        S.axpy(1.0, self.Ks, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
         active = np.flatnonzero(g < 0).astype(PETSc.IntType)
         if active.size:
             seq = PETSc.COMM_SELF
@@ -608,19 +625,64 @@ class ContactZone:
             scale.array[:] = 1.0 / np.sqrt(kappa * self.DP[active])
             MA.diagonalScale(L=scale)
             P = MA.transposeMatMult(MA)
-            self.S.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            S.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
             for obj in (rows, cols, MA, scale, P):
                 obj.destroy()
+
+    def _factorize_S(self, g: np.ndarray, kappa: float) -> None:
         self.ksp_S.setOperators(self.S)
         self.ksp_S.setUp()
         self._stale = False  # S is the Jacobian of the zone's problem at this iterate
         self.factored = True
-        self.timings["condense"] += time.perf_counter() - t0
+        self._S_state = (kappa, g < 0)
 
-    def solve_zone(self, b: PETSc.Vec, d: PETSc.Vec) -> None:
-        """``d ← S⁻¹ b``; rank 0's result on every rank (the ranks then decide alike)."""
-        self.ksp_S.solve(b, d)
+    def forget_factorization(self) -> None:
+        """Do not reuse the kept factorization of ``S`` for later Jacobians (a new solve)."""
+        self._S_state = None
+
+    def zone_newton_solve(
+        self, g: np.ndarray, kappa: float, b: PETSc.Vec, d: PETSc.Vec, budget: int, rtol: float
+    ) -> int:
+        """``d ← S⁻¹ b`` for the zone's Jacobian ``S`` at the gap ``g`` (rank 0's on all ranks).
+
+        With a kept factorization at this κ of a Jacobian whose active points differ from
+        ``g``'s in at most ``budget`` points (each a rank-one change), conjugate gradients
+        preconditioned by it, to ``rtol``; a new factorization when more points changed or
+        CG needs more than ``budget`` iterations (a fixed number, so the iterates do not
+        depend on timings). Returns the CG iterations (0: factorized).
+        """
+        t0 = time.perf_counter()
+        kept = self._S_state
+        changed = budget + 1
+        if budget > 0 and kept is not None and kept[0] == kappa:
+            changed = int(np.count_nonzero(kept[1] != (g < 0)))
+        iterations = 0
+        if changed <= budget:
+            self._zone_jacobian(self.S_now, g, kappa)
+            if self.ksp_cg is None:
+                self.ksp_cg = PETSc.KSP().create(PETSc.COMM_SELF)
+                self.ksp_cg.setOptionsPrefix(unique_prefix("zone_cg"))
+                self.ksp_cg.setType("cg")
+                self.ksp_cg.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
+                self.ksp_cg.getPC().setType("python")
+                self.ksp_cg.getPC().setPythonContext(_Preconditioner(self.ksp_S))
+                self.ksp_cg.setFromOptions()
+            self.ksp_cg.setTolerances(rtol=rtol, atol=0.0, max_it=budget)
+            self.ksp_cg.setOperators(self.S_now)
+            self.ksp_cg.solve(b, d)
+            iterations = self.ksp_cg.getIterationNumber()
+            if self.ksp_cg.getConvergedReason() <= 0:
+                self.S_now.copy(self.S, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+                self._factorize_S(g, kappa)
+                self.ksp_S.solve(b, d)
+                iterations = 0
+        else:
+            self._zone_jacobian(self.S, g, kappa)
+            self._factorize_S(g, kappa)
+            self.ksp_S.solve(b, d)
         self.comm.Bcast(d.array, root=0)
+        self.timings["condense"] += time.perf_counter() - t0
+        return iterations
 
     def extend(self, z: PETSc.Vec, out: PETSc.Vec, load: bool) -> None:
         """``out ← (z, ζ_I)`` with ``ζ_I = K_II⁻¹ (f_I − K_IZ z)`` (``load``) or ``−K_II⁻¹ K_IZ z``.

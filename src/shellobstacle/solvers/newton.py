@@ -67,7 +67,8 @@ class NewtonOptions:
         linear_rtol: relative tolerance of the iterative linear solver, and of the conjugate
             gradients that reuse a factorization.
         reuse_factorization: with the direct solver, keep one factorization per κ and solve
-            later Newton steps at that κ by conjugate gradients preconditioned with it.
+            later Newton steps at that κ by conjugate gradients preconditioned with it (with
+            ``zone_newton``: the factorization of the zone's Schur complement ``S``).
         reuse_max_iterations: give up reusing (and factorize) after this many CG iterations,
             and factorize at once when more quadrature points than this changed between
             active and inactive since the factorization (each change is a rank-one change of
@@ -490,11 +491,11 @@ class NewtonSolver:
             floor = self._zone_floor(z, g, ref)
             if rnorm <= floor:
                 break
-            zone.factorize_zone(g, kappa)
+            budget = opts.reuse_max_iterations if opts.reuse_factorization else 0
+            r.scale(-1.0)
+            cg = zone.zone_newton_solve(g, kappa, r, d, budget, opts.linear_rtol)
+            r.scale(-1.0)
             self._factored_kappa = kappa
-            r.scale(-1.0)
-            zone.solve_zone(r, d)
-            r.scale(-1.0)
             slope0 = r.dot(d)
             small_step = d.norm(PETSc.NormType.NORM_INFINITY) <= opts.stol * z.norm(
                 PETSc.NormType.NORM_INFINITY
@@ -514,7 +515,7 @@ class NewtonSolver:
             result.zone_steps += 1
             result.residual_norms.append(rnorm)
             result.step_lengths.append(t)
-            result.linear_iterations.append(1)
+            result.linear_iterations.append(max(cg, 1))
             if progress is not None:
                 progress(result.iterations, rnorm / scale)
             if small_step:
@@ -570,8 +571,9 @@ class NewtonSolver:
 
     def _zone_predict(self, kappa_new: float) -> bool:
         """:meth:`predict` through the zone: ``∂R/∂κ`` lives on the zone's points, so
-        ``dζ_Z/dκ`` is one solve with the kept ``S`` and ``dζ_I/dκ = −K_II⁻¹ K_IZ dζ_Z/dκ``
-        one back-substitution."""
+        ``dζ_Z/dκ`` is one solve with the zone's Jacobian ``S`` at ``ζ`` (conjugate gradients
+        preconditioned by the kept factorization) and ``dζ_I/dκ = −K_II⁻¹ K_IZ dζ_Z/dκ`` one
+        back-substitution."""
         zone, kappa = self.zone, self.kappa
         if zone is None or not zone.usable or not zone.factored:
             return False
@@ -579,8 +581,11 @@ class NewtonSolver:
         z, b, d = zone.zone_vector(), zone.zone_vector(), zone.zone_vector()
         zone.gather(self.problem.zeta.x.petsc_vec, z)
         b.set(0.0)
-        zone.add_zone_penalty(np.minimum(zone.zone_gap(z), 0.0), kappa * kappa, b)  # −∂∇j/∂κ
-        zone.solve_zone(b, d)
+        g = zone.zone_gap(z)
+        zone.add_zone_penalty(np.minimum(g, 0.0), kappa * kappa, b)  # −∂∇j/∂κ
+        opts = self.options
+        budget = opts.reuse_max_iterations if opts.reuse_factorization else 0
+        zone.zone_newton_solve(g, kappa, b, d, budget, opts.linear_rtol)  # S at ζ
         zone.extend(d, self.dz, load=False)
         for vec in (z, b, d):
             vec.destroy()
@@ -637,6 +642,8 @@ class NewtonSolver:
         # start ζ and not on earlier solves (resumed runs repeat uninterrupted ones exactly)
         self._factored_kappa = None
         self._hint = None  # (the zone itself is kept: it depends on the mesh, not on κ)
+        if self.zone is not None:
+            self.zone.forget_factorization()
         ta = time.perf_counter()
         self._load()
         if self.zone is not None:
