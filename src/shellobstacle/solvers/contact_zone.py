@@ -532,12 +532,16 @@ class ContactZone:
         self.vI.aypx(-1.0, sub)
         x.restoreSubVector(self.isI, sub)
         self.ksp_I.solve(self.vI, self.yI)
-        out = y.getSubVector(self.isI)
-        self.yI.copy(out)
-        y.restoreSubVector(self.isI, out)
-        out = y.getSubVector(self.isZ)
-        self.dZ.copy(out)
-        y.restoreSubVector(self.isZ, out)
+        self._write(y)
+
+    def _write(self, y: PETSc.Vec) -> None:
+        """``y_I ← yI``, ``y_Z ← dZ`` (the work vectors of a solve)."""
+        part = y.getSubVector(self.isI)
+        self.yI.copy(part)
+        y.restoreSubVector(self.isI, part)
+        part = y.getSubVector(self.isZ)
+        self.dZ.copy(part)
+        y.restoreSubVector(self.isZ, part)
 
     def apply(self, pc: PETSc.PC, x: PETSc.Vec, y: PETSc.Vec) -> None:
         """``y ← J⁻¹ x``."""
@@ -698,9 +702,4 @@ class ContactZone:
             self.yI.aypx(-1.0, self.uf)
         else:
             self.yI.scale(-1.0)
-        part = out.getSubVector(self.isI)
-        self.yI.copy(part)
-        out.restoreSubVector(self.isI, part)
-        part = out.getSubVector(self.isZ)
-        self.dZ.copy(part)
-        out.restoreSubVector(self.isZ, part)
+        self._write(out)

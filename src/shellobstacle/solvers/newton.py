@@ -401,13 +401,17 @@ class NewtonSolver:
         ok = self.ksp.getConvergedReason() > 0
         b.destroy()
         if ok:
-            self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-            zeta = self.problem.zeta
-            with self.dz.localForm() as dz_loc:
-                zeta.x.array[:] += (kappa_new - kappa) * dz_loc.array_r
-            zeta.x.scatter_forward()
+            self._euler_step(kappa_new - kappa)
         self.timings["predict"] = self.timings.get("predict", 0.0) + time.perf_counter() - t0
         return ok
+
+    def _euler_step(self, dkappa: float) -> None:
+        """``ζ ← ζ + Δκ δ`` with ``δ = dζ/dκ`` in ``self.dz``."""
+        self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        zeta = self.problem.zeta
+        with self.dz.localForm() as dz_loc:
+            zeta.x.array[:] += dkappa * dz_loc.array_r
+        zeta.x.scatter_forward()
 
     # -- Newton on the zone's own problem -------------------------------------------------------
     def _zone_ready(self) -> bool:
@@ -589,11 +593,7 @@ class NewtonSolver:
         zone.extend(d, self.dz, load=False)
         for vec in (z, b, d):
             vec.destroy()
-        self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
-        zeta = self.problem.zeta
-        with self.dz.localForm() as dz_loc:
-            zeta.x.array[:] += (kappa_new - kappa) * dz_loc.array_r
-        zeta.x.scatter_forward()
+        self._euler_step(kappa_new - kappa)
         self.timings["predict"] = self.timings.get("predict", 0.0) + time.perf_counter() - t0
         return True
 
