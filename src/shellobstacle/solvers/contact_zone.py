@@ -580,11 +580,6 @@ class ContactZone:
         self.to_all.scatter(sub, out, PETSc.InsertMode.INSERT)
         x.restoreSubVector(self.isZ, sub)
 
-    def zone_load(self) -> PETSc.Vec:
-        """``f̃ = f_Z − K_ZI K_II⁻¹ f_I`` (one back-substitution per zone and load)."""
-        self._solve_load()
-        return self.f_tilde
-
     def zone_gap(self, z: PETSc.Vec) -> np.ndarray:
         """``g`` at the zone's points for ``ζ_Z = z``."""
         self.MP.mult(z, self.wP)

@@ -381,8 +381,8 @@ class NewtonSolver:
 
         ``∂R/∂κ = −(1/κ²) Mᵀ min(g, 0)`` and ``J`` is approximated by the factorization kept
         from the last solve, so the prediction costs one back-substitution (or a few
-        preconditioned CG iterations). Returns False (and changes nothing) when no
-        factorization for the current κ exists.
+        preconditioned CG iterations; with ``zone_newton`` see :meth:`_zone_predict`).
+        Returns False (and changes nothing) when no factorization for the current κ exists.
         """
         kappa = self.kappa
         if self._factored_kappa != kappa:
