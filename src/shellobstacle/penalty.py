@@ -30,7 +30,7 @@ from petsc4py import PETSc
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.problem import PenalizedProblem
 
-__all__ = ["QuadraturePenalty"]
+__all__ = ["QuadraturePenalty", "penalty_hessian"]
 
 
 def _quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
@@ -123,19 +123,27 @@ class QuadraturePenalty:
 
     def jacobian(self, g: np.ndarray, kappa: float) -> PETSc.Mat | None:
         """``(1/κ) M_Aᵀ diag(1/D_A) M_A`` for the active points ``g < 0`` (None if A = ∅)."""
-        comm = self.problem.mesh.comm
         active = np.flatnonzero(g < 0)
-        if comm.allreduce(active.size) == 0:
+        if self.problem.mesh.comm.allreduce(active.size) == 0:
             return None
-        start = self.M.getOwnershipRange()[0]
-        rows = PETSc.IS().createGeneral((start + active).astype(PETSc.IntType), comm=comm)
-        c0, c1 = self.M.getOwnershipRangeColumn()
-        cols = PETSc.IS().createStride(c1 - c0, c0, 1, comm=comm)
-        MA = self.M.createSubMatrix(rows, cols)
-        scale = MA.createVecLeft()
-        scale.array[:] = 1.0 / np.sqrt(kappa * self.D[active])
-        MA.diagonalScale(L=scale)
-        P = MA.transposeMatMult(MA)
-        for obj in (rows, cols, MA, scale):
-            obj.destroy()
-        return P
+        return penalty_hessian(self.M, self.D, active, kappa)
+
+
+def penalty_hessian(M: PETSc.Mat, D: np.ndarray, active: np.ndarray, kappa: float) -> PETSc.Mat:
+    """``(1/κ) M_Aᵀ diag(1/D_A) M_A`` for the owned rows ``active`` (local positions) of ``M``.
+
+    ``M`` is a point matrix ``diag(D) B`` (parallel, or the sequential one of a contact zone).
+    """
+    comm = M.getComm()
+    start = M.getOwnershipRange()[0]
+    rows = PETSc.IS().createGeneral((start + active).astype(PETSc.IntType), comm=comm)
+    c0, c1 = M.getOwnershipRangeColumn()
+    cols = PETSc.IS().createStride(c1 - c0, c0, 1, comm=comm)
+    MA = M.createSubMatrix(rows, cols)
+    scale = MA.createVecLeft()
+    scale.array[:] = 1.0 / np.sqrt(kappa * D[active])
+    MA.diagonalScale(L=scale)
+    P = MA.transposeMatMult(MA)
+    for obj in (rows, cols, MA, scale):
+        obj.destroy()
+    return P

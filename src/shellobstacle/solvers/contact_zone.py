@@ -42,7 +42,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shellobstacle import compat  # noqa: F401
-from shellobstacle.penalty import QuadraturePenalty
+from shellobstacle.penalty import QuadraturePenalty, penalty_hessian
 from shellobstacle.solvers.options import unique_prefix
 
 __all__ = ["ContactZone", "zone_available"]
@@ -614,19 +614,11 @@ class ContactZone:
         """``S ← K_S + (1/κ) M_Aᵀ diag(1/D_A) M_A`` (``A``: zone points with g < 0)."""
         S.zeroEntries()
         S.axpy(1.0, self.Ks, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        active = np.flatnonzero(g < 0).astype(PETSc.IntType)
+        active = np.flatnonzero(g < 0)
         if active.size:
-            seq = PETSc.COMM_SELF
-            rows = PETSc.IS().createGeneral(active, comm=seq)
-            cols = PETSc.IS().createStride(self.Z.size, 0, 1, comm=seq)
-            MA = self.MP.createSubMatrix(rows, cols)
-            scale = MA.createVecLeft()
-            scale.array[:] = 1.0 / np.sqrt(kappa * self.DP[active])
-            MA.diagonalScale(L=scale)
-            P = MA.transposeMatMult(MA)
+            P = penalty_hessian(self.MP, self.DP, active, kappa)
             S.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-            for obj in (rows, cols, MA, scale, P):
-                obj.destroy()
+            P.destroy()
 
     def _factorize_S(self, g: np.ndarray, kappa: float) -> None:
         self.ksp_S.setOperators(self.S)

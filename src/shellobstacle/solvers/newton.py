@@ -307,14 +307,19 @@ class NewtonSolver:
         ``u (‖f‖ + ‖S‖)`` with ``S = (1/κ) Mᵀ (χ_A · (|θ·q| + Σ_j |ζ_j c_j|))``: the rounding
         of the terms of ``g`` amplified by the penalty.
         """
-        u = np.finfo(PETSc.ScalarType).eps
         scale = self.penalty.gap_scale(self.problem.zeta.x.petsc_vec)
         S = self.R.duplicate()
         S.set(0.0)
         self.penalty.add_residual(np.where(self._g < 0, scale, 0.0), self.kappa, S)
         norm = S.norm()
         S.destroy()
-        return self.options.floor_factor * u * (load_norm + norm)
+        return self._floor_of(load_norm, norm)
+
+    def _floor_of(self, load_norm: float, penalty_norm: float) -> float:
+        """``floor_factor · u · (‖f‖ + ‖S‖)`` (:meth:`_floor`)."""
+        return (
+            self.options.floor_factor * np.finfo(PETSc.ScalarType).eps * (load_norm + penalty_norm)
+        )
 
     def _direction(self) -> None:
         """``δ ← A⁻¹ (−R)`` (``self.R`` holds ``−R``).
@@ -458,6 +463,12 @@ class NewtonSolver:
         self.timings["coarse"] = self.timings.get("coarse", 0.0) + time.perf_counter() - t0
         return hint
 
+    @property
+    def _zone_budget(self) -> int:
+        """CG iterations (and changed points) allowed when reusing the zone's ``S``."""
+        opts = self.options
+        return opts.reuse_max_iterations if opts.reuse_factorization else 0
+
     def _zone_newton(
         self,
         result: NewtonResult,
@@ -495,9 +506,8 @@ class NewtonSolver:
             floor = self._zone_floor(z, g, ref)
             if rnorm <= floor:
                 break
-            budget = opts.reuse_max_iterations if opts.reuse_factorization else 0
             r.scale(-1.0)
-            cg = zone.zone_newton_solve(g, kappa, r, d, budget, opts.linear_rtol)
+            cg = zone.zone_newton_solve(g, kappa, r, d, self._zone_budget, opts.linear_rtol)
             r.scale(-1.0)
             self._factored_kappa = kappa
             slope0 = r.dot(d)
@@ -544,34 +554,50 @@ class NewtonSolver:
     def _zone_floor(self, z: PETSc.Vec, g: np.ndarray, ref: float) -> float:
         """:meth:`_floor` for the zone's problem (the active points are the zone's)."""
         zone = self.zone
-        u = np.finfo(PETSc.ScalarType).eps
         scale = zone.zone_gap_scale(z)
         S = z.duplicate()
         S.set(0.0)
         zone.add_zone_penalty(np.where(g < 0, scale, 0.0), self.kappa, S)
         norm = S.norm()
         S.destroy()
-        return self.options.floor_factor * u * (ref + norm)
+        return self._floor_of(ref, norm)
 
     def _zone_line_search(
         self, g: np.ndarray, d: PETSc.Vec, slope0: float, noise: float
     ) -> tuple[float, int]:
         """:meth:`_line_search` for the zone's problem (the same step length on every rank)."""
-        zone, kappa = self.zone, self.kappa
+        zone = self.zone
         zone.MP.mult(d, zone.wP)
         Md = zone.wP.array_r.copy()
-        Bd = Md / zone.DP
         Kd = d.duplicate()
         zone.Ks.mult(d, Kd)
         curvature = Kd.dot(d)
         Kd.destroy()
-        elastic0 = slope0 - float(np.dot(Md, np.minimum(g, 0.0))) / kappa
+        step = self._exact_step(g, Md, Md / zone.DP, curvature, slope0, noise, lambda x: x)
+        return self.problem.mesh.comm.bcast(step, root=0)
+
+    def _exact_step(
+        self,
+        g: np.ndarray,
+        Md: np.ndarray,
+        Bd: np.ndarray,
+        curvature: float,
+        slope0: float,
+        noise: float,
+        total: Callable[[float], float],
+    ) -> tuple[float, int]:
+        """The root of ``φ'(t) = φ'_el(0) + t δᵀKδ + (1/κ) (Mδ)·min(g + t Bδ, 0)`` in ``[0, 1]``.
+
+        ``total`` sums a point sum over the ranks (or not, for points held by every rank).
+        """
+        kappa = self.kappa
+        elastic0 = slope0 - total(float(np.dot(Md, np.minimum(g, 0.0)))) / kappa
 
         def slope(t: float) -> float:
-            return elastic0 + t * curvature + float(np.dot(Md, np.minimum(g + t * Bd, 0.0))) / kappa
+            local = float(np.dot(Md, np.minimum(g + t * Bd, 0.0)))
+            return elastic0 + t * curvature + total(local) / kappa
 
-        t, evals = piecewise_linear_root(slope, slope0, max(1e-10 * abs(slope0), noise))
-        return self.problem.mesh.comm.bcast((t, evals), root=0)
+        return piecewise_linear_root(slope, slope0, max(1e-10 * abs(slope0), noise))
 
     def _zone_predict(self, kappa_new: float) -> bool:
         """:meth:`predict` through the zone: ``∂R/∂κ`` lives on the zone's points, so
@@ -587,9 +613,7 @@ class NewtonSolver:
         b.set(0.0)
         g = zone.zone_gap(z)
         zone.add_zone_penalty(np.minimum(g, 0.0), kappa * kappa, b)  # −∂∇j/∂κ
-        opts = self.options
-        budget = opts.reuse_max_iterations if opts.reuse_factorization else 0
-        zone.zone_newton_solve(g, kappa, b, d, budget, opts.linear_rtol)  # S at ζ
+        zone.zone_newton_solve(g, kappa, b, d, self._zone_budget, self.options.linear_rtol)
         zone.extend(d, self.dz, load=False)
         for vec in (z, b, d):
             vec.destroy()
@@ -604,21 +628,12 @@ class NewtonSolver:
         ``φ'(t) = R_el(ζ)·δ + t δᵀKδ + (1/κ) (Mδ)·min(g + t Bδ, 0)``: the membrane part is
         linear in ``t`` and the penalty part a sum over the quadrature points.
         """
-        comm, pen, kappa = self.problem.mesh.comm, self.penalty, self.kappa
+        pen = self.penalty
         Bd = pen.apply_B(self.dz)
-        Md = pen.D * Bd
-        g = self._g
         self.K.mult(self.dz, self.Kdz)
         curvature = self.Kdz.dot(self.dz)
-        pen0 = comm.allreduce(float(np.dot(Md, np.minimum(g, 0.0)))) / kappa
-        elastic0 = slope0 - pen0
-
-        def slope(t: float) -> float:
-            local = float(np.dot(Md, np.minimum(g + t * Bd, 0.0)))
-            return elastic0 + t * curvature + comm.allreduce(local) / kappa
-
-        tol = max(1e-10 * abs(slope0), noise)
-        return piecewise_linear_root(slope, slope0, tol)
+        total = self.problem.mesh.comm.allreduce
+        return self._exact_step(self._g, pen.D * Bd, Bd, curvature, slope0, noise, total)
 
     # -- Newton -------------------------------------------------------------------------------
     def solve(self, progress: Callable[[int, float], Any] | None = None) -> NewtonResult:
