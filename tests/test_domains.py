@@ -259,6 +259,49 @@ def test_large_meshes_are_refined_coarse_gmsh_meshes(spec: DomainSpec):
     assert domain_area(refined) == pytest.approx(domain_area(direct), rel=2e-4)
 
 
+def _global_nodes(mesh) -> np.ndarray:
+    """All mesh nodes (owned ones gathered from every rank), sorted lexicographically."""
+    x = mesh.geometry.x[: mesh.geometry.index_map().size_local, :2]
+    x = np.vstack(COMM.allgather(x))
+    return x[np.lexsort((x[:, 1], x[:, 0]))]
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(
+    "spec",
+    [
+        DomainSpec(kind="disk", h=0.03, radius=0.5, center=(0.1, -0.2)),
+        DomainSpec(kind="ellipse", h=0.03, semi_axes=(0.6, 0.3), center=(0.05, 0.0)),
+        DomainSpec(kind="polygon", h=0.03, vertices=L_SHAPE),
+    ],
+    ids=["disk", "ellipse", "polygon"],
+)
+def test_coarse_gmsh_mesh_refined_on_rank_0_is_the_refined_coarse_mesh(spec: DomainSpec):
+    """gmsh at 4h refined twice on rank 0 = the gmsh 4h mesh refined twice by DOLFINx (in
+    parallel), with the new boundary vertices moved radially onto the curve."""
+    import dataclasses
+
+    coarse = create_mesh(dataclasses.replace(spec, h=4 * spec.h, gmsh_max_vertices=0))
+    n_coarse = coarse.topology.index_map(0).size_global
+    refined = create_mesh(dataclasses.replace(spec, gmsh_max_vertices=2 * n_coarse))  # k = 2
+    expected = _onto_curve(refine_uniformly(_onto_curve(refine_uniformly(coarse), spec)), spec)
+    assert num_cells_global(refined) == num_cells_global(expected) == 16 * num_cells_global(coarse)
+    assert np.abs(_global_nodes(refined) - _global_nodes(expected)).max() < 1e-14
+
+
+def _onto_curve(mesh, spec: DomainSpec):
+    """Move the boundary nodes of a disk or ellipse mesh radially onto the curve (in place)."""
+    if spec.kind in ("disk", "ellipse"):
+        import dolfinx
+
+        nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, 1, boundary_facets(mesh)))
+        c = np.asarray(spec.center)
+        a, b = (spec.radius, spec.radius) if spec.kind == "disk" else spec.semi_axes
+        d = mesh.geometry.x[nodes, :2] - c
+        mesh.geometry.x[nodes, :2] = c + d / np.hypot(d[:, 0] / a, d[:, 1] / b)[:, None]
+    return mesh
+
+
 def test_gmsh_max_vertices_must_not_be_negative():
     with pytest.raises(ValueError, match="gmsh_max_vertices must be >= 0"):
         create_mesh(DomainSpec(kind="disk", h=0.1, gmsh_max_vertices=-1))

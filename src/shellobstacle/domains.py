@@ -1,8 +1,9 @@
 """Triangle meshes of the 2D parameter domain ω ⊂ R² of the shell.
 
-Curved and polygonal domains are meshed by gmsh on rank 0 only and distributed over the
-communicator by :func:`dolfinx.io.gmsh.model_to_mesh`; rectangles get a structured DOLFINx
-mesh. All meshes are affine (linear) triangles with geometric dimension 2.
+Curved and polygonal domains are meshed by gmsh on rank 0 only (large meshes: gmsh at a
+coarser size, then uniform refinement of its arrays, still on rank 0) and distributed over the
+communicator by :func:`dolfinx.mesh.create_mesh`; rectangles get a structured DOLFINx mesh.
+All meshes are affine (linear) triangles with geometric dimension 2.
 """
 
 from __future__ import annotations
@@ -61,7 +62,7 @@ class DomainSpec:
         central_radius: Radius of the centrally refined zone (needed with ``central_h``).
         gmsh_max_vertices: Disk, ellipse and polygon: when the mesh would have more vertices
             than this, gmsh meshes with a size ``2^k`` times larger and the mesh is refined
-            uniformly ``k`` times in parallel (new boundary vertices moved onto the curved
+            uniformly ``k`` times on rank 0 (new boundary vertices moved onto the curved
             boundary), which is several times faster than gmsh at full size. 0: never.
     """
 
@@ -260,26 +261,95 @@ def _partitioner():
     return dolfinx.mesh.create_cell_partitioner(dolfinx.mesh.GhostMode.shared_facet, 2)
 
 
-def _gmsh_mesh(spec: DomainSpec, comm: MPI.Comm) -> dolfinx.mesh.Mesh:
-    """Build (or read) the gmsh model on rank 0 and distribute it over ``comm``."""
+def _gmsh_triangles(model) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes ``(n, 2)`` and triangles ``(m, 3)`` (numbered from 0) of the 2D physical groups."""
+    tags, coords, _ = model.mesh.getNodes()
+    index = np.full(int(tags.max(initial=0)) + 1, -1, dtype=np.int64)
+    index[tags] = np.arange(len(tags))
+    groups = model.getPhysicalGroups(2)
+    entities = sorted({int(e) for _, g in groups for e in model.getEntitiesForPhysicalGroup(2, g)})
+    cells = [
+        index[nodes.astype(np.int64)].reshape(-1, 3)
+        for e in entities
+        for etype, _, nodes in zip(*model.mesh.getElements(2, e), strict=True)
+        if etype == _TRIANGLE
+    ]
+    cells = np.concatenate(cells) if cells else np.zeros((0, 3), dtype=np.int64)
+    used, cells = np.unique(cells, return_inverse=True)  # drop nodes of no triangle
+    return coords.reshape(-1, 3)[used, :2].copy(), cells.reshape(-1, 3)
+
+
+def _refine_arrays(
+    x: np.ndarray, cells: np.ndarray, spec: DomainSpec
+) -> tuple[np.ndarray, np.ndarray]:
+    """Uniform ("red") refinement of a triangle mesh given by arrays, as :func:`refine_uniformly`.
+
+    Every edge is bisected and each triangle split into four similar ones, with the same
+    orientation. For a disk or an ellipse the midpoints of boundary edges are moved onto the
+    curve along the ray from the centre (a chord midpoint is ``O(h²)`` inside).
+    """
+    n = len(x)
+    pairs = cells[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)  # edges ab, bc, ca of every cell
+    keys = np.min(pairs, axis=1) * n + np.max(pairs, axis=1)
+    _, first, inverse, count = np.unique(
+        keys, return_index=True, return_inverse=True, return_counts=True
+    )
+    a, b = pairs[first, 0], pairs[first, 1]
+    mid = 0.5 * (x[a] + x[b])
+    if spec.kind in ("disk", "ellipse"):
+        boundary = count == 1  # an edge of one cell only
+        c = np.asarray(spec.center, dtype=float)
+        ra, rb = (spec.radius, spec.radius) if spec.kind == "disk" else spec.semi_axes
+        d = mid[boundary] - c
+        mid[boundary] = c + d / np.hypot(d[:, 0] / ra, d[:, 1] / rb)[:, None]
+    m = (n + inverse).reshape(-1, 3)  # midpoints of ab, bc, ca
+    v0, v1, v2 = cells.T
+    fine = np.stack(
+        [
+            np.column_stack([v0, m[:, 0], m[:, 2]]),
+            np.column_stack([m[:, 0], v1, m[:, 1]]),
+            np.column_stack([m[:, 2], m[:, 1], v2]),
+            m,
+        ],
+        axis=1,
+    ).reshape(-1, 3)
+    return np.vstack([x, mid]), fine
+
+
+def _gmsh_mesh(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> dolfinx.mesh.Mesh:
+    """Build (or read) the gmsh mesh on rank 0, refine it ``steps`` times, distribute it."""
+    domain = dolfinx.io.gmsh.ufl_mesh(_TRIANGLE, 2, dtype=np.float64)
     if comm.rank != 0:
         error = comm.bcast(None, root=0)
         if error:
             raise ValueError(error)
-        return dolfinx.io.gmsh.model_to_mesh(None, comm, 0, 2, _partitioner()).mesh
-    with _gmsh_model("shellobstacle-domain", _gmsh_options(spec)) as model:
+        x, cells = np.zeros((0, 2)), np.zeros((0, 3), dtype=np.int64)
+        return dolfinx.mesh.create_mesh(comm, cells, domain, x, _partitioner())
+    coarse = spec
+    if steps:
+        grow = 2.0**steps
+        coarse = dataclasses.replace(
+            spec, h=spec.h * grow, central_h=spec.central_h and spec.central_h * grow
+        )
+    with _gmsh_model("shellobstacle-domain", _gmsh_options(coarse)) as model:
         try:
             if spec.kind == "file":
                 error = _check_file(model, str(spec.path))
             else:
-                _build_model(model, spec)
+                _build_model(model, coarse)
                 error = ""
+            if not error:
+                x, cells = _gmsh_triangles(model)
+                if not len(cells):
+                    error = f"gmsh made no triangles for {spec}"
         except Exception as exc:  # let the other ranks fail too instead of hanging
             error = f"gmsh failed for {spec}: {exc}"
-        comm.bcast(error, root=0)
-        if error:
-            raise ValueError(error)
-        return dolfinx.io.gmsh.model_to_mesh(model, comm, 0, 2, _partitioner()).mesh
+    comm.bcast(error, root=0)
+    if error:
+        raise ValueError(error)
+    for _ in range(steps):
+        x, cells = _refine_arrays(x, cells, spec)
+    return dolfinx.mesh.create_mesh(comm, cells, domain, x, _partitioner())
 
 
 def create_mesh(spec: DomainSpec, comm: MPI.Comm = MPI.COMM_WORLD) -> dolfinx.mesh.Mesh:
@@ -303,19 +373,8 @@ def create_mesh(spec: DomainSpec, comm: MPI.Comm = MPI.COMM_WORLD) -> dolfinx.me
             comm, [np.array([x0, y0]), np.array([x1, y1])], n,
             cell_type=dolfinx.mesh.CellType.triangle, diagonal=dolfinx.mesh.DiagonalType.right,
         )  # fmt: skip
-        steps = 0
     else:
-        steps = _coarsening_steps(spec)
-        coarse = spec
-        if steps:
-            grow = 2.0**steps
-            coarse = dataclasses.replace(
-                spec, h=spec.h * grow, central_h=spec.central_h and spec.central_h * grow
-            )
-        mesh = _gmsh_mesh(coarse, comm)
-    for _ in range(steps):
-        mesh = refine_uniformly(mesh)
-        _snap_boundary(mesh, spec)
+        mesh = _gmsh_mesh(spec, comm, _coarsening_steps(spec))
     for _ in range(spec.refinements):
         mesh = refine_uniformly(mesh)
     _prepare(mesh)
@@ -354,28 +413,6 @@ def _coarsening_steps(spec: DomainSpec) -> int:
     while steps and spec.h * 2.0**steps > _diameter(spec) / 8:
         steps -= 1
     return steps
-
-
-def _snap_boundary(mesh: dolfinx.mesh.Mesh, spec: DomainSpec) -> None:
-    """Move the boundary vertices of a refined disk or ellipse mesh onto the curve.
-
-    Uniform refinement puts the new boundary vertices at chord midpoints, a distance
-    ``O(h²)`` inside; they are moved along the ray from the centre onto the boundary (polygon
-    edges are straight: nothing to do).
-    """
-    if spec.kind not in ("disk", "ellipse"):
-        return
-    tdim = mesh.topology.dim
-    mesh.topology.create_connectivity(tdim - 1, tdim)
-    facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    nodes = dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, facets).ravel()
-    nodes = np.unique(nodes)
-    x = mesh.geometry.x
-    c = np.asarray(spec.center, dtype=float)
-    a, b = (spec.radius, spec.radius) if spec.kind == "disk" else spec.semi_axes
-    d = x[nodes, :2] - c
-    scale = np.sqrt((d[:, 0] / a) ** 2 + (d[:, 1] / b) ** 2)
-    x[nodes, :2] = c + d / scale[:, None]
 
 
 def _prepare(mesh: dolfinx.mesh.Mesh) -> None:
