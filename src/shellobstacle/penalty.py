@@ -30,7 +30,7 @@ from petsc4py import PETSc
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.problem import PenalizedProblem
 
-__all__ = ["QuadraturePenalty", "penalty_hessian"]
+__all__ = ["QuadraturePenalty", "gap_scale", "penalty_hessian"]
 
 
 def _quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
@@ -95,20 +95,12 @@ class QuadraturePenalty:
         return self.g0 + self.apply_B(zeta)
 
     def gap_scale(self, zeta: PETSc.Vec) -> np.ndarray:
-        """``|θ·q| + Σ_j |ζ_j c_j|`` at the owned points: the size of the terms of ``g``.
-
-        ``c_j ζ_j`` is ``B`` applied to ``ζ`` with every component but ``j`` set to 0.
-        """
-        total = np.abs(self.g0)
+        """``|θ·q| + Σ_j |ζ_j c_j|`` at the owned points (:func:`gap_scale`)."""
         x = self._work_v
+        n = x.getLocalSize()
         with zeta.localForm() as z:
-            owned = z.array_r[: x.getLocalSize()].reshape(-1, 3)  # (ζ_1, ζ_2, ζ_3) per node
-            for j in range(3):
-                component = np.zeros_like(owned)
-                component[:, j] = owned[:, j]
-                x.array[:] = component.ravel()
-                total += np.abs(self.apply_B(x))
-        return total
+            owned = z.array_r[:n].copy()
+        return gap_scale(self.M, self.D, self.g0, owned, np.arange(n) % 3, x, self._work_q)
 
     # -- derivatives -------------------------------------------------------------------------
     def energy(self, g: np.ndarray, kappa: float) -> float:
@@ -127,6 +119,30 @@ class QuadraturePenalty:
         if self.problem.mesh.comm.allreduce(active.size) == 0:
             return None
         return penalty_hessian(self.M, self.D, active, kappa)
+
+
+def gap_scale(
+    M: PETSc.Mat,
+    D: np.ndarray,
+    g0: np.ndarray,
+    zeta: np.ndarray,
+    component: np.ndarray,
+    x: PETSc.Vec,
+    w: PETSc.Vec,
+) -> np.ndarray:
+    """``|θ·q| + Σ_j |ζ_j c_j|`` at the rows of a point matrix ``M = diag(D) B``: the size of
+    the terms of ``g = θ·q + ζ_j c_j``, the scale of its round-off.
+
+    ``c_j ζ_j`` is ``B`` applied to ``ζ`` with every component but ``j`` set to 0; ``zeta``
+    holds the local entries of ``ζ`` and ``component`` the ``j`` of each; ``x`` (a vector of
+    ``M``'s columns) and ``w`` (of its rows) are work vectors.
+    """
+    total = np.abs(g0)
+    for j in range(3):
+        x.array[:] = np.where(component == j, zeta, 0.0)
+        M.mult(x, w)
+        total += np.abs(w.array_r / D)
+    return total
 
 
 def penalty_hessian(M: PETSc.Mat, D: np.ndarray, active: np.ndarray, kappa: float) -> PETSc.Mat:

@@ -42,7 +42,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shellobstacle import compat  # noqa: F401
-from shellobstacle.penalty import QuadraturePenalty, penalty_hessian
+from shellobstacle.penalty import QuadraturePenalty, gap_scale, penalty_hessian
 from shellobstacle.solvers.options import unique_prefix
 
 __all__ = ["ContactZone", "zone_available"]
@@ -610,13 +610,9 @@ class ContactZone:
         self.MP.multTransposeAdd(self.wP, r, r)
 
     def zone_gap_scale(self, z: PETSc.Vec) -> np.ndarray:
-        """``|θ·q| + Σ_j |ζ_j c_j|`` at the zone's points (:meth:`QuadraturePenalty.gap_scale`)."""
-        total = np.abs(self.g0P)
+        """``|θ·q| + Σ_j |ζ_j c_j|`` at the zone's points (the shared ``penalty.gap_scale``)."""
         x = z.duplicate()
-        for j in range(self.K.getBlockSize()):
-            x.array[:] = np.where(self.component == j, z.array_r, 0.0)
-            self.MP.mult(x, self.wP)
-            total += np.abs(self.wP.array_r / self.DP)
+        total = gap_scale(self.MP, self.DP, self.g0P, z.array_r.copy(), self.component, x, self.wP)
         x.destroy()
         return total
 
