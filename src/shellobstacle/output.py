@@ -15,8 +15,8 @@
   ready to view as is, with ``U``, ``gap`` and ``contact``.
 
 ParaView (5.10 or newer) opens the ``.bp`` folders with its ADIOS2 VTX reader. The 3D
-surface meshes are built with :func:`dolfinx.mesh.create_mesh` from the owned cells of each
-rank, kept on that rank, so this works on any number of MPI ranks.
+surface mesh shares the distributed 2D mesh's cells and nodes (:class:`SurfaceMesh`), so this
+works on any number of MPI ranks.
 """
 
 from __future__ import annotations
@@ -31,8 +31,8 @@ from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py
 # isort: split
 import basix.ufl
 import dolfinx
+import dolfinx.cpp
 import dolfinx.fem
-import dolfinx.graph
 import dolfinx.io
 import dolfinx.mesh
 import numpy as np
@@ -66,60 +66,57 @@ def _node_values(f: dolfinx.fem.Function) -> np.ndarray:
     return out
 
 
-def _keep_local(comm: MPI.Comm):
-    """A cell partitioner that keeps every cell on the rank that passes it (no ghosts)."""
-
-    def partitioner(_comm, _nparts, _cell_types, cells):
-        num = sum(len(c) for c in cells) // 3
-        dest = np.full(num, comm.rank, dtype=np.int32)
-        return dolfinx.graph.adjacencylist(dest, np.arange(num + 1, dtype=np.int32))._cpp_object
-
-    return partitioner
-
-
 class SurfaceMesh:
     """A 3D triangulated surface with the cells of an affine 2D mesh and given node coordinates.
 
-    Node ``j`` of the new mesh is node ``node[j]`` (local index) of the 2D mesh, so nodal
-    values of the 2D mesh transfer exactly (:meth:`transfer`).
+    The surface shares the 2D mesh's topology and node numbering (a second geometry, with
+    three coordinates per node, on the same cells and nodes), so nodal values of the 2D mesh
+    transfer exactly (:meth:`transfer`) and nothing is partitioned or renumbered: building it
+    costs no more than copying the coordinates.
     """
 
     def __init__(self, mesh2d: dolfinx.mesh.Mesh, coordinates: np.ndarray) -> None:
         _check_affine(mesh2d)
-        comm = mesh2d.comm
-        nodes = mesh2d.geometry.index_map()
+        geometry = mesh2d.geometry
+        nodes = geometry.index_map()
         n_nodes = nodes.size_local + nodes.num_ghosts
-        l2g = nodes.local_to_global(np.arange(n_nodes, dtype=np.int32))
-        n_cells = mesh2d.topology.index_map(mesh2d.topology.dim).size_local
-        cells = l2g[mesh2d.geometry.dofmaps[0][:n_cells]]
-        x = np.ascontiguousarray(coordinates[: nodes.size_local, :3], dtype=float)
+        if len(coordinates) < n_nodes:
+            raise ValueError(
+                f"SurfaceMesh needs coordinates for all {n_nodes} local nodes (owned and "
+                f"ghost) of the 2D mesh, got {len(coordinates)}"
+            )
+        x = np.ascontiguousarray(coordinates[:n_nodes, :3], dtype=np.float64)
+        surface = dolfinx.cpp.mesh.Geometry_float64(
+            nodes, geometry.dofmaps[0], geometry._cpp_object.cmaps[0], x,
+            geometry.input_global_indices,
+        )  # fmt: skip
         element = basix.ufl.element("Lagrange", mesh2d.basix_cell(), 1, shape=(3,))
-        self.mesh = dolfinx.mesh.create_mesh(
-            comm, cells, ufl.Mesh(element), x, partitioner=_keep_local(comm)
+        self.mesh = dolfinx.mesh.Mesh(
+            dolfinx.cpp.mesh.Mesh_float64(mesh2d.comm, mesh2d.topology._cpp_object, surface),
+            ufl.Mesh(element),
         )
-        # new node j ↔ global node of the 2D mesh ↔ local node of the 2D mesh (owned or ghost)
-        order = np.argsort(l2g)
-        pos = np.searchsorted(l2g[order], self.mesh.geometry.input_global_indices)
-        self.node = order[pos]
         self.P1 = dolfinx.fem.functionspace(self.mesh, ("Lagrange", 1))
         self.P1v = dolfinx.fem.functionspace(self.mesh, ("Lagrange", 1, (3,)))
 
     def move(self, coordinates: np.ndarray) -> None:
-        """Put node ``j`` at ``coordinates[node[j]]`` (array over the 2D mesh's local nodes).
+        """Put every node at ``coordinates`` (array over the 2D mesh's local nodes).
 
         The cells stay: a VTX writer opened afterwards writes the moved surface (it writes
         the geometry as it is at each ``write``).
         """
-        self.mesh.geometry.x[:, :3] = coordinates[self.node, :3]
+        self.mesh.geometry.x[:, :3] = coordinates[: len(self.mesh.geometry.x), :3]
 
     def transfer(self, f: dolfinx.fem.Function) -> dolfinx.fem.Function:
         """The P1 Function ``f`` of the 2D mesh as a P1 Function on the surface (same name)."""
-        values = _node_values(f)
-        bs = values.shape[1]
+        bs = f.function_space.dofmap.index_map_bs
         space = self.P1 if bs == 1 else self.P1v
         out = dolfinx.fem.Function(space, name=f.name)
+        if np.array_equal(f.function_space.dofmap.list, space.dofmap.list):
+            out.x.array[:] = f.x.array  # the same cells, nodes and element: the same dofs
+            return out
+        values = _node_values(f)
         geo = self.mesh.geometry.dofmaps[0]
-        out.x.array.reshape(-1, bs)[space.dofmap.list.ravel()] = values[self.node[geo.ravel()]]
+        out.x.array.reshape(-1, bs)[space.dofmap.list.ravel()] = values[geo.ravel()]
         return out
 
 
@@ -128,11 +125,11 @@ def surface_mesh(mesh2d: dolfinx.mesh.Mesh, coordinates: np.ndarray) -> dolfinx.
 
     Args:
         mesh2d: Affine triangle mesh of ω (distributed).
-        coordinates: Array ``(num local geometry nodes, 3)`` (at least the owned nodes), e.g.
+        coordinates: Array ``(num local geometry nodes, 3)`` (owned and ghost nodes), e.g.
             ``θ`` at ``mesh2d.geometry.x``.
 
     Returns:
-        The mesh (geometric dimension 3); each rank keeps its owned cells.
+        The mesh (geometric dimension 3), on the cells and nodes of ``mesh2d``.
     """
     return SurfaceMesh(mesh2d, coordinates).mesh
 

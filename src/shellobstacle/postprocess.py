@@ -213,7 +213,7 @@ class Postprocessor:
         theta = problem.shell.surface.geometry_numpy(points).theta
         theta_q = sum(np.asarray(theta[k], float) * problem.q[k] for k in range(3))
         self.gap_scale = _global_max(self.comm, np.abs(np.broadcast_to(theta_q, (n_owned,))), 0.0)
-        self._tree: dolfinx.geometry.BoundingBoxTree | None = None
+        self._trees: dict[tuple[str, float], dolfinx.geometry.BoundingBoxTree] = {}
 
     def _assemble_owned(self, linear_form: Any) -> np.ndarray:
         """Assemble a P1 linear form and return its owned entries (ghost contributions added)."""
@@ -298,11 +298,13 @@ class Postprocessor:
         return out
 
     def cross_section(self, n: int = 401, axis: str = "y1", at: float = 0.0) -> CrossSection:
-        """:func:`cross_section` of the current ``ζ``, reusing one bounding-box tree."""
-        if self._tree is None:
-            mesh = self.problem.mesh
-            self._tree = dolfinx.geometry.bb_tree(mesh, mesh.topology.dim)
-        return cross_section(self.problem, n=n, axis=axis, at=at, tree=self._tree)
+        """:func:`cross_section` of the current ``ζ``, reusing the line's bounding-box tree."""
+        if axis not in AXES:
+            raise ValueError(f"axis must be one of {AXES}, got {axis!r}")
+        key = (axis, float(at))
+        if key not in self._trees:
+            self._trees[key] = line_tree(self.problem.mesh, axis, at)
+        return cross_section(self.problem, n=n, axis=axis, at=at, tree=self._trees[key])
 
 
 # -- cross-sections (MODEL.md §7, batch 3) ------------------------------------------------------
@@ -338,6 +340,22 @@ class CrossSection:
 def _mesh_extent(mesh: dolfinx.mesh.Mesh, k: int) -> tuple[float, float]:
     x = mesh.geometry.x[:, k]
     return _global_min(mesh.comm, x), _global_max(mesh.comm, x)
+
+
+def line_tree(mesh: dolfinx.mesh.Mesh, axis: str, at: float) -> dolfinx.geometry.BoundingBoxTree:
+    """Bounding-box tree of the local cells that meet the line of a cross-section.
+
+    The line is ``y2 = at`` for ``axis="y1"`` (``y1 = at`` for ``"y2"``); a tree of these
+    cells only (about ``1/√N`` of them) is all the point search along it needs, and costs a
+    fraction of a tree of the whole mesh.
+    """
+    tdim = mesh.topology.dim
+    cells = mesh.topology.index_map(tdim)
+    nodes = mesh.geometry.dofmaps[0][: cells.size_local + cells.num_ghosts]
+    c = mesh.geometry.x[nodes, 1 - AXES.index(axis)]
+    pad = 1e-12 * (1.0 + abs(at))
+    meets = (c.min(axis=1) <= at + pad) & (c.max(axis=1) >= at - pad)
+    return dolfinx.geometry.bb_tree(mesh, tdim, entities=np.flatnonzero(meets).astype(np.int32))
 
 
 def _sample(
@@ -393,7 +411,8 @@ def cross_section(
         n: Number of sample points.
         axis: ``"y1"`` or ``"y2"``: the running coordinate.
         at: The value of the other coordinate.
-        tree: A bounding-box tree of the mesh cells (built if not given).
+        tree: A bounding-box tree of (at least) the cells that meet the line (built by
+            :func:`line_tree` if not given).
 
     Returns:
         The :class:`CrossSection` (identical on all ranks).
@@ -410,7 +429,7 @@ def cross_section(
     points[:, k] = s
     points[:, 1 - k] = at
     if tree is None:
-        tree = dolfinx.geometry.bb_tree(mesh, mesh.topology.dim)
+        tree = line_tree(mesh, axis, at)
     where, zeta = _sample(problem.zeta, points, tree)
     y = points[where, :2]
     G = problem.shell.surface.geometry_numpy(y)
