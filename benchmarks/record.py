@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import ctypes
 import json
 import os
 import resource
@@ -17,16 +18,36 @@ from shellobstacle.config import Config
 from shellobstacle.domains import mesh_size
 from shellobstacle.pipeline import make_mesh
 from shellobstacle.solvers.newton import NewtonOptions
+from shellobstacle.threads import blas_threads
+
+
+def petsc_blas() -> str:
+    """The configuration string of the OpenBLAS that PETSc and MUMPS run on (``unknown``
+    if none is loaded): it says whether the BLAS is threaded (``SINGLE_THREADED`` if not)."""
+    try:
+        lib = ctypes.CDLL("libopenblas.so.0", mode=getattr(os, "RTLD_NOLOAD", 0))
+        lib.openblas_get_config.restype = ctypes.c_char_p
+        return lib.openblas_get_config().decode()
+    except (OSError, AttributeError):
+        return "unknown"
 
 
 def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
-    """Add the peak RSS (largest rank and sum over ranks) and print ``rec`` on rank 0.
+    """Add the peak RSS and the CPU seconds (largest rank and sum over ranks), the BLAS of
+    PETSc and the threads of NumPy's BLAS, and print ``rec`` on rank 0.
 
+    CPU seconds (user + system, all threads, since the process started: imports included, and
+    in a ladder every size so far) against the wall clock show how many cores a run kept busy.
     Floats keep 6 significant digits.
     """
-    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    usage = resource.getrusage(resource.RUSAGE_SELF)
+    rss, cpu = usage.ru_maxrss / 1024, usage.ru_utime + usage.ru_stime
     rec["peak_rss_mb_per_rank_max"] = comm.allreduce(rss, op=MPI.MAX)
     rec["peak_rss_mb_total"] = comm.allreduce(rss, op=MPI.SUM)
+    rec["cpu_s_per_rank_max"] = comm.allreduce(cpu, op=MPI.MAX)
+    rec["cpu_s_total"] = comm.allreduce(cpu, op=MPI.SUM)
+    rec["petsc_blas"] = petsc_blas()
+    rec["numpy_blas_threads"] = blas_threads()
     if comm.rank == 0:
         values = {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in rec.items()}
         print(json.dumps(values), flush=True)

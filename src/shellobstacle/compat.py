@@ -1,6 +1,16 @@
-"""The one place that orders the DOLFINx wheel's MPI bootstrap ahead of dolfinx/petsc4py."""
+"""The one place that orders the DOLFINx wheel's MPI bootstrap ahead of dolfinx/petsc4py.
+
+It also gives NumPy's BLAS one thread per rank under ``mpiexec`` unless ``OMP_NUM_THREADS``
+or ``OPENBLAS_NUM_THREADS`` is set (:mod:`shellobstacle.threads`).
+"""
 
 import contextlib
 
 with contextlib.suppress(ImportError):
     import dolfinx_solver  # noqa: F401  (binary wheel: loads mpi4py.MPI first)
+
+from mpi4py import MPI
+
+from shellobstacle.threads import limit_blas_threads
+
+limit_blas_threads(MPI.COMM_WORLD.size)
