@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import dolfinx.fem.petsc
 import numpy as np
 import pytest
@@ -58,3 +60,28 @@ def test_the_coarse_solve_is_the_galerkin_projection(ratio: float) -> None:
     other.axpy(1.0, e)  # K⁻¹f − (δ̃ − the perturbation)
     assert energy(K, other) >= best
     coarse.destroy()
+
+
+@pytest.mark.mpi
+def test_the_grid_has_at_most_about_max_nodes_nodes() -> None:
+    """On a fine mesh the grid stops at ``max_nodes`` nodes (H grows beyond 4h): here 30
+    grid nodes asked for on the unit square with 33² mesh nodes, where ``ratio`` 16 alone
+    would give 68; the capped space is still a Galerkin space (Pᵀ(Kδ̃ − f) = 0)."""
+    problem = PenalizedProblem(paper_shell(), square(n=32))
+    solver = NewtonSolver(problem)
+    solver._load()
+    K, f = solver.K, solver.f
+    uncapped = CoarseSpace(problem.V, K, problem.bcs, 16.0)
+    capped = CoarseSpace(problem.V, K, problem.bcs, 16.0, max_nodes=30)
+    grid = (math.ceil(math.sqrt(30)) + 1) ** 2  # nodes of the 6 × 6 grid
+    assert 0 < capped.size <= 3 * grid < uncapped.size
+    d = f.duplicate()
+    capped.solve(f, d)
+    r = f.duplicate()
+    K.mult(d, r)
+    r.axpy(-1.0, f)
+    rc = capped.P.createVecRight()
+    capped.P.multTranspose(r, rc)
+    assert rc.norm() <= 1e-10 * f.norm()
+    for coarse in (uncapped, capped):
+        coarse.destroy()
