@@ -94,13 +94,23 @@ class QuadraturePenalty:
         """``g(ζ)`` at the owned points."""
         return self.g0 + self.apply_B(zeta)
 
-    def gap_scale(self, zeta: PETSc.Vec) -> np.ndarray:
-        """``|θ·q| + Σ_j |ζ_j c_j|`` at the owned points (:func:`gap_scale`)."""
+    def gap_scale(self, zeta: PETSc.Vec, points: np.ndarray) -> np.ndarray:
+        """``|θ·q| + Σ_j |ζ_j c_j|`` at the owned ``points`` (local positions; collective).
+
+        Only the rows of ``points`` are multiplied (:func:`gap_scale` on ``M``'s submatrix;
+        each row's sum is the one ``M`` computes): the floor needs the active points only,
+        about 1 % of the 7.7 M points at 1.92 M dofs.
+        """
         x = self._work_v
         n = x.getLocalSize()
         with zeta.localForm() as z:
             owned = z.array_r[:n].copy()
-        return gap_scale(self.M, self.D, self.g0, owned, np.arange(n) % 3, x, self._work_q)
+        MP = rows_of(self.M, points)
+        w = MP.createVecLeft()
+        total = gap_scale(MP, self.D[points], self.g0[points], owned, np.arange(n) % 3, x, w)
+        MP.destroy()
+        w.destroy()
+        return total
 
     # -- derivatives -------------------------------------------------------------------------
     def energy(self, g: np.ndarray, kappa: float) -> float:
@@ -145,21 +155,29 @@ def gap_scale(
     return total
 
 
+def rows_of(M: PETSc.Mat, points: np.ndarray) -> PETSc.Mat:
+    """The owned rows ``points`` (local positions) of ``M``, with ``M``'s column layout."""
+    comm = M.getComm()
+    start = M.getOwnershipRange()[0]
+    rows = PETSc.IS().createGeneral((start + points).astype(PETSc.IntType), comm=comm)
+    c0, c1 = M.getOwnershipRangeColumn()
+    cols = PETSc.IS().createStride(c1 - c0, c0, 1, comm=comm)
+    sub = M.createSubMatrix(rows, cols)
+    rows.destroy()
+    cols.destroy()
+    return sub
+
+
 def penalty_hessian(M: PETSc.Mat, D: np.ndarray, active: np.ndarray, kappa: float) -> PETSc.Mat:
     """``(1/κ) M_Aᵀ diag(1/D_A) M_A`` for the owned rows ``active`` (local positions) of ``M``.
 
     ``M`` is a point matrix ``diag(D) B`` (parallel, or the sequential one of a contact zone).
     """
-    comm = M.getComm()
-    start = M.getOwnershipRange()[0]
-    rows = PETSc.IS().createGeneral((start + active).astype(PETSc.IntType), comm=comm)
-    c0, c1 = M.getOwnershipRangeColumn()
-    cols = PETSc.IS().createStride(c1 - c0, c0, 1, comm=comm)
-    MA = M.createSubMatrix(rows, cols)
+    MA = rows_of(M, active)
     scale = MA.createVecLeft()
     scale.array[:] = 1.0 / np.sqrt(kappa * D[active])
     MA.diagonalScale(L=scale)
     P = MA.transposeMatMult(MA)
-    for obj in (rows, cols, MA, scale):
+    for obj in (MA, scale):
         obj.destroy()
     return P

@@ -317,10 +317,12 @@ class NewtonSolver:
         ``u (‖f‖ + ‖S‖)`` with ``S = (1/κ) Mᵀ (χ_A · (|θ·q| + Σ_j |ζ_j c_j|))``: the rounding
         of the terms of ``g`` amplified by the penalty.
         """
-        scale = self.penalty.gap_scale(self.problem.zeta.x.petsc_vec)
+        active = np.flatnonzero(self._g < 0)
+        values = np.zeros_like(self._g)
+        values[active] = self.penalty.gap_scale(self.problem.zeta.x.petsc_vec, active)
         S = self.R.duplicate()
         S.set(0.0)
-        self.penalty.add_residual(np.where(self._g < 0, scale, 0.0), self.kappa, S)
+        self.penalty.add_residual(values, self.kappa, S)
         norm = S.norm()
         S.destroy()
         return self._floor_of(load_norm, norm)
