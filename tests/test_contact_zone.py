@@ -61,10 +61,13 @@ def test_the_condensed_solve_is_the_jacobian_solve() -> None:
 
 @pytest.mark.mpi
 def test_zone_continuation_equals_factorizing_every_step() -> None:
-    """Same Newton steps and solution as a fresh factorization per step, far fewer of them.
+    """Same solution as a fresh factorization per step, far fewer factorizations.
 
     The zone is built before the first step (seeded by the coarse-grid first step) or, without
-    the seed, once the contact appears; it is kept over the smaller κ.
+    the seed, once the contact appears; it is kept over the smaller κ. Unseeded, the Newton
+    steps are those of the fresh factorizations; seeded, the first step from ζ = 0 goes to
+    the minimizer of the model whose active set is the seed's penetrated points, which saves
+    Newton steps at the first κ (the later κ start from the same solution).
     """
     p_fresh, _, fresh = solved(NewtonOptions(contact_zone=False, reuse_factorization=False))
     assert [s.newton.factorizations for s in fresh] == [s.iterations for s in fresh]
@@ -72,13 +75,46 @@ def test_zone_continuation_equals_factorizing_every_step() -> None:
     # seeded: K_II only; unseeded: K at the first Newton step (no contact yet), then K_II
     for seed, first in ((True, 1), (False, 2)):
         p_zone, solver, zoned = solved(NewtonOptions(seed_zone=seed))
-        assert [s.iterations for s in zoned] == [s.iterations for s in fresh]
+        if seed:
+            assert zoned[0].iterations < fresh[0].iterations
+            assert [s.iterations for s in zoned[1:]] == [s.iterations for s in fresh[1:]]
+        else:
+            assert [s.iterations for s in zoned] == [s.iterations for s in fresh]
         factorizations = [s.newton.factorizations for s in zoned]
         assert factorizations == [first, 0, 0]
         assert solver.zone.builds == first
         d = p_zone.zeta.x.petsc_vec.copy()
         d.axpy(-1.0, z_fresh)
         assert d.norm() <= 1e-10 * z_fresh.norm()
+
+
+@pytest.mark.mpi
+def test_a_seed_step_that_does_not_descend_is_replaced_by_a_newton_step(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """If the step towards the seed's model minimizer is not a descent direction (forced here
+    by reversing it), the usual Newton step is taken: the steps of an unseeded zone."""
+    _, _, plain = solved(NewtonOptions(seed_zone=False))
+    p_ref, _, _ = solved(NewtonOptions())
+    seed_step = NewtonSolver._zone_seed_step
+    calls = []
+
+    def reversed_step(
+        self: NewtonSolver, seed: np.ndarray, g: np.ndarray, r: PETSc.Vec, d: PETSc.Vec
+    ) -> int:
+        cg = seed_step(self, seed, g, r, d)
+        assert r.dot(d) < 0.0  # the true step descends ...
+        d.scale(-1.0)  # ... its reverse does not
+        calls.append(cg)
+        return cg
+
+    monkeypatch.setattr(NewtonSolver, "_zone_seed_step", reversed_step)
+    p_rev, _, rev = solved(NewtonOptions())
+    assert len(calls) == 1
+    assert [s.iterations for s in rev] == [s.iterations for s in plain]
+    d = p_rev.zeta.x.petsc_vec.copy()
+    d.axpy(-1.0, p_ref.zeta.x.petsc_vec)
+    assert d.norm() <= 1e-10 * p_ref.zeta.x.petsc_vec.norm()
 
 
 @pytest.mark.mpi
@@ -117,8 +153,9 @@ def test_a_restored_zone_continues_to_the_last_bit() -> None:
 
 @pytest.mark.mpi
 def test_a_zone_too_large_factorizes_the_whole_jacobian() -> None:
-    """Above zone_max_fraction the Jacobian is factorized at every step; same answer."""
-    p_small, _, small = solved(NewtonOptions(), n=24)
+    """Above zone_max_fraction the Jacobian is factorized at every step; same answer (and
+    the same steps as an unseeded zone, whose Newton steps are those of J_κ)."""
+    p_small, _, small = solved(NewtonOptions(seed_zone=False), n=24)
     p_whole, solver, whole = solved(NewtonOptions(zone_max_fraction=1e-6), n=24)
     assert solver.zone.whole
     assert [s.iterations for s in whole] == [s.iterations for s in small]

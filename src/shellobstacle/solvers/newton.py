@@ -512,15 +512,23 @@ class NewtonSolver:
         zone.gather(zeta.x.petsc_vec, z)
         g = zone.zone_residual(z, kappa, r)
         rnorm = r.norm()
+        seed = self._zone_seed(g)
         while result.iterations < opts.max_iterations:
             if rnorm <= max(opts.atol, opts.rtol * scale):
                 break
             floor = self._zone_floor(z, g, ref)
             if rnorm <= floor:
                 break
-            r.scale(-1.0)
-            cg = zone.zone_newton_solve(g, kappa, r, d, self._zone_budget, opts.linear_rtol)
-            r.scale(-1.0)
+            cg = -1
+            if seed is not None:  # towards the minimizer of the model whose active set is seed
+                cg = self._zone_seed_step(seed, g, r, d)
+                seed = None
+                if not r.dot(d) < -floor * d.norm():
+                    cg = -1  # no descent: the usual Newton step instead
+            if cg < 0:
+                r.scale(-1.0)
+                cg = zone.zone_newton_solve(g, kappa, r, d, self._zone_budget, opts.linear_rtol)
+                r.scale(-1.0)
             self._factored_kappa = kappa
             slope0 = r.dot(d)
             small_step = d.norm(PETSc.NormType.NORM_INFINITY) <= opts.stol * z.norm(
@@ -562,6 +570,39 @@ class NewtonSolver:
         self.timings["condense"] += condense
         self.timings["zone_newton"] += te - t0 - (te - ts) - condense
         return rnorm
+
+    def _zone_seed(self, g: np.ndarray) -> np.ndarray | None:
+        """The points that the seed of the zone penetrates, among the zone's (the same on
+        every rank), when the iterate touches none of them (a solve from ζ = 0); else None.
+
+        Newton steps from an iterate without contact take the active set from that iterate
+        (empty) and then grow it with short damped steps (exact-line-search lengths 0.47,
+        0.02, 0.03, 0.16, … on the paper's problem at 326k dofs). Starting from the minimizer
+        of the model whose active set is the seed's points (18,746 there, against 17,756 at
+        the solution), the steps only released points, all of full length: 8 Newton steps at
+        the first κ instead of 10 (9 instead of 13 at 1.92 M dofs). The exact line search
+        guards the step; one that does not descend is replaced by the usual Newton step.
+        """
+        zone, comm = self.zone, self.problem.mesh.comm
+        if self._hint is None or comm.allreduce(bool((g < 0).any()), op=MPI.LOR):
+            return None
+        seed = np.concatenate(comm.allgather(self._hint[np.flatnonzero(zone.points)]))
+        return seed if seed.any() else None
+
+    def _zone_seed_step(self, seed: np.ndarray, g: np.ndarray, r: PETSc.Vec, d: PETSc.Vec) -> int:
+        """``d ← −S_A⁻¹ ∇q_A``: the step to the minimizer of the zone's energy with the
+        penalty ``(1/(2κ)) Σ_{p ∈ A} D_p g_p²`` on the points ``A = seed``, from an iterate
+        where no point has ``g < 0`` (so ``r = ∇j`` holds no penalty and
+        ``∇q_A = r + (1/κ) M_Pᵀ (g on A)``). Returns the CG iterations (0: factorized).
+        """
+        zone, kappa, opts = self.zone, self.kappa, self.options
+        rA = r.copy()
+        zone.add_zone_penalty(np.where(seed, g, 0.0), kappa, rA)
+        rA.scale(-1.0)
+        active = np.where(seed, -1.0, 1.0)  # S with the seed's points active
+        cg = zone.zone_newton_solve(active, kappa, rA, d, self._zone_budget, opts.linear_rtol)
+        rA.destroy()
+        return cg
 
     def _zone_floor(self, z: PETSc.Vec, g: np.ndarray, ref: float) -> float:
         """:meth:`_floor` for the zone's problem (the active points are the zone's)."""
