@@ -90,7 +90,8 @@ class NewtonOptions:
             where a coarse-grid approximation of that step
             (:class:`~shellobstacle.solvers.coarse_space.CoarseSpace`) penetrates the
             obstacle, instead of factorizing ``K`` for the first step and ``K_II`` for the
-            second.
+            second; the first step then goes to the minimizer of the zone's model whose
+            active set is those points (:meth:`NewtonSolver._zone_seed`).
     """
 
     rtol: float = 1e-10
