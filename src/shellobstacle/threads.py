@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import functools
 import os
 from collections.abc import Callable, Mapping
 from typing import Any
@@ -33,8 +34,10 @@ _SYMBOLS = (
 )
 
 
+@functools.cache
 def _numpy_openblas() -> tuple[Callable[[int], Any], Callable[[], int]] | None:
-    """The (set, get) thread functions of the OpenBLAS NumPy loaded, or None if not found."""
+    """The (set, get) thread functions of the OpenBLAS NumPy loaded, or None if not found
+    (looked up once per process: NumPy's BLAS does not change once loaded)."""
     import numpy  # noqa: F401  (loads its BLAS)
 
     try:
