@@ -59,6 +59,13 @@ def add_solver_arguments(ap: argparse.ArgumentParser) -> None:
     ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
     ap.add_argument("--factorization", default="lu", choices=("lu", "cholesky"))
     ap.add_argument(
+        "--forcing",
+        default="eisenstat-walker",
+        choices=("eisenstat-walker", "fixed"),
+        help="iterative solver: CG tolerance per Newton step (inexact Newton, or linear_rtol "
+        "at every step, the sixth session's solver)",
+    )
+    ap.add_argument(
         "--no-zone",
         action="store_true",
         help="direct solver without the contact-zone condensation (one factorization per κ "
@@ -77,6 +84,7 @@ def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptio
     rec["linear_solver"] = args.linear_solver
     rec["reuse_factorization"] = not args.no_reuse
     rec["factorization"] = args.factorization
+    rec["forcing"] = args.forcing if args.linear_solver == "iterative" else None
     rec["contact_zone"] = args.linear_solver == "direct" and not args.no_zone
     rec["zone_newton"] = rec["contact_zone"] and not args.no_zone_newton
     rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
@@ -84,6 +92,7 @@ def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptio
         linear_solver=args.linear_solver,
         reuse_factorization=not args.no_reuse,
         factorization=args.factorization,
+        forcing=args.forcing,
         contact_zone=not args.no_zone,
         zone_newton=not args.no_zone_newton,
     )

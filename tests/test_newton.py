@@ -118,6 +118,56 @@ def test_iterative_matches_direct() -> None:
     assert l2_norm(a.zeta - b.zeta) <= 1e-8 * l2_norm(a.zeta)
 
 
+def test_inexact_newton_needs_fewer_cg_iterations_for_the_same_solution() -> None:
+    """Eisenstat–Walker forcing: the solution of every κ as with CG solved to 1e-12 at each
+    Newton step, for fewer CG iterations in all; every tolerance asked is in [1e-12, 0.1]."""
+    mesh = square(n=16)
+    kappas = [1e-1, 1e-2, 1e-3, 1e-4]
+    solutions, totals, etas = [], [], []
+    for forcing in ("eisenstat-walker", "fixed"):
+        problem = PenalizedProblem(paper_shell(), mesh)
+        solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative", forcing=forcing))
+        asked: list[float] = []
+        forcing_term = solver._forcing
+
+        def record(*args, _asked=asked, _forcing=forcing_term) -> float:
+            _asked.append(_forcing(*args))
+            return _asked[-1]
+
+        solver._forcing = record
+        steps = continuation(problem, solver, kappas)
+        assert all(s.newton.converged for s in steps)
+        solutions.append(problem.zeta.x.array.copy())
+        totals.append(sum(sum(s.newton.linear_iterations) for s in steps))
+        etas.append(asked)
+    (inexact, exact), (n_inexact, n_exact) = solutions, totals
+    assert np.linalg.norm(inexact - exact) <= 1e-8 * np.linalg.norm(exact)
+    assert n_inexact < n_exact
+    assert etas[1] and all(eta == 1e-12 for eta in etas[1])
+    assert max(etas[0]) <= 0.1 and min(etas[0]) >= 1e-12 and max(etas[0]) > 1e-12
+
+
+def test_an_unknown_forcing_is_refused() -> None:
+    with pytest.raises(ValueError, match="forcing"):
+        NewtonOptions(forcing="exact")
+
+
+@pytest.mark.mpi
+def test_iterative_serial_and_parallel_agree() -> None:
+    """The iterative solver on the distributed mesh gives the serial solution (to CG's
+    accuracy: the smoothers and the aggregates depend on the partition)."""
+    kappas = [1e-1, 1e-2, 1e-3, 1e-4]
+    norms, areas = [], []
+    for comm in (MPI.COMM_WORLD, MPI.COMM_SELF):
+        problem = PenalizedProblem(paper_shell(), square(comm, n=20))
+        solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))
+        continuation(problem, solver, kappas)
+        norms.append(l2_norm(problem.zeta))
+        areas.append(Postprocessor(problem).contact()["contact_area"])
+    assert norms[0] == pytest.approx(norms[1], rel=1e-8)
+    assert areas[0] == pytest.approx(areas[1], rel=1e-8)
+
+
 @pytest.mark.mpi
 def test_serial_and_parallel_agree() -> None:
     """The distributed solve equals a serial solve of the same mesh (each rank solves alone)."""

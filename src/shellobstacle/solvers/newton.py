@@ -64,8 +64,16 @@ class NewtonOptions:
         factorization: of the direct solver: ``"lu"`` or ``"cholesky"`` (the Jacobian is
             symmetric positive definite; half the memory for the factors, measured not
             faster with MUMPS).
-        linear_rtol: relative tolerance of the iterative linear solver, and of the conjugate
-            gradients that reuse a factorization.
+        linear_rtol: relative tolerance of the iterative linear solver (its smallest one with
+            ``forcing = "eisenstat-walker"``), and of the conjugate gradients that reuse a
+            factorization.
+        forcing: with the iterative solver, how accurately each Newton direction is solved.
+            ``"eisenstat-walker"``: an inexact Newton method, CG stops at
+            ``‖J δ + R‖ ≤ η_k ‖R‖`` with Eisenstat and Walker's choice 2 (SIAM J. Sci. Comput.
+            17, 1996): ``η_k = 0.9 (‖R_k‖ / ‖R_{k−1}‖)²``, safeguarded, at most 0.1, and never
+            below ``linear_rtol`` nor below what Newton's stopping test can still see (half the
+            stopping threshold over ``‖R_k‖``); the solution is the same, the CG iterations of
+            the early steps far fewer. ``"fixed"``: ``linear_rtol`` at every step.
         reuse_factorization: with the direct solver, keep one factorization per κ and solve
             later Newton steps at that κ by conjugate gradients preconditioned with it (with
             ``zone_newton``: the factorization of the zone's Schur complement ``S``).
@@ -101,6 +109,7 @@ class NewtonOptions:
     max_iterations: int = 100
     linear_solver: str = "direct"
     linear_rtol: float = 1e-12
+    forcing: str = "eisenstat-walker"
     factorization: str = "lu"
     reuse_factorization: bool = True
     reuse_max_iterations: int = 15
@@ -113,6 +122,10 @@ class NewtonOptions:
         if self.linear_solver not in ("direct", "iterative"):
             raise ValueError(
                 f"solver.linear_solver must be 'direct' or 'iterative', got {self.linear_solver!r}"
+            )
+        if self.forcing not in ("eisenstat-walker", "fixed"):
+            raise ValueError(
+                f"solver.forcing must be 'eisenstat-walker' or 'fixed', got {self.forcing!r}"
             )
         if self.factorization not in ("lu", "cholesky"):
             raise ValueError(
@@ -233,11 +246,16 @@ class NewtonSolver:
                 "fieldsplit_0_ksp_type": "preonly",
                 "fieldsplit_0_pc_type": "gamg",
                 "fieldsplit_0_pc_gamg_threshold": 0.02,
-                "fieldsplit_0_mg_levels_pc_type": "sor",
+                # Chebyshev–Jacobi smoothing (GAMG's own default) rather than SOR: more CG
+                # iterations, less time (docs/performance.md, seventh session), and the
+                # same smoother on any number of ranks
+                "fieldsplit_0_mg_levels_pc_type": "jacobi",
                 "fieldsplit_1_ksp_type": "preonly",
                 "fieldsplit_1_pc_type": "jacobi",
             }
             set_options(self, prefix, split)
+            # ‖J δ + R‖ itself, the quantity the forcing term bounds
+            self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
             self.ksp.setTolerances(rtol=opts.linear_rtol, atol=1e-50, max_it=2000)
         self.ksp.setFromOptions()  # (the options stay: the levels are made at every set-up)
         self.timings: dict[str, float] = {
@@ -251,6 +269,7 @@ class NewtonSolver:
             "zone_newton": 0.0,
         }
         self._factored_kappa: float | None = None  # κ of the factorization held by the KSP
+        self._eta: float | None = None  # the last forcing term of the iterative solver
         self.factorizations = 0  # in the current solve
         self._reuse_failures = 0
         self._g = np.zeros(0)  # gap at the quadrature points of the current iterate
@@ -368,6 +387,31 @@ class NewtonSolver:
                 self.ksp.solve(self.R, self.dz)
         self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
 
+    def _forcing(self, norms: list[float], target: float) -> float:
+        """CG's relative tolerance ``η_k`` for the next direction (``NewtonOptions.forcing``).
+
+        Eisenstat–Walker choice 2, ``η_k = γ (‖R_k‖/‖R_{k−1}‖)^α`` with ``γ = 0.9``, ``α = 2``,
+        kept above ``γ η_{k−1}^α`` when that exceeds 0.1 (no sudden drop), at most
+        ``η_max = 0.1`` (also the first ``η``), at least ``target / (2 ‖R_k‖)`` (a linear
+        residual below half the stopping threshold is invisible to Newton's test) and at least
+        ``linear_rtol``.
+        """
+        opts = self.options
+        if opts.forcing == "fixed":
+            return opts.linear_rtol
+        gamma, alpha, eta_max = 0.9, 2.0, 0.1
+        eta = eta_max
+        if len(norms) >= 2 and self._eta is not None and norms[-2] > 0.0:
+            eta = gamma * (norms[-1] / norms[-2]) ** alpha
+            previous = gamma * self._eta**alpha
+            if previous > 0.1:
+                eta = max(eta, previous)
+            eta = min(eta, eta_max)
+        if norms[-1] > 0.0:
+            eta = max(eta, 0.5 * target / norms[-1])
+        self._eta = min(max(eta, opts.linear_rtol), eta_max)
+        return self._eta
+
     def _active_set_moved(self) -> bool:
         """Whether more points changed activity since the factorization than CG may iterate."""
         changed = int(np.count_nonzero(self._factored_active != (self._g < 0)))
@@ -415,6 +459,10 @@ class NewtonSolver:
             self._jacobian()
         if self.zone is not None:
             self.zone.prepare(self._g < 0, None)
+        opts = self.options
+        if self.zone is None and opts.linear_solver == "iterative" and opts.forcing != "fixed":
+            # an Euler step is first-order accurate in Δκ: 1e-6 is far below its own error
+            self.ksp.setTolerances(rtol=max(opts.linear_rtol, 1e-6))
         self.ksp.solve(b, self.dz)
         ok = self.ksp.getConvergedReason() > 0
         b.destroy()
@@ -710,6 +758,7 @@ class NewtonSolver:
         # every solve starts with a new factorization, so its result depends only on the
         # start ζ and not on earlier solves (resumed runs repeat uninterrupted ones exactly)
         self._factored_kappa = None
+        self._eta = None  # the last forcing term (iterative solver)
         self._hint = None  # (the zone itself is kept: it depends on the mesh, not on κ)
         if self.zone is not None:
             self.zone.forget_factorization()
@@ -749,6 +798,9 @@ class NewtonSolver:
             ta = time.perf_counter()
             self._jacobian()
             self.timings["assemble"] += time.perf_counter() - ta
+            if self.zone is None and opts.linear_solver == "iterative":
+                target = max(opts.atol, opts.rtol * scale, floor)
+                self.ksp.setTolerances(rtol=self._forcing(result.residual_norms, target))
             ts = time.perf_counter()
             self.R.scale(-1.0)
             apart = ("factorize", "zone", "condense")
