@@ -44,6 +44,12 @@ from shellobstacle.solvers.options import set_options, unique_prefix
 
 __all__ = ["ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
 
+# CG's relative tolerance for the iterative solver's Euler predictor (with inexact Newton): the
+# Euler step's own error is of the order of Δκ/κ (≥ 0.2 on the continuation paths), so the
+# tangent needs no more than two digits. Measured at 111k and 326k dofs: the same Newton steps
+# with 1e-2 as with 1e-6 (one fewer at one κ), the predictor 3.3× cheaper.
+PREDICTOR_RTOL = 1e-2
+
 
 @dataclass(frozen=True)
 class NewtonOptions:
@@ -492,8 +498,7 @@ class NewtonSolver:
             self.zone.prepare(self._g < 0, None)
         opts = self.options
         if self.zone is None and opts.linear_solver == "iterative" and opts.forcing != "fixed":
-            # an Euler step is first-order accurate in Δκ: 1e-6 is far below its own error
-            self.ksp.setTolerances(rtol=max(opts.linear_rtol, 1e-6))
+            self.ksp.setTolerances(rtol=max(opts.linear_rtol, PREDICTOR_RTOL))
         self.ksp.solve(b, self.dz)
         ok = self.ksp.getConvergedReason() > 0
         b.destroy()
