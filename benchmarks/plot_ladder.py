@@ -67,7 +67,7 @@ def main() -> None:
         print("\nfitted exponents of time ∝ dofs^k: " + ", ".join(fits))
         ax.set_xlabel("dofs")
         ax.set_ylabel("seconds")
-        ax.set_title(f"{ranks} rank(s): phase time vs dofs")
+        ax.set_title(f"{rows[0]['linear_solver']}, {ranks} rank(s): phase time vs dofs")
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
     fig.tight_layout()
