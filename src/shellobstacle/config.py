@@ -117,7 +117,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "linear_solver": Key(
             "str",
             "direct",
-            "MUMPS, or CG with a field split (GAMG on ζ_α)",
+            "MUMPS, or inexact Newton with CG and a field split (GAMG on ζ_α): half the memory",
             ("direct", "iterative"),
         ),
         "factorization": Key(
