@@ -218,10 +218,24 @@ def test_newton_on_the_zone_problem_solves_the_whole_problem() -> None:
     assert reduced[-1].newton.relative_residual <= 1e-10
 
 
+def test_the_euler_predictor_is_off_for_zone_steps_by_default() -> None:
+    """NewtonOptions.euler_predictor = None: no prediction with steps on the zone (ζ is left
+    as it is), a prediction with the iterative solver."""
+    problem, solver, _ = solved(NewtonOptions())
+    zeta0 = problem.zeta.x.array.copy()
+    assert not solver.predicts
+    assert not solver.predict(solver.kappa / 10)
+    assert np.array_equal(problem.zeta.x.array, zeta0)
+    problem, solver, _ = solved(NewtonOptions(linear_solver="iterative"))
+    zeta0 = problem.zeta.x.array.copy()
+    assert solver.predicts and solver.predict(solver.kappa / 10)
+    assert not np.array_equal(problem.zeta.x.array, zeta0)
+
+
 @pytest.mark.mpi
 def test_the_zone_predictor_is_the_euler_step() -> None:
     """predict() through the zone: ζ + Δκ J⁻¹(−∂R/∂κ), J the Jacobian at the solution."""
-    problem, solver, _ = solved(NewtonOptions())
+    problem, solver, _ = solved(NewtonOptions(euler_predictor=True))
     kappa = solver.kappa
     zeta0 = problem.zeta.x.petsc_vec.copy()
     g = solver.penalty.gap(zeta0)

@@ -110,6 +110,15 @@ class NewtonOptions:
             iterate without contact the first Newton step solves with the Jacobian whose
             active points are where the coarse-grid approximation of the step penetrates
             (:meth:`NewtonSolver._active_seed`).
+        euler_predictor: whether :meth:`NewtonSolver.predict` moves ζ along dζ/dκ before a
+            new κ (the continuation's warm start). ``None``: where it was measured to pay —
+            with the iterative solver and the direct solver without ``zone_newton`` — and not
+            with steps on the contact zone, whose Newton steps from the previous solution are
+            fewer than from the Euler prediction on the paper's problem (κ = h^0.5, h, h^1.5:
+            6/2/2, 5/3/2, 7/3/3, 8/3/2, 9/4/2 instead of 6/3/3, 5/2/3, 7/4/5, 8/6/4, 9/7/6
+            from 7k to 1.92 M dofs; the iterative solver the other way, 9/7/5 instead of
+            9/10/8 at 326k). On the unit square of the tests, κ falling 10× or √10× per
+            step, the zone's predictor saved a step or two instead (``True`` to use it).
     """
 
     rtol: float = 1e-10
@@ -128,6 +137,7 @@ class NewtonOptions:
     zone_newton: bool = True
     seed_zone: bool = True
     seed_active: bool = True
+    euler_predictor: bool | None = None
 
     def __post_init__(self) -> None:
         if self.linear_solver not in ("direct", "iterative"):
@@ -475,16 +485,23 @@ class NewtonSolver:
             return
         self.zone.set_owned_zone(np.flatnonzero(u.x.petsc_vec.array_r > 0.5))
 
+    @property
+    def predicts(self) -> bool:
+        """Whether :meth:`predict` is on (``NewtonOptions.euler_predictor``)."""
+        choice = self.options.euler_predictor
+        return not self.reduced if choice is None else choice
+
     def predict(self, kappa_new: float) -> bool:
         """Euler predictor along κ: ``ζ ← ζ + (κ_new − κ) dζ/dκ`` with ``J dζ/dκ = −∂R/∂κ``.
 
         ``∂R/∂κ = −(1/κ²) Mᵀ min(g, 0)`` and ``J`` is approximated by the factorization kept
         from the last solve, so the prediction costs one back-substitution (or a few
         preconditioned CG iterations; with ``zone_newton`` see :meth:`_zone_predict`).
-        Returns False (and changes nothing) when no factorization for the current κ exists.
+        Returns False (and changes nothing) when no factorization for the current κ exists
+        or the predictor is off (``NewtonOptions.euler_predictor``).
         """
         kappa = self.kappa
-        if self._factored_kappa != kappa:
+        if self._factored_kappa != kappa or not self.predicts:
             return False
         if self.reduced:
             return self._zone_predict(kappa_new)
