@@ -189,6 +189,11 @@ def _solve_step(
     """
     q, q_prev, iteration = step
     t0 = time.perf_counter()
+    if q_prev is not None:
+        # the Euler prediction where the solver uses one (the iterative solver; not the
+        # zone's steps: NewtonOptions.euler_predictor), as a continuation does; after a
+        # resume there is no Jacobian of the last κ to predict with and ζ is left as it is
+        solver.predict(h**q)
     problem.set_kappa(h**q)
     r = solver.solve(newton_progress)
     newton_finished(newton_progress, r)
