@@ -398,9 +398,7 @@ class NewtonSolver:
         elif not self.reuse:
             if self.options.linear_solver == "direct":
                 self._factorize()
-            self._keep_amg()
-            self.ksp.solve(self.R, self.dz)
-            self._after_first_setup()
+            self._solve_direction(self.R)
             self._factored_kappa = self.kappa  # the preconditioner held is for this κ
         else:
             if self._factored_kappa is None or self._active_set_moved():
@@ -437,10 +435,10 @@ class NewtonSolver:
         self._eta = min(max(eta, opts.linear_rtol), eta_max)
         return self._eta
 
-    def _keep_amg(self) -> None:
-        """Iterative solver: GAMG on ζ_α is built at a solve's first direction and kept for
-        its later Newton steps (the rest of the split, Jacobi on ζ_3 and the coupling blocks,
-        is always that of the current Jacobian).
+    def _solve_direction(self, b: PETSc.Vec) -> None:
+        """``δ ← A⁻¹ b`` by the KSP; with the iterative solver GAMG on ζ_α is built at a
+        solve's first direction and kept for its later Newton steps (the rest of the split,
+        Jacobi on ζ_3 and the coupling blocks, is always that of the current Jacobian).
 
         Between Newton steps at one κ the ζ_α block changes only by the penalty's
         ``(1/κ) c_α c_β`` terms at the points that changed activity; the paper's problem
@@ -448,15 +446,11 @@ class NewtonSolver:
         for about a quarter less time (docs/performance.md, seventh session). A new κ scales
         the penalty: every solve builds it again.
         """
-        if self.options.linear_solver != "iterative":
-            return
-        if self._split is None:  # made at the split's first set-up
-            return
-        self._split[0].getPC().setReusePreconditioner(self._factored_kappa == self.kappa)
-
-    def _after_first_setup(self) -> None:
-        """Keep the split's sub-solvers once the field split exists (iterative solver)."""
-        if self._split is None and self.options.linear_solver == "iterative":
+        iterative = self.options.linear_solver == "iterative"
+        if iterative and self._split is not None:  # (the split exists after its first set-up)
+            self._split[0].getPC().setReusePreconditioner(self._factored_kappa == self.kappa)
+        self.ksp.solve(b, self.dz)
+        if iterative and self._split is None:
             self._split = self.ksp.getPC().getFieldSplitSubKSP()
 
     def _active_set_moved(self) -> bool:
@@ -514,7 +508,7 @@ class NewtonSolver:
         if self.zone is not None:
             self.zone.prepare(self._g < 0, None)
         opts = self.options
-        if self.zone is None and opts.linear_solver == "iterative" and opts.forcing != "fixed":
+        if opts.linear_solver == "iterative" and opts.forcing != "fixed":
             self.ksp.setTolerances(rtol=max(opts.linear_rtol, PREDICTOR_RTOL))
         self.ksp.solve(b, self.dz)
         ok = self.ksp.getConvergedReason() > 0
@@ -595,7 +589,7 @@ class NewtonSolver:
         coarse penetration, or not asked.
         """
         opts = self.options
-        if self.zone is not None or opts.linear_solver != "iterative" or not opts.seed_active:
+        if opts.linear_solver != "iterative" or not opts.seed_active:
             return None
         comm = self.problem.mesh.comm
         if comm.allreduce(bool((self._g < 0).any()), op=MPI.LOR):
@@ -619,9 +613,7 @@ class NewtonSolver:
         the usual Newton step instead. Returns the CG iterations of a discarded seeded solve.
         """
         b = self._seed_residual(seed)
-        self._keep_amg()
-        self.ksp.solve(b, self.dz)
-        self._after_first_setup()
+        self._solve_direction(b)
         b.destroy()
         if self.ksp.getConvergedReason() > 0 and self.R.dot(self.dz) > 0:  # −R·δ > 0
             self.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
@@ -914,7 +906,7 @@ class NewtonSolver:
             ta = time.perf_counter()
             self._jacobian(seed)
             self.timings["assemble"] += time.perf_counter() - ta
-            if self.zone is None and opts.linear_solver == "iterative":
+            if opts.linear_solver == "iterative":
                 target = max(opts.atol, opts.rtol * scale, floor)
                 self.ksp.setTolerances(rtol=self._forcing(result.residual_norms, target))
             ts = time.perf_counter()
