@@ -1,7 +1,11 @@
 """Newton on the paper's problem (MODEL.md §7): κ = h^q, q = 0.5, 1.0, …, q_max, warm-started.
 
 Prints one JSON line per κ (Newton steps, line-search evaluations, stop reason, relative
-residual, seconds, contact area) and one line of phase timings, for each penalty quadrature.
+residual, seconds, contact area, the active set: its points, how many switched on and off
+since the previous κ, the cells counted by how many of their points are active, and over the
+cells in contact the medians of the deepest penetration and of the part of the gap that no
+affine function matches at the cell's points) and one line of phase timings, for each penalty
+quadrature.
 
     .venv/bin/python benchmarks/paper_newton.py --h 0.0058 --qmax 8
     .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/paper_newton.py --h 0.0058
@@ -21,12 +25,52 @@ from mpi4py import MPI
 
 from shellobstacle.config import load_config
 from shellobstacle.domains import mesh_size
+from shellobstacle.penalty import penalty_rule
 from shellobstacle.pipeline import make_mesh
 from shellobstacle.postprocess import Postprocessor
 from shellobstacle.problem import Discretization, PenalizedProblem
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
 PAPER = "src/shellobstacle/configs/paper.toml"
+
+
+def _switched(
+    previous: np.ndarray | None, active: np.ndarray, comm: MPI.Comm
+) -> tuple[int | None, int | None]:
+    """Points that became active and inactive since ``previous`` (global counts)."""
+    if previous is None:
+        return None, None
+    on = comm.allreduce(int(np.count_nonzero(active & ~previous)), op=MPI.SUM)
+    off = comm.allreduce(int(np.count_nonzero(previous & ~active)), op=MPI.SUM)
+    return on, off
+
+
+def _cells_by_active_points(solver: NewtonSolver, active: np.ndarray, comm: MPI.Comm) -> list[int]:
+    """Entry ``k``: the cells with exactly ``k`` active penalty points, for ``k ≥ 1``
+    (entry 0, the cells without contact, is left at 0)."""
+    per_cell = solver.penalty.by_cell(active)
+    counts = np.bincount(per_cell.sum(axis=1), minlength=per_cell.shape[1] + 1)
+    counts[0] = 0
+    return [int(n) for n in comm.allreduce(counts, op=MPI.SUM)]
+
+
+def _contact_cell_gaps(
+    solver: NewtonSolver, problem: PenalizedProblem, comm: MPI.Comm
+) -> tuple[float, float]:
+    """Over the cells with an active point: the medians of ``max_k (−g_k)`` (the deepest
+    penetration, ≈ κλ) and of ``max_k |g_k − a(x_k)|`` with ``a`` the least-squares affine fit
+    of the gap at the cell's points (0 for the vertex rule; for Gauss points the curvature of
+    the gap within a cell, which P1 displacements cannot remove). NaN without contact."""
+    points, _ = penalty_rule(problem)
+    V = np.column_stack([np.ones(len(points)), points])
+    nonaffine = np.eye(len(points)) - V @ np.linalg.pinv(V)
+    g = solver.penalty.by_cell(solver.penalty_gaps)
+    g = g[(g < 0).any(axis=1)]
+    penetration = np.concatenate(comm.allgather(-g.min(axis=1)))
+    curvature = np.concatenate(comm.allgather(np.abs(g @ nonaffine.T).max(axis=1)))
+    if penetration.size == 0:
+        return float("nan"), float("nan")
+    return float(np.median(penetration)), float(np.median(curvature))
 
 
 def main() -> None:
@@ -56,6 +100,7 @@ def main() -> None:
         post = Postprocessor(problem)
         t_compile = time.perf_counter() - t0
         total = 0.0
+        previous = None
         for q in np.arange(0.5, args.qmax + 1e-9, 0.5):
             problem.set_kappa(h**q)
             t0 = time.perf_counter()
@@ -63,6 +108,10 @@ def main() -> None:
             seconds = time.perf_counter() - t0
             total += seconds
             c = post.contact()
+            active = solver.active_points
+            on, off = _switched(previous, active, comm)
+            previous = active
+            penetration, nonaffine = _contact_cell_gaps(solver, problem, comm)
             emit(
                 {
                     "quadrature": quadrature,
@@ -77,6 +126,12 @@ def main() -> None:
                     "linear_iterations": r.linear_iterations,
                     "contact_area": c["contact_area"],
                     "max_violation": c["max_violation"],
+                    "active_points": comm.allreduce(int(active.sum()), op=MPI.SUM),
+                    "switched_on": on,
+                    "switched_off": off,
+                    "cells_by_active_points": _cells_by_active_points(solver, active, comm),
+                    "contact_cells_penetration_median": penetration,
+                    "contact_cells_gap_nonaffine_median": nonaffine,
                 }
             )
         emit(

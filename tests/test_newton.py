@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+import basix
 import dolfinx
 import numpy as np
 import pytest
 from mpi4py import MPI
 
 from shellobstacle.config import PenaltySpec
+from shellobstacle.domains import mesh_size
 from shellobstacle.model import Load, Material, Shell
 from shellobstacle.pipeline import continuation, solve
 from shellobstacle.postprocess import Postprocessor, l2_norm
@@ -198,6 +200,43 @@ def test_a_seeded_direction_that_does_not_descend_is_replaced_by_the_newton_step
 def test_an_unknown_forcing_is_refused() -> None:
     with pytest.raises(ValueError, match="forcing"):
         NewtonOptions(forcing="exact")
+
+
+@pytest.mark.mpi
+def test_gauss_point_active_set_thins_out_once_kappa_passes_h_squared() -> None:
+    """With Gauss penalty points (6 per cell) a contact cell has all its points active while
+    the penetration (≈ κλ) exceeds the gap's curvature within a cell (O(h²), which P1
+    displacements cannot remove), and at most 3 once κ ≪ h²: the active set moves by a
+    structural amount between κ = h^1.5 and h^4, whatever the solver (docs/performance.md,
+    eighth session)."""
+    mesh = square(n=32)
+    h = mesh_size(mesh)
+    problem = PenalizedProblem(paper_shell(), mesh, Discretization(penalty_quadrature="gauss"))
+    solver = NewtonSolver(problem)
+    comm = mesh.comm
+
+    def contact_cells() -> tuple[np.ndarray, float, float]:
+        g = solver.penalty.by_cell(solver.penalty_gaps)
+        assert g.shape[1] == 6
+        active = solver.penalty.by_cell(solver.active_points)
+        counts = comm.allreduce(np.bincount(active.sum(axis=1), minlength=7), op=MPI.SUM)
+        g = g[(g < 0).any(axis=1)]
+        affine = np.column_stack([np.ones(6), basix.make_quadrature(basix.CellType.triangle, 4)[0]])
+        curved = np.abs(g - g @ np.linalg.pinv(affine).T @ affine.T).max(axis=1, initial=0.0)
+        return (
+            counts,
+            comm.allreduce(-g.min(initial=0.0), op=MPI.MAX),
+            comm.allreduce(curved.max(initial=0.0), op=MPI.MAX),
+        )
+
+    continuation(problem, solver, [h**0.5, h])
+    counts, penetration, curvature = contact_cells()
+    assert counts[1:6].sum() == 0 and counts[6] > 20  # every contact cell fully active
+    assert penetration > 10 * curvature
+    continuation(problem, solver, [h**1.5, h**2, h**3, h**4])
+    counts, penetration, curvature = contact_cells()
+    assert counts[4:].sum() == 0 and counts[1:4].sum() > 20  # at most 3 points per cell
+    assert penetration < curvature / 10
 
 
 @pytest.mark.mpi

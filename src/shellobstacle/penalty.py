@@ -30,19 +30,26 @@ from petsc4py import PETSc
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.problem import PenalizedProblem
 
-__all__ = ["QuadraturePenalty", "gap_scale", "penalty_hessian"]
+__all__ = ["QuadraturePenalty", "gap_scale", "penalty_hessian", "penalty_rule"]
 
 
-def _quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
-    """Scalar quadrature space whose points are those of the problem's penalty rule."""
+def penalty_rule(problem: PenalizedProblem) -> tuple[np.ndarray, np.ndarray]:
+    """The reference points and weights of the problem's penalty rule (MODEL.md §4): the
+    vertices with equal weights, or the Gauss rule of degree ``qdegree``."""
     cell = problem.mesh.basix_cell()
     if problem.disc.penalty_quadrature == "vertex":
         points = basix.geometry(cell)
         volume = basix.cell.volume(cell)
-        weights = np.full(points.shape[0], volume / points.shape[0])
-        element = basix.ufl.quadrature_element(cell, points=points, weights=weights)
-    else:
-        element = basix.ufl.quadrature_element(cell, degree=problem.disc.qdegree)
+        return points, np.full(points.shape[0], volume / points.shape[0])
+    return basix.make_quadrature(cell, problem.disc.qdegree)
+
+
+def _quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
+    """Scalar quadrature space whose points are those of the problem's penalty rule."""
+    points, weights = penalty_rule(problem)
+    element = basix.ufl.quadrature_element(
+        problem.mesh.basix_cell(), points=points, weights=weights
+    )
     return dolfinx.fem.functionspace(problem.mesh, element)
 
 
@@ -85,6 +92,13 @@ class QuadraturePenalty:
         return self.Q.dofmap.index_map.size_global
 
     # -- values at the points ----------------------------------------------------------------
+    def by_cell(self, values: np.ndarray) -> np.ndarray:
+        """Point values (owned points, local order) as rows of the owned cells: shape
+        ``(cells, points per cell)``, row ``c`` holding the values at cell ``c``'s points."""
+        Q = self.Q
+        cells = Q.mesh.topology.index_map(Q.mesh.topology.dim).size_local
+        return values[Q.dofmap.list[:cells]]
+
     def apply_B(self, x: PETSc.Vec) -> np.ndarray:
         """``B x`` at the owned points (``x`` a displacement vector)."""
         self.M.mult(x, self._work_q)

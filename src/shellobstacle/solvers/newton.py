@@ -302,6 +302,20 @@ class NewtonSolver:
         """The current penalty parameter."""
         return float(self.problem.kappa.value)
 
+    @property
+    def active_points(self) -> np.ndarray:
+        """The owned penalty points where the last iterate penetrates, ``g_k < 0`` (the
+        active set ``A`` of MODEL.md §5), as a boolean array in the quadrature space's local
+        order; empty before the first solve."""
+        return self._g < 0
+
+    @property
+    def penalty_gaps(self) -> np.ndarray:
+        """The gap ``g_k`` of the last iterate at the owned penalty points (read-only view)."""
+        view = self._g.view()
+        view.flags.writeable = False
+        return view
+
     # -- residual and Jacobian ----------------------------------------------------------------
     def _load(self) -> None:
         """``f ←`` the load vector (load parameters may have changed since the last solve)."""
