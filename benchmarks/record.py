@@ -57,7 +57,7 @@ def add_solver_arguments(ap: argparse.ArgumentParser) -> None:
     """The linear-solver choices shared by the benchmarks."""
     ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
     ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
-    ap.add_argument("--factorization", default="lu", choices=("lu", "cholesky"))
+    ap.add_argument("--factorization", default="cholesky", choices=("cholesky", "lu"))
     ap.add_argument(
         "--forcing",
         default="eisenstat-walker",

@@ -121,7 +121,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
             ("direct", "iterative"),
         ),
         "factorization": Key(
-            "str", "lu", "direct solver: LU, or Cholesky (half the memory)", ("lu", "cholesky")
+            "str",
+            "cholesky",
+            "direct solver: Cholesky (symmetric positive definite; half the memory of LU), or LU",
+            ("cholesky", "lu"),
         ),
         "contact_zone": Key(
             "bool",

@@ -67,9 +67,10 @@ class NewtonOptions:
         max_iterations: give up (and raise) after this many Newton steps.
         linear_solver: ``"direct"`` (MUMPS) or ``"iterative"`` (CG preconditioned by a
             symmetric block Gauss–Seidel split: GAMG on ζ_α, Jacobi on ζ_3).
-        factorization: of the direct solver: ``"lu"`` or ``"cholesky"`` (the Jacobian is
-            symmetric positive definite; half the memory for the factors, measured not
-            faster with MUMPS).
+        factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ for symmetric
+            positive definite matrices, which K_II and the Jacobian are: half the factors'
+            memory; docs/performance.md measured it 10 % faster than LU on one machine and up
+            to 1.5× slower on others) or ``"lu"``.
         linear_rtol: relative tolerance of the iterative linear solver (its smallest one with
             ``forcing = "eisenstat-walker"``), and of the conjugate gradients that reuse a
             factorization.
@@ -129,7 +130,7 @@ class NewtonOptions:
     linear_solver: str = "direct"
     linear_rtol: float = 1e-12
     forcing: str = "eisenstat-walker"
-    factorization: str = "lu"
+    factorization: str = "cholesky"
     reuse_factorization: bool = True
     reuse_max_iterations: int = 15
     contact_zone: bool = True
