@@ -69,8 +69,8 @@ class NewtonOptions:
             symmetric block Gauss–Seidel split: GAMG on ζ_α, Jacobi on ζ_3).
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ for symmetric
             positive definite matrices, which K_II and the Jacobian are: half the factors'
-            memory; docs/performance.md measured it 10 % faster than LU on one machine and up
-            to 1.5× slower on others) or ``"lu"``.
+            memory; docs/performance.md measured a continuation 7–10 % faster than with LU
+            on one machine and 14–19 % slower on others) or ``"lu"``.
         linear_rtol: relative tolerance of the iterative linear solver (its smallest one with
             ``forcing = "eisenstat-walker"``), and of the conjugate gradients that reuse a
             factorization.
