@@ -197,6 +197,35 @@ def test_a_seeded_direction_that_does_not_descend_is_replaced_by_the_newton_step
     assert np.linalg.norm(z_seeded - z_plain) <= 1e-10 * np.linalg.norm(z_plain)
 
 
+def test_the_iterative_solvers_jacobian_is_updated_by_the_changed_points() -> None:
+    """At one κ the iterative solver updates its Jacobian by the points that changed activity;
+    the result is K + P_A of the last active set to round-off."""
+    from petsc4py import PETSc
+
+    from shellobstacle.penalty import penalty_hessian
+
+    problem = PenalizedProblem(paper_shell(), square(n=16))
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))
+    changed = []
+    update = solver._update_jacobian
+
+    def counting(held: np.ndarray, active: np.ndarray) -> None:
+        changed.append(int(np.count_nonzero(held != active)))
+        update(held, active)
+
+    solver._update_jacobian = counting
+    problem.set_kappa(1e-3)
+    result = solver.solve()
+    assert result.converged and result.iterations >= 3
+    assert len(changed) >= 2 and max(changed) > 0  # updates that changed something
+    kappa, held = solver._jacobian_held
+    fresh = solver.K.duplicate(copy=True)
+    P = penalty_hessian(solver.penalty.M, solver.penalty.D, np.flatnonzero(held), kappa)
+    fresh.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+    fresh.axpy(-1.0, solver.A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+    assert fresh.norm() <= 1e-13 * solver.A.norm()
+
+
 def test_an_unknown_forcing_is_refused() -> None:
     with pytest.raises(ValueError, match="forcing"):
         NewtonOptions(forcing="exact")

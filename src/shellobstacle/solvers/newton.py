@@ -35,7 +35,7 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 from shellobstacle import compat  # noqa: F401
-from shellobstacle.penalty import QuadraturePenalty
+from shellobstacle.penalty import QuadraturePenalty, penalty_hessian
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.coarse_space import CoarseSpace
 from shellobstacle.solvers.contact_zone import ContactZone, zone_available
@@ -297,6 +297,8 @@ class NewtonSolver:
         self._reuse_failures = 0
         self._g = np.zeros(0)  # gap at the quadrature points of the current iterate
         self._factored_active = np.zeros(0, dtype=bool)  # active points of the factorization
+        # (κ, active points) of the penalty part that A holds (iterative solver: updated)
+        self._jacobian_held: tuple[float, np.ndarray] | None = None
 
     @property
     def kappa(self) -> float:
@@ -339,7 +341,33 @@ class NewtonSolver:
 
     def _jacobian(self, g: np.ndarray | None = None) -> None:
         """``A ← K + (1/κ) M_Aᵀ diag(1/D_A) M_A`` at the active points ``A`` of ``g`` (default:
-        the current gaps)."""
+        the current gaps).
+
+        With the iterative solver, a Jacobian at the same κ is updated by the points that
+        changed activity only, ``A ← A + P_on − P_off`` (a few percent of the active points
+        after a κ's first step; the result differs from a new sum in round-off only).
+        """
+        active = (self._g if g is None else g) < 0
+        held, self._jacobian_held = self._jacobian_held, None
+        if held is not None and held[0] == self.kappa and self.A is not None:
+            self._update_jacobian(held[1], active)
+        else:
+            self._new_jacobian(active)
+        if self.options.linear_solver == "iterative":
+            self._jacobian_held = (self.kappa, active)
+
+    def _update_jacobian(self, held: np.ndarray, active: np.ndarray) -> None:
+        """``A ← A + (1/κ)(M_onᵀ W M_on − M_offᵀ W M_off)`` from the active set ``held``."""
+        comm = self.problem.mesh.comm
+        for points, sign in ((active & ~held, 1.0), (held & ~active, -1.0)):
+            rows = np.flatnonzero(points)
+            if comm.allreduce(rows.size):
+                P = penalty_hessian(self.penalty.M, self.penalty.D, rows, self.kappa)
+                self.A.axpy(sign, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+                P.destroy()
+
+    def _new_jacobian(self, active: np.ndarray) -> None:
+        """``A ← K + P_A`` for the active points ``active`` (a mask of the owned points)."""
         if self.A is None:
             self.A = self.K.duplicate(copy=True)
             opts = self.options
@@ -352,7 +380,7 @@ class NewtonSolver:
             self.ksp.setOperators(self.A)
         else:
             self.K.copy(self.A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        P = self.penalty.jacobian(self._g if g is None else g, self.kappa)
+        P = self.penalty.jacobian(np.where(active, -1.0, 1.0), self.kappa)
         if P is not None:
             self.A.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
             P.destroy()
