@@ -168,6 +168,7 @@ def run_penalty(
                     "reached tol": s.reached_tol,
                     "rate vs κ": s.decay_rate(),
                     "Newton per κ": s.mean_newton(),
+                    "Newton steps": "/".join(str(r["newton"]) for r in s.solves),
                     "seconds": s.seconds,
                 }
             )
@@ -187,7 +188,11 @@ def run_penalty(
         _table(summary, list(summary[0])),
         "",
         "`rate vs κ` is the fitted slope of log(error_VM) against log κ_n; `Newton per κ` "
-        "the mean Newton steps per κ after the first (warm starts).",
+        "the mean Newton steps per κ after the first (warm starts), `Newton steps` those of "
+        "every κ. With Gauss points the κ near h² takes more: there the penetration (≈ κλ) "
+        "falls to the gap's curvature within a cell and the active set thins from six to at "
+        "most three points per contact cell (docs/performance.md, eighth session); the "
+        "vertex penalty's active set does not move.",
         "",
     ]
     return "\n".join(text)
