@@ -219,17 +219,23 @@ def test_newton_on_the_zone_problem_solves_the_whole_problem() -> None:
 
 
 def test_the_euler_predictor_is_off_for_zone_steps_by_default() -> None:
-    """NewtonOptions.euler_predictor = None: no prediction with steps on the zone (ζ is left
-    as it is), a prediction with the iterative solver."""
-    problem, solver, _ = solved(NewtonOptions())
-    zeta0 = problem.zeta.x.array.copy()
-    assert not solver.predicts
-    assert not solver.predict(solver.kappa / 10)
-    assert np.array_equal(problem.zeta.x.array, zeta0)
-    problem, solver, _ = solved(NewtonOptions(linear_solver="iterative"))
-    zeta0 = problem.zeta.x.array.copy()
-    assert solver.predicts and solver.predict(solver.kappa / 10)
-    assert not np.array_equal(problem.zeta.x.array, zeta0)
+    """NewtonOptions.euler_predictor = None: no prediction with steps on the zone or with the
+    iterative solver (ζ is left as it is), a prediction with the direct solver without a zone
+    and whenever it is asked for."""
+    for options in (NewtonOptions(), NewtonOptions(linear_solver="iterative")):
+        problem, solver, _ = solved(options)
+        zeta0 = problem.zeta.x.array.copy()
+        assert not solver.predicts
+        assert not solver.predict(solver.kappa / 10)
+        assert np.array_equal(problem.zeta.x.array, zeta0)
+    for options in (
+        NewtonOptions(contact_zone=False),
+        NewtonOptions(linear_solver="iterative", euler_predictor=True),
+    ):
+        problem, solver, _ = solved(options)
+        zeta0 = problem.zeta.x.array.copy()
+        assert solver.predicts and solver.predict(solver.kappa / 10)
+        assert not np.array_equal(problem.zeta.x.array, zeta0)
 
 
 @pytest.mark.mpi

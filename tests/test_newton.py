@@ -14,7 +14,12 @@ from shellobstacle.model import Load, Material, Shell
 from shellobstacle.pipeline import continuation, solve
 from shellobstacle.postprocess import Postprocessor, l2_norm
 from shellobstacle.problem import Discretization, PenalizedProblem
-from shellobstacle.solvers.newton import ConvergenceError, NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton import (
+    WARM_FORCING,
+    ConvergenceError,
+    NewtonOptions,
+    NewtonSolver,
+)
 from shellobstacle.surface import Surface
 
 PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
@@ -122,7 +127,8 @@ def test_iterative_matches_direct() -> None:
 
 def test_inexact_newton_needs_fewer_cg_iterations_for_the_same_solution() -> None:
     """Eisenstat–Walker forcing: the solution of every κ as with CG solved to 1e-12 at each
-    Newton step, for fewer CG iterations in all; every tolerance asked is in [1e-12, 0.1]."""
+    Newton step, for fewer CG iterations in all; every tolerance asked is in [1e-12, 0.1], the
+    first of the cold start 0.1 and the first of every warm-started κ WARM_FORCING."""
     mesh = square(n=16)
     kappas = [1e-1, 1e-2, 1e-3, 1e-4]
     solutions, totals, etas = [], [], []
@@ -130,15 +136,20 @@ def test_inexact_newton_needs_fewer_cg_iterations_for_the_same_solution() -> Non
         problem = PenalizedProblem(paper_shell(), mesh)
         solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative", forcing=forcing))
         asked: list[float] = []
+        firsts: list[float] = []  # the η of each solve's first step
         forcing_term = solver._forcing
 
-        def record(*args, _asked=asked, _forcing=forcing_term) -> float:
-            _asked.append(_forcing(*args))
+        def record(norms, target, _asked=asked, _firsts=firsts, _forcing=forcing_term) -> float:
+            _asked.append(_forcing(norms, target))
+            if len(norms) == 1:
+                _firsts.append(_asked[-1])
             return _asked[-1]
 
         solver._forcing = record
         steps = continuation(problem, solver, kappas)
         assert all(s.newton.converged for s in steps)
+        if forcing == "eisenstat-walker":
+            assert firsts == [0.1] + [WARM_FORCING] * (len(kappas) - 1)
         solutions.append(problem.zeta.x.array.copy())
         totals.append(sum(sum(s.newton.linear_iterations) for s in steps))
         etas.append(asked)

@@ -50,6 +50,12 @@ __all__ = ["ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
 # with 1e-2 as with 1e-6 (one fewer at one κ), the predictor 3.3× cheaper.
 PREDICTOR_RTOL = 1e-2
 
+# The iterative solver's first forcing term from an iterate with contact (a continuation's next
+# κ starts from the previous solution). Measured on the paper's problem (docs/performance.md,
+# eighth session): 1e-4 gave 9/4/3 Newton steps at 326k and 11/5/2 at 1.92 M (1e-3: 9/4/4,
+# 1e-2: 9/5/6, 0.1 with the Euler predictor: 9/7/5 and 11/8/8).
+WARM_FORCING = 1e-4
+
 
 @dataclass(frozen=True)
 class NewtonOptions:
@@ -80,7 +86,12 @@ class NewtonOptions:
             17, 1996): ``η_k = 0.9 (‖R_k‖ / ‖R_{k−1}‖)²``, safeguarded, at most 0.1, and never
             below ``linear_rtol`` nor below what Newton's stopping test can still see (half the
             stopping threshold over ``‖R_k‖``); the solution is the same, the CG iterations of
-            the early steps far fewer. ``"fixed"``: ``linear_rtol`` at every step.
+            the early steps far fewer. A solve that starts from an iterate with contact (a
+            continuation's next κ) takes its first step with ``η_0 = WARM_FORCING`` (1e-4)
+            instead of 0.1: from the previous solution the exact Newton steps converge in 2–4
+            steps, as the direct solver's do, while a loose first step sets off a string of
+            inexact ones (1.92 M on 2 ranks: 11/8/8 → 11/5/2 Newton steps, 181 → 186 CG
+            iterations, 21 % less time). ``"fixed"``: ``linear_rtol`` at every step.
         reuse_factorization: with the direct solver, keep one factorization per κ and solve
             later Newton steps at that κ by conjugate gradients preconditioned with it (with
             ``zone_newton``: the factorization of the zone's Schur complement ``S``).
@@ -112,14 +123,15 @@ class NewtonOptions:
             active points are where the coarse-grid approximation of the step penetrates
             (:meth:`NewtonSolver._active_seed`).
         euler_predictor: whether :meth:`NewtonSolver.predict` moves ζ along dζ/dκ before a
-            new κ (the continuation's warm start). ``None``: where it was measured to pay —
-            with the iterative solver and the direct solver without ``zone_newton`` — and not
-            with steps on the contact zone, whose Newton steps from the previous solution are
-            fewer than from the Euler prediction on the paper's problem (κ = h^0.5, h, h^1.5:
-            6/2/2, 5/3/2, 7/3/3, 8/3/2, 9/4/2 instead of 6/3/3, 5/2/3, 7/4/5, 8/6/4, 9/7/6
-            from 7k to 1.92 M dofs; the iterative solver the other way, 9/7/5 instead of
-            9/10/8 at 326k). On the unit square of the tests, κ falling 10× or √10× per
-            step, the zone's predictor saved a step or two instead (``True`` to use it).
+            new κ (the continuation's warm start). ``None``: only with the direct solver
+            without ``zone_newton``. Not with steps on the contact zone, whose Newton steps
+            from the previous solution are fewer than from the Euler prediction on the paper's
+            problem (κ = h^0.5, h, h^1.5: 6/2/2, 5/3/2, 7/3/3, 8/3/2, 9/4/2 instead of 6/3/3,
+            5/2/3, 7/4/5, 8/6/4, 9/7/6 from 7k to 1.92 M dofs), nor with the iterative solver
+            since its warm first step is solved tightly (``forcing``): 9/4/3 from the previous
+            solution at 326k against 9/7/5 from the prediction. On the unit square of the
+            tests, κ falling 10× or √10× per step, the zone's predictor saved a step or two
+            instead (``True`` to use it).
     """
 
     rtol: float = 1e-10
@@ -473,7 +485,8 @@ class NewtonSolver:
 
         Eisenstat–Walker choice 2, ``η_k = γ (‖R_k‖/‖R_{k−1}‖)^α`` with ``γ = 0.9``, ``α = 2``,
         kept above ``γ η_{k−1}^α`` when that exceeds 0.1 (no sudden drop), at most
-        ``η_max = 0.1`` (also the first ``η``), at least ``target / (2 ‖R_k‖)`` (a linear
+        ``η_max = 0.1`` (also the first ``η`` of a cold start; ``WARM_FORCING`` for the first
+        step from an iterate with contact), at least ``target / (2 ‖R_k‖)`` (a linear
         residual below half the stopping threshold is invisible to Newton's test) and at least
         ``linear_rtol``.
         """
@@ -482,6 +495,8 @@ class NewtonSolver:
             return opts.linear_rtol
         gamma, alpha, eta_max = 0.9, 2.0, 0.1
         eta = eta_max
+        if len(norms) == 1 and self._contact():
+            eta = WARM_FORCING
         if len(norms) >= 2 and self._eta is not None and norms[-2] > 0.0:
             eta = gamma * (norms[-1] / norms[-2]) ** alpha
             previous = gamma * self._eta**alpha
@@ -492,6 +507,10 @@ class NewtonSolver:
             eta = max(eta, 0.5 * target / norms[-1])
         self._eta = min(max(eta, opts.linear_rtol), eta_max)
         return self._eta
+
+    def _contact(self) -> bool:
+        """Whether the current iterate penetrates anywhere (collective)."""
+        return self.problem.mesh.comm.allreduce(bool((self._g < 0).any()), op=MPI.LOR)
 
     def _solve_direction(self, b: PETSc.Vec) -> None:
         """``δ ← A⁻¹ b`` by the KSP; with the iterative solver GAMG on ζ_α is built at a
@@ -541,7 +560,9 @@ class NewtonSolver:
     def predicts(self) -> bool:
         """Whether :meth:`predict` is on (``NewtonOptions.euler_predictor``)."""
         choice = self.options.euler_predictor
-        return not self.reduced if choice is None else choice
+        if choice is None:
+            return self.options.linear_solver == "direct" and not self.reduced
+        return choice
 
     def predict(self, kappa_new: float) -> bool:
         """Euler predictor along κ: ``ζ ← ζ + (κ_new − κ) dζ/dκ`` with ``J dζ/dκ = −∂R/∂κ``.
