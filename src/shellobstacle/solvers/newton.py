@@ -375,23 +375,27 @@ class NewtonSolver:
         after a κ's first step; the result differs from a new sum in round-off only).
         """
         active = (self._g if g is None else g) < 0
-        held, self._jacobian_held = self._jacobian_held, None
+        held = self._jacobian_held
         if held is not None and held[0] == self.kappa and self.A is not None:
             self._update_jacobian(held[1], active)
         else:
             self._new_jacobian(active)
-        if self.options.linear_solver == "iterative":
-            self._jacobian_held = (self.kappa, active)
+        iterative = self.options.linear_solver == "iterative"
+        self._jacobian_held = (self.kappa, active) if iterative else None
 
     def _update_jacobian(self, held: np.ndarray, active: np.ndarray) -> None:
         """``A ← A + (1/κ)(M_onᵀ W M_on − M_offᵀ W M_off)`` from the active set ``held``."""
-        comm = self.problem.mesh.comm
-        for points, sign in ((active & ~held, 1.0), (held & ~active, -1.0)):
-            rows = np.flatnonzero(points)
-            if comm.allreduce(rows.size):
-                P = penalty_hessian(self.penalty.M, self.penalty.D, rows, self.kappa)
-                self.A.axpy(sign, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-                P.destroy()
+        self._add_penalty_hessian(active & ~held, 1.0)
+        self._add_penalty_hessian(held & ~active, -1.0)
+
+    def _add_penalty_hessian(self, points: np.ndarray, sign: float) -> None:
+        """``A ← A + sign (1/κ) M_Pᵀ diag(1/D_P) M_P`` for the owned points ``P`` where
+        ``points`` holds (nothing where ``P`` is empty on every rank)."""
+        rows = np.flatnonzero(points)
+        if self.problem.mesh.comm.allreduce(rows.size):
+            P = penalty_hessian(self.penalty.M, self.penalty.D, rows, self.kappa)
+            self.A.axpy(sign, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            P.destroy()
 
     def _new_jacobian(self, active: np.ndarray) -> None:
         """``A ← K + P_A`` for the active points ``active`` (a mask of the owned points)."""
@@ -407,10 +411,7 @@ class NewtonSolver:
             self.ksp.setOperators(self.A)
         else:
             self.K.copy(self.A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        P = self.penalty.jacobian(np.where(active, -1.0, 1.0), self.kappa)
-        if P is not None:
-            self.A.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-            P.destroy()
+        self._add_penalty_hessian(active, 1.0)
 
     def _factorize(self) -> None:
         """Factorize the current Jacobian (kept for the later steps of this solve)."""
@@ -671,7 +672,7 @@ class NewtonSolver:
         if opts.linear_solver != "iterative" or not opts.seed_active:
             return None
         comm = self.problem.mesh.comm
-        if comm.allreduce(bool((self._g < 0).any()), op=MPI.LOR):
+        if self._contact():
             return None
         hint = self._coarse_hint()
         if not comm.allreduce(bool(hint.any()), op=MPI.LOR):
