@@ -259,11 +259,37 @@ def test_large_meshes_are_refined_coarse_gmsh_meshes(spec: DomainSpec):
     assert domain_area(refined) == pytest.approx(domain_area(direct), rel=2e-4)
 
 
-def _global_nodes(mesh) -> np.ndarray:
-    """All mesh nodes (owned ones gathered from every rank), sorted lexicographically."""
-    x = mesh.geometry.x[: mesh.geometry.index_map().size_local, :2]
-    x = np.vstack(COMM.allgather(x))
-    return x[np.lexsort((x[:, 1], x[:, 0]))]
+def _global_cells(mesh) -> np.ndarray:
+    """Every cell as its three node coordinates (sorted), gathered from all ranks, sorted."""
+    n = mesh.topology.index_map(2).size_local
+    x = mesh.geometry.x[mesh.geometry.dofmaps[0][:n], :2]  # (cells, 3 nodes, 2)
+    return _sorted_cells(np.concatenate(COMM.allgather(x)))
+
+
+def _sorted_cells(x: np.ndarray) -> np.ndarray:
+    """Cells ``(m, 3, 2)`` with their nodes and then the cells in lexicographic order."""
+    x = np.take_along_axis(x, np.lexsort((x[:, :, 1], x[:, :, 0]), axis=1)[:, :, None], axis=1)
+    flat = x.reshape(len(x), 6)
+    return flat[np.lexsort(flat.T[::-1])]
+
+
+def _red_refinement_of_arrays(x: np.ndarray, cells: np.ndarray, spec: DomainSpec):
+    """Reference: one red refinement of a triangle list (edge midpoints, four children per
+    cell), the midpoints of boundary edges moved radially onto the disk's or ellipse's curve."""
+    pairs = np.sort(cells[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    edges, inverse, count = np.unique(pairs, axis=0, return_inverse=True, return_counts=True)
+    mid = 0.5 * (x[edges[:, 0]] + x[edges[:, 1]])
+    if spec.kind in ("disk", "ellipse"):
+        on_boundary = count == 1
+        c = np.asarray(spec.center)
+        a, b = (spec.radius, spec.radius) if spec.kind == "disk" else spec.semi_axes
+        d = mid[on_boundary] - c
+        mid[on_boundary] = c + d / np.hypot(d[:, 0] / a, d[:, 1] / b)[:, None]
+    m = len(x) + inverse.reshape(-1, 3)  # midpoints of the edges 01, 12, 20
+    v0, v1, v2 = cells.T
+    children = [(v0, m[:, 0], m[:, 2]), (m[:, 0], v1, m[:, 1]), (m[:, 2], m[:, 1], v2)]
+    fine = np.vstack([np.column_stack(c) for c in children] + [m])
+    return np.vstack([x, mid]), fine
 
 
 @pytest.mark.mpi
@@ -276,30 +302,25 @@ def _global_nodes(mesh) -> np.ndarray:
     ],
     ids=["disk", "ellipse", "polygon"],
 )
-def test_coarse_gmsh_mesh_refined_on_rank_0_is_the_refined_coarse_mesh(spec: DomainSpec):
-    """gmsh at 4h refined twice on rank 0 = the gmsh 4h mesh refined twice by DOLFINx (in
-    parallel), with the new boundary vertices moved radially onto the curve."""
+def test_large_mesh_is_the_coarse_gmsh_mesh_refined_twice(spec: DomainSpec):
+    """gmsh at 4h, distributed and refined twice in parallel = the same gmsh triangles refined
+    twice as arrays on one rank, new boundary nodes moved radially onto the curve: the same
+    cells, node for node."""
     import dataclasses
 
-    coarse = create_mesh(dataclasses.replace(spec, h=4 * spec.h, gmsh_max_vertices=0))
-    n_coarse = coarse.topology.index_map(0).size_global
-    refined = create_mesh(dataclasses.replace(spec, gmsh_max_vertices=2 * n_coarse))  # k = 2
-    expected = _onto_curve(refine_uniformly(_onto_curve(refine_uniformly(coarse), spec)), spec)
-    assert num_cells_global(refined) == num_cells_global(expected) == 16 * num_cells_global(coarse)
-    assert np.abs(_global_nodes(refined) - _global_nodes(expected)).max() < 1e-14
+    from shellobstacle import domains
 
-
-def _onto_curve(mesh, spec: DomainSpec):
-    """Move the boundary nodes of a disk or ellipse mesh radially onto the curve (in place)."""
-    if spec.kind in ("disk", "ellipse"):
-        import dolfinx
-
-        nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, 1, boundary_facets(mesh)))
-        c = np.asarray(spec.center)
-        a, b = (spec.radius, spec.radius) if spec.kind == "disk" else spec.semi_axes
-        d = mesh.geometry.x[nodes, :2] - c
-        mesh.geometry.x[nodes, :2] = c + d / np.hypot(d[:, 0] / a, d[:, 1] / b)[:, None]
-    return mesh
+    coarse_spec = dataclasses.replace(spec, h=4 * spec.h, gmsh_max_vertices=0)
+    with domains._gmsh_model("reference", domains._gmsh_options(coarse_spec)) as model:
+        domains._build_model(model, coarse_spec)
+        x, cells = domains._gmsh_triangles(model)
+    for _ in range(2):
+        x, cells = _red_refinement_of_arrays(x, cells, spec)
+    expected = _sorted_cells(x[cells])
+    refined = create_mesh(dataclasses.replace(spec, gmsh_max_vertices=2 * len(x) // 16))  # k = 2
+    got = _global_cells(refined)
+    assert got.shape == expected.shape == (16 * num_cells_global(create_mesh(coarse_spec)), 6)
+    assert np.abs(got - expected).max() < 1e-15
 
 
 def test_gmsh_max_vertices_must_not_be_negative():

@@ -78,7 +78,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
         "central_radius": Key("float", OPTIONAL, "disk/ellipse: radius of the finer region"),
         "gmsh_max_vertices": Key(
-            "int", 30_000, "above this, gmsh meshes coarser and the mesh is refined (0: never)"
+            "int", 8_000, "above this, gmsh meshes coarser and the mesh is refined (0: never)"
         ),
     },
     "material": {
