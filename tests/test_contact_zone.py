@@ -257,3 +257,68 @@ def test_the_zone_predictor_is_the_euler_step() -> None:
     step.scale(1.0 / (kappa / 10 - kappa))
     step.axpy(-1.0, expected)
     assert step.norm() <= 1e-8 * expected.norm()
+
+
+def _laplacian_with_dense_block(n: int, dense: np.ndarray) -> PETSc.Mat:
+    """A sequential SPD matrix like the zone's ``S``: the 5-point grid Laplacian on n × n
+    points plus a dense positive semidefinite block (all entries 1/|dense|) on ``dense``."""
+    m = n * n
+    block = np.zeros(m, dtype=bool)
+    block[dense] = True
+    rows = []
+    for i in range(m):
+        cols = {i} | {j for j, ok in ((i - 1, i % n), (i + 1, (i + 1) % n), (i - n, i >= n),
+                                      (i + n, i < m - n)) if ok}  # fmt: skip
+        if block[i]:
+            cols |= set(dense.tolist())
+        rows.append(sorted(cols))
+    indptr = np.concatenate([[0], np.cumsum([len(r) for r in rows])]).astype(PETSc.IntType)
+    indices = np.concatenate(rows).astype(PETSc.IntType)
+    i_of = np.repeat(np.arange(m), np.diff(indptr))
+    values = np.where(i_of == indices, 4.0, 0.0) - np.where(
+        (np.abs(i_of - indices) == 1) | (np.abs(i_of - indices) == n), 1.0, 0.0
+    )
+    values += np.where(block[i_of] & block[indices], 1.0 / dense.size, 0.0)
+    return PETSc.Mat().createAIJ((m, m), csr=(indptr, indices, values), comm=PETSc.COMM_SELF)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("factorization", ["cholesky", "lu"])
+def test_the_replicated_schur_factor_solves_on_all_ranks_together(factorization: str) -> None:
+    """S (held whole by every rank) factorized by all ranks together: the solution of S x = b
+    is the sequential one to round-off and bitwise the same on every rank."""
+    from mpi4py import MPI
+
+    from shellobstacle.solvers.contact_zone import _ReplicatedFactor
+
+    comm = MPI.COMM_WORLD
+    S = _laplacian_with_dense_block(30, np.arange(0, 900, 7))
+    factor = _ReplicatedFactor(comm, S, factorization, {7: 2})
+    assert factor.parallel == (comm.size > 1)
+    b = S.createVecLeft()
+    b.array[:] = np.sin(np.arange(b.getSize()))
+    x = b.duplicate()
+    for scale in (1.0, 2.0):  # a second factorization of new values, same pattern
+        S.scale(scale)
+        factor.factorize(S)
+        factor.solve(b, x)
+        reference = lu_solve(S, b)
+        assert np.abs(x.array - reference.array).max() < 1e-12 * np.abs(reference.array).max()
+        everywhere = comm.allgather(x.array.copy())
+        assert all(np.array_equal(everywhere[0], xr) for xr in everywhere)
+    factor.destroy()
+
+
+def test_a_failed_factorization_raises_a_clear_error() -> None:
+    """MUMPS' failure (here: a singular matrix) raises, naming the matrix and INFOG(1)."""
+    from shellobstacle.solvers.contact_zone import _lu, _set_up
+
+    A = _laplacian_with_dense_block(6, np.arange(3))
+    A.zeroEntries()
+    A.assemble()
+    ksp = _lu(PETSc.COMM_SELF, A, "lu")
+    with pytest.raises(
+        RuntimeError, match=r"could not factorize the test matrix: INFOG\(1\) = -10"
+    ):
+        _set_up(ksp, "the test matrix")
+    ksp.destroy()

@@ -88,11 +88,11 @@ def zone_available(comm: MPI.Comm) -> bool:
 
 
 def _lu(
-    comm: PETSc.Comm, A: PETSc.Mat, factorization: str = "lu", ordering: int | None = None
+    comm: PETSc.Comm, A: PETSc.Mat, factorization: str = "lu", icntl: dict[int, int] | None = None
 ) -> PETSc.KSP:
     """A MUMPS ``factorization`` (lu or cholesky) solver for ``A``, made at its first set-up.
 
-    ``ordering``: MUMPS' ICNTL(7) (default: its own choice).
+    ``icntl``: MUMPS controls, e.g. ``{7: 2}`` for its ordering (default: its own choices).
     """
     ksp = PETSc.KSP().create(comm)
     ksp.setOptionsPrefix(unique_prefix("zone"))
@@ -103,11 +103,46 @@ def _lu(
         A.setOption(PETSc.Mat.Option.SPD, True)
     pc.setType(factorization)
     pc.setFactorSolverType("mumps")
-    if ordering is not None:
-        pc.setFactorSetUpSolverType()
-        pc.getFactorMatrix().setMumpsIcntl(7, ordering)
+    _controls(pc, icntl)
     ksp.setFromOptions()
     return ksp
+
+
+def _controls(pc: PETSc.PC, icntl: dict[int, int] | None) -> None:
+    """Set MUMPS controls on the factor matrix ``pc`` is about to make."""
+    if icntl:
+        pc.setFactorSetUpSolverType()
+        F = pc.getFactorMatrix()
+        for key, value in icntl.items():
+            F.setMumpsIcntl(key, value)
+
+
+def _set_up(ksp: PETSc.KSP, what: str, attempts: int = 3) -> None:
+    """``ksp.setUp()`` for a MUMPS factorization of ``what``, made to succeed or raise.
+
+    MUMPS sizes its working space by the analysis' estimate plus ICNTL(14) percent, and the
+    estimate can be short for a distributed dense front (the zone's ``S`` at 1.92 M dofs on 2
+    ranks: INFOG(1) = −9 with MUMPS' 20 %, measured). On INFOG(1) = −8 or −9 the analysis and
+    factorization are made again with ICNTL(14) doubled, up to ``attempts`` times (setting it
+    on the existing factor does not take: measured); any other failure raises.
+    """
+    pc = ksp.getPC()
+    for attempt in range(attempts + 1):
+        ksp.setUp()
+        if pc.getFailedReason() == 0:
+            return
+        F = pc.getFactorMatrix()
+        info, icntl = F.getMumpsInfog(1), {key: F.getMumpsIcntl(key) for key in (7, 14)}
+        if info not in (-8, -9) or attempt == attempts:
+            raise RuntimeError(
+                f"MUMPS could not factorize {what}: INFOG(1) = {info}, INFOG(2) = "
+                f"{F.getMumpsInfog(2)} with ICNTL(14) = {icntl[14]} (MUMPS manual, section 8)"
+            )
+        icntl[14] = max(2 * icntl[14], 20)
+        A, P = pc.getOperators()
+        pc.reset()
+        ksp.setOperators(A, P)
+        _controls(pc, icntl)
 
 
 def _unique(a: np.ndarray) -> np.ndarray:
@@ -143,11 +178,71 @@ def _columns(csr: tuple[np.ndarray, np.ndarray], rows: np.ndarray) -> np.ndarray
 class _Preconditioner:
     """A PETSc ``python`` preconditioner that solves with a kept factorization."""
 
-    def __init__(self, ksp: PETSc.KSP) -> None:
-        self.ksp = ksp
+    def __init__(self, factor: _ReplicatedFactor) -> None:
+        self.factor = factor
 
     def apply(self, pc: PETSc.PC, x: PETSc.Vec, y: PETSc.Vec) -> None:
-        self.ksp.solve(x, y)
+        self.factor.solve(x, y)
+
+
+class _ReplicatedFactor:
+    """A MUMPS factorization of a sequential matrix that every rank holds whole (``S``).
+
+    Serially the matrix is factorized as it is. On several ranks a distributed copy (rows in
+    contiguous blocks, the same pattern) is factorized by MUMPS on all ranks together instead
+    of the whole matrix on each of them; :meth:`solve` takes and returns sequential vectors
+    that are the same on every rank. ``icntl``: MUMPS controls (:func:`_lu`).
+    """
+
+    def __init__(
+        self, comm: MPI.Comm, A: PETSc.Mat, factorization: str, icntl: dict[int, int]
+    ) -> None:
+        self.parallel = comm.size > 1
+        if not self.parallel:
+            self.ksp = _lu(PETSc.COMM_SELF, A, factorization, icntl)
+            return
+        m = A.getSize()[0]
+        self.lo, self.hi = (m * comm.rank) // comm.size, (m * (comm.rank + 1)) // comm.size
+        ip, ix, _ = A.getValuesCSR()
+        self._values = slice(int(ip[self.lo]), int(ip[self.hi]))
+        self._csr = (ip[self.lo : self.hi + 1] - ip[self.lo], ix[self._values])
+        n = self.hi - self.lo
+        self.D = PETSc.Mat().createAIJ(
+            ((n, m), (n, m)), csr=(*self._csr, np.zeros(self._csr[1].size)), comm=comm
+        )
+        # MUMPS' working space estimate falls short for S's dense front split over the ranks
+        # (1.92 M dofs, 2 ranks: INFOG(1) = −9 with its 20 %, fine with 40 %; _set_up would
+        # retry): 50 % more from the start, no measurable change of the peak memory
+        self.ksp = _lu(self.D.getComm(), self.D, factorization, {**icntl, 14: 50})
+        self.b, self.x = self.D.createVecRight(), self.D.createVecLeft()
+        self.to_all, self.x_all = PETSc.Scatter.toAll(self.x)
+
+    def factorize(self, A: PETSc.Mat) -> None:
+        """Factorize ``A`` (the pattern given at construction)."""
+        if self.parallel:
+            _, _, values = A.getValuesCSR()
+            self.D.setValuesCSR(*self._csr, values[self._values])
+            self.D.assemble()
+            self.ksp.setOperators(self.D)
+        else:
+            self.ksp.setOperators(A)
+        _set_up(self.ksp, "the contact zone's Schur complement S")
+
+    def solve(self, b: PETSc.Vec, x: PETSc.Vec) -> None:
+        """``x ← A⁻¹ b`` (sequential vectors, the same on every rank)."""
+        if not self.parallel:
+            self.ksp.solve(b, x)
+            return
+        self.b.array[:] = b.array_r[self.lo : self.hi]
+        self.ksp.solve(self.b, self.x)
+        self.to_all.scatter(self.x, self.x_all, PETSc.InsertMode.INSERT)
+        self.x_all.copy(x)
+
+    def destroy(self) -> None:
+        self.ksp.destroy()
+        if self.parallel:
+            for obj in (self.D, self.b, self.x, self.to_all, self.x_all):
+                obj.destroy()
 
 
 class ContactZone:
@@ -305,7 +400,7 @@ class ContactZone:
         KII = K.createSubMatrix(self.isI, self.isI)
         t0 = time.perf_counter()
         ksp = _lu(petsc_comm, KII, self.factorization)
-        ksp.setUp()
+        _set_up(ksp, "K_II")
         self.timings["factorize"] += time.perf_counter() - t0
         self.F_I = ksp.getPC().getFactorMatrix()  # solves with K_II: MatSolve on it
         nI = KII.getSize()[0]
@@ -421,8 +516,9 @@ class ContactZone:
         self.wP = self.MP.createVecLeft()
         self.component = Z % K.getBlockSize()  # ζ_j of each zone dof (blocked numbering)
         # S: sparse plus a dense |Γ|² block; approximate minimum fill (ICNTL(7) = 2) orders it
-        # for a 30 % faster factorization than MUMPS' default (METIS) at 326k dofs (measured)
-        self.ksp_S = _lu(seq, self.S, self.factorization, ordering=2)
+        # for a 30 % faster factorization than MUMPS' default (METIS) at 326k dofs (measured);
+        # on several ranks factorized by all of them together
+        self.S_factor = _ReplicatedFactor(comm, self.S, self.factorization, {7: 2})
         self.S_now = self.S.duplicate(copy=False)  # the current Jacobian when S's are reused
         self.wseq = self.S.createVecLeft()
         self.dseq = self.S.createVecLeft()
@@ -434,9 +530,9 @@ class ContactZone:
         self.z_lo, self.z_hi = self.vZ.getOwnershipRange()
         self._objects = [
             self.isI, self.isZ, self.F_I, self.vI, self.yI, self.tI, self.KZI,
-            self.KIZ, self.vZ, self.dZ, self.isZ_all, self.S, self.minusT, self.ksp_S,
+            self.KIZ, self.vZ, self.dZ, self.isZ_all, self.S, self.minusT,
             self.wseq, self.dseq, self.to_all, self.zseq, self.zeta_seq, self.uf, self.Ks,
-            self.MP, self.wP, self.f_tilde, self.S_now, *self._kept,
+            self.MP, self.wP, self.f_tilde, self.S_now, self.S_factor, *self._kept,
         ]  # fmt: skip
 
     def _destroy(self) -> None:
@@ -468,7 +564,7 @@ class ContactZone:
             if self.whole_ksp is None:
                 self.whole_ksp = _lu(J.getComm(), J)
             self.whole_ksp.setOperators(J)
-            self.whole_ksp.setUp()
+            _set_up(self.whole_ksp, "the Jacobian")
             self.timings["factorize"] += time.perf_counter() - t0
             return
         if self.points is None:
@@ -482,8 +578,7 @@ class ContactZone:
         self.S.zeroEntries()
         self.S.axpy(1.0, self.Jzz, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         self.S.axpy(1.0, self.minusT, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        self.ksp_S.setOperators(self.S)
-        self.ksp_S.setUp()
+        self.S_factor.factorize(self.S)
         self.factored = True
         self._S_state = None  # (a full step's Jacobian: not compared by active points)
         self.timings["condense"] += time.perf_counter() - t0
@@ -544,7 +639,7 @@ class ContactZone:
 
     def _finish(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
         """From the zone right-hand side ``zseq``: ``δ_Z``, ``δ_I = K_II⁻¹(x_I − K_IZ δ_Z)``."""
-        self.ksp_S.solve(self.zseq, self.dseq)
+        self.S_factor.solve(self.zseq, self.dseq)
         self.dZ.array[:] = self.dseq.array_r[self.z_lo : self.z_hi]
         self.KIZ.mult(self.dZ, self.vI)
         sub = x.getSubVector(self.isI)
@@ -636,8 +731,7 @@ class ContactZone:
             P.destroy()
 
     def _factorize_S(self, g: np.ndarray, kappa: float) -> None:
-        self.ksp_S.setOperators(self.S)
-        self.ksp_S.setUp()
+        self.S_factor.factorize(self.S)
         self._stale = False  # S is the Jacobian of the zone's problem at this iterate
         self.factored = True
         self._S_state = (kappa, g < 0)
@@ -671,7 +765,7 @@ class ContactZone:
                 self.ksp_cg.setType("cg")
                 self.ksp_cg.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
                 self.ksp_cg.getPC().setType("python")
-                self.ksp_cg.getPC().setPythonContext(_Preconditioner(self.ksp_S))
+                self.ksp_cg.getPC().setPythonContext(_Preconditioner(self.S_factor))
                 self.ksp_cg.setFromOptions()
             self.ksp_cg.setTolerances(rtol=rtol, atol=0.0, max_it=budget)
             self.ksp_cg.setOperators(self.S_now)
@@ -680,12 +774,12 @@ class ContactZone:
             if self.ksp_cg.getConvergedReason() <= 0:
                 self.S_now.copy(self.S, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
                 self._factorize_S(g, kappa)
-                self.ksp_S.solve(b, d)
+                self.S_factor.solve(b, d)
                 iterations = 0
         else:
             self._zone_jacobian(self.S, g, kappa)
             self._factorize_S(g, kappa)
-            self.ksp_S.solve(b, d)
+            self.S_factor.solve(b, d)
         self.comm.Bcast(d.array, root=0)
         self.timings["condense"] += time.perf_counter() - t0
         return iterations
