@@ -22,7 +22,6 @@ from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py
 import dolfinx
 import dolfinx.fem
 import dolfinx.io.gmsh
-import dolfinx.la
 import dolfinx.mesh
 import numpy as np
 import ufl
@@ -430,34 +429,24 @@ def _red_refinement(mesh: dolfinx.mesh.Mesh, curve: DomainSpec | None = None) ->
 
 
 def _onto_curve(mesh: dolfinx.mesh.Mesh, x: np.ndarray, spec: DomainSpec) -> None:
-    """Move the boundary nodes ``x`` (all local nodes of ``mesh``) that are off the curve of
-    the disk or ellipse ``spec`` radially onto it, in place; a chord's midpoint is ``O(h²)``
-    inside, the nodes already on the curve (to 1e-12) are left bitwise as they are.
+    """Move the nodes ``x`` of ``mesh``'s boundary facets that are off the curve of the disk
+    or ellipse ``spec`` radially onto it, in place (a chord's midpoint is ``O(h²)`` inside;
+    the nodes already on the curve, to 1e-12, are left bitwise as they are).
 
-    A rank may hold a boundary node (as a ghost) without a boundary facet through it: the
-    owners decide, from every rank's boundary facets, and send the moved nodes to the ghosts.
+    Each rank moves the nodes of its own boundary facets: a new boundary node is the midpoint
+    of a boundary edge, and all the cells through it are children of the one cell that had
+    that edge, on one rank (``uniform_refine`` keeps children on their parent's rank).
     """
     tdim = mesh.topology.dim
     mesh.topology.create_connectivity(tdim - 1, tdim)
     facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    nodes = dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, facets).ravel()
-    imap = mesh.geometry.index_map()
-    flag = dolfinx.la.vector(imap, 1)
-    flag.array[:] = 0.0
-    flag.array[nodes] = 1.0
-    flag.scatter_reverse(dolfinx.la.InsertMode.add)
-    owned = np.flatnonzero(flag.array[: imap.size_local] > 0)
+    nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, facets))
     c = np.asarray(spec.center, dtype=float)
     a, b = (spec.radius, spec.radius) if spec.kind == "disk" else spec.semi_axes
-    d = x[owned] - c
+    d = x[nodes] - c
     s = np.hypot(d[:, 0] / a, d[:, 1] / b)
     off = np.abs(s - 1.0) > 1e-12
-    x[owned[off]] = c + d[off] / s[off, None]
-    if mesh.comm.size > 1:
-        moved = dolfinx.la.vector(imap, 2)
-        moved.array[:] = x.ravel()[: moved.array.size]
-        moved.scatter_forward()
-        x[:] = moved.array.reshape(-1, 2)
+    x[nodes[off]] = c + d[off] / s[off, None]
 
 
 def _cell_diameters(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
