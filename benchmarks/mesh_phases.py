@@ -1,0 +1,84 @@
+"""Phases of making a large mesh: gmsh's coarse mesh, its distribution, the parallel refinements.
+
+For one gmsh target size of the paper's disk and several coarsening levels k (gmsh at 2^k h,
+then k uniform refinements of the distributed mesh), one JSON line on rank 0 per k: gmsh
+seconds and vertices (rank 0), distribution of the coarse mesh (``create_mesh``), the k
+refinements, the whole mesh, the fine mesh's cells, dofs (3 per vertex) and h; and, for
+comparison, ``create_mesh`` of the fine mesh's cells (what distributing the refined arrays
+cost before the ninth session).
+
+    .venv/bin/python benchmarks/mesh_phases.py --target 0.0029 --steps 1,2,3
+    .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/mesh_phases.py --target 0.0012 --steps 3,4
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+from pathlib import Path
+
+import numpy as np
+from mpi4py import MPI
+from record import emit
+
+from shellobstacle import domains
+from shellobstacle.config import load_config
+
+PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
+
+
+def phases(spec: domains.DomainSpec, steps: int, comm: MPI.Comm) -> dict:
+    """Time each phase of ``domains._gmsh_mesh(spec, comm, steps)``, done step by step."""
+    rec: dict = {"target": spec.h, "ranks": comm.size, "steps": steps}
+    comm.Barrier()
+    t0 = time.perf_counter()
+    x, cells = np.zeros((0, 2)), np.zeros((0, 3), dtype=np.int64)
+    if comm.rank == 0:
+        coarse = dataclasses.replace(spec, h=spec.h * 2.0**steps)
+        with domains._gmsh_model("benchmark", domains._gmsh_options(coarse)) as model:
+            domains._build_model(model, coarse)
+            x, cells = domains._gmsh_triangles(model)
+    rec["gmsh_s"], rec["gmsh_vertices"] = time.perf_counter() - t0, comm.bcast(len(x), root=0)
+    t = time.perf_counter()
+    domain = domains.dolfinx.io.gmsh.ufl_mesh(domains._TRIANGLE, 2, dtype=np.float64)
+    mesh = domains.dolfinx.mesh.create_mesh(comm, cells, domain, x, domains._partitioner())
+    comm.Barrier()
+    rec["distribute_s"] = time.perf_counter() - t
+    t = time.perf_counter()
+    for _ in range(steps):
+        mesh = domains._red_refinement(mesh, spec)
+    comm.Barrier()
+    rec["refine_s"] = time.perf_counter() - t
+    rec["mesh_s"] = time.perf_counter() - t0
+    rec["cells"] = domains.num_cells_global(mesh)
+    rec["dofs"] = 3 * mesh.geometry.index_map().size_global
+    rec["h"] = domains.mesh_size(mesh)
+    # the fine mesh distributed from arrays, as before: its owned cells and nodes
+    n_owned = mesh.topology.index_map(2).size_local
+    nodes = mesh.geometry.index_map()
+    fine_cells = nodes.local_to_global(mesh.geometry.dofmaps[0][:n_owned].ravel())
+    fine_x = mesh.geometry.x[: nodes.size_local, :2]
+    comm.Barrier()
+    t = time.perf_counter()
+    domains.dolfinx.mesh.create_mesh(
+        comm, fine_cells.reshape(-1, 3), domain, fine_x, domains._partitioner()
+    )
+    comm.Barrier()
+    rec["create_mesh_fine_s"] = time.perf_counter() - t
+    return rec
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--target", type=float, default=0.0029, help="gmsh target mesh size")
+    ap.add_argument("--steps", default="1,2,3", help="coarsening levels k to time")
+    args = ap.parse_args()
+    comm = MPI.COMM_WORLD
+    spec = load_config(PAPER, [f"domain.h={args.target}"]).domain
+    for steps in (int(k) for k in args.steps.split(",")):
+        emit(phases(spec, steps, comm), comm)
+
+
+if __name__ == "__main__":
+    main()
