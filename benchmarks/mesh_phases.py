@@ -14,7 +14,6 @@ cost before the ninth session).
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import time
 from pathlib import Path
 
@@ -33,12 +32,7 @@ def phases(spec: domains.DomainSpec, steps: int, comm: MPI.Comm) -> dict:
     rec: dict = {"target": spec.h, "ranks": comm.size, "steps": steps}
     comm.Barrier()
     t0 = time.perf_counter()
-    x, cells = np.zeros((0, 2)), np.zeros((0, 3), dtype=np.int64)
-    if comm.rank == 0:
-        coarse = dataclasses.replace(spec, h=spec.h * 2.0**steps)
-        with domains._gmsh_model("benchmark", domains._gmsh_options(coarse)) as model:
-            domains._build_model(model, coarse)
-            x, cells = domains._gmsh_triangles(model)
+    x, cells = domains._gmsh_arrays(spec, comm, steps)
     rec["gmsh_s"], rec["gmsh_vertices"] = time.perf_counter() - t0, comm.bcast(len(x), root=0)
     t = time.perf_counter()
     domain = domains.dolfinx.io.gmsh.ufl_mesh(domains._TRIANGLE, 2, dtype=np.float64)

@@ -280,8 +280,9 @@ def _gmsh_triangles(model) -> tuple[np.ndarray, np.ndarray]:
     return coords.reshape(-1, 3)[used, :2].copy(), cells.reshape(-1, 3)
 
 
-def _gmsh_mesh(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> dolfinx.mesh.Mesh:
-    """Build (or read) the gmsh mesh on rank 0, distribute it, refine it ``steps`` times."""
+def _gmsh_arrays(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Nodes and triangles of the gmsh mesh of ``spec`` at ``2^steps`` times its sizes (or of
+    its file), on rank 0; empty arrays on the other ranks. Errors are raised on every rank."""
     x, cells = np.zeros((0, 2)), np.zeros((0, 3), dtype=np.int64)
     error = ""
     if comm.rank == 0:
@@ -306,6 +307,12 @@ def _gmsh_mesh(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> dolfinx.mesh
     error = comm.bcast(error, root=0)
     if error:
         raise ValueError(error)
+    return x, cells
+
+
+def _gmsh_mesh(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> dolfinx.mesh.Mesh:
+    """Build (or read) the gmsh mesh on rank 0, distribute it, refine it ``steps`` times."""
+    x, cells = _gmsh_arrays(spec, comm, steps)
     domain = dolfinx.io.gmsh.ufl_mesh(_TRIANGLE, 2, dtype=np.float64)
     mesh = dolfinx.mesh.create_mesh(comm, cells, domain, x, _partitioner())
     for _ in range(steps):

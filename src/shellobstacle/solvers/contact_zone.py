@@ -215,7 +215,8 @@ class _ReplicatedFactor:
         # retry): 50 % more from the start, no measurable change of the peak memory
         self.ksp = _lu(self.D.getComm(), self.D, factorization, {**icntl, 14: 50})
         self.b, self.x = self.D.createVecRight(), self.D.createVecLeft()
-        self.to_all, self.x_all = PETSc.Scatter.toAll(self.x)
+        self.to_all, x_all = PETSc.Scatter.toAll(self.x)  # (into any sequential vector)
+        x_all.destroy()
 
     def factorize(self, A: PETSc.Mat) -> None:
         """Factorize ``A`` (the pattern given at construction)."""
@@ -235,13 +236,12 @@ class _ReplicatedFactor:
             return
         self.b.array[:] = b.array_r[self.lo : self.hi]
         self.ksp.solve(self.b, self.x)
-        self.to_all.scatter(self.x, self.x_all, PETSc.InsertMode.INSERT)
-        self.x_all.copy(x)
+        self.to_all.scatter(self.x, x, PETSc.InsertMode.INSERT)
 
     def destroy(self) -> None:
         self.ksp.destroy()
         if self.parallel:
-            for obj in (self.D, self.b, self.x, self.to_all, self.x_all):
+            for obj in (self.D, self.b, self.x, self.to_all):
                 obj.destroy()
 
 
