@@ -16,6 +16,7 @@ from mpi4py import MPI
 from shellobstacle.checks import check_assumptions
 from shellobstacle.config import Config
 from shellobstacle.domains import mesh_size
+from shellobstacle.memory import malloc_policy
 from shellobstacle.pipeline import make_mesh
 from shellobstacle.solvers.newton import NewtonOptions
 from shellobstacle.threads import blas_threads
@@ -38,6 +39,9 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
 
     CPU seconds (user + system, all threads, since the process started: imports included, and
     in a ladder every size so far) against the wall clock show how many cores a run kept busy.
+    The system CPU seconds and the memory faulted in (minor page faults times the page size,
+    GiB, summed over ranks) show what first touches of memory cost, and ``malloc`` whether
+    freed memory was kept in the process (:mod:`shellobstacle.memory`).
     Floats keep 6 significant digits.
     """
     usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -46,6 +50,10 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     rec["peak_rss_mb_total"] = comm.allreduce(rss, op=MPI.SUM)
     rec["cpu_s_per_rank_max"] = comm.allreduce(cpu, op=MPI.MAX)
     rec["cpu_s_total"] = comm.allreduce(cpu, op=MPI.SUM)
+    rec["cpu_sys_s_total"] = comm.allreduce(usage.ru_stime, op=MPI.SUM)
+    faulted = usage.ru_minflt * resource.getpagesize() / 2**30
+    rec["faulted_gib_total"] = comm.allreduce(faulted, op=MPI.SUM)
+    rec["malloc"] = malloc_policy()
     rec["petsc_blas"] = petsc_blas()
     rec["numpy_blas_threads"] = blas_threads()
     if comm.rank == 0:
