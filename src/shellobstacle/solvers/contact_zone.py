@@ -49,6 +49,13 @@ __all__ = ["ContactZone", "zone_available"]
 
 _LIB: ctypes.CDLL | None = None
 
+# Right-hand sides per block when MUMPS computes the selected entries of K_II⁻¹ (ICNTL(27)).
+# Its automatic default (32) took 0.40 s serially and 0.34–0.36 s on 2 ranks at 329k dofs (636
+# requested columns), 3.3 s on 2 ranks at 1.93 M (1,494 columns); 256 takes 0.30, 0.25 and
+# 2.4 s with the same peak memory (2,048: 2.6–3.1 s and 0.25 GB more). Measured,
+# docs/performance.md (tenth session).
+INVERSE_BLOCK = 256
+
 
 def _libpetsc() -> ctypes.CDLL:
     """The PETSc library petsc4py runs on (for ``MatMumpsGetInverse``, which it does not wrap)."""
@@ -452,7 +459,8 @@ class ContactZone:
             comm=petsc_comm,
         )
         request = PETSc.Mat().createTranspose(transposed)
-        saved = {i: F.getMumpsIcntl(i) for i in (20, 21, 30)}
+        saved = {i: F.getMumpsIcntl(i) for i in (20, 21, 27, 30)}
+        F.setMumpsIcntl(27, INVERSE_BLOCK)
         err = _libpetsc().MatMumpsGetInverse(F.handle, request.handle)
         for i, value in saved.items():  # back to ordinary solves
             F.setMumpsIcntl(i, value)
