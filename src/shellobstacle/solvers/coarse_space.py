@@ -111,7 +111,7 @@ class CoarseSpace:
         )
         self.Kc = K.ptap(self.P)
         # PᵀKP is symmetric positive definite whenever it is nonsingular (K is): Cholesky,
-        # 0.36–0.39 s for the seed at 329k dofs against 0.42–0.62 s with LU (measured,
+        # 0.36–0.40 s for the seed at 329k dofs against 0.41–0.62 s with LU (measured,
         # docs/performance.md, tenth session), the same seed to the last bit serially
         self.Kc.setOption(PETSc.Mat.Option.SPD, True)
         self.ksp = PETSc.KSP().create(K.getComm())
