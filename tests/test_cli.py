@@ -10,6 +10,7 @@ import pytest
 from mpi4py import MPI
 
 from shellobstacle.cli import main
+from shellobstacle.memory import user_tuned
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
@@ -41,6 +42,7 @@ def test_solve_writes_a_complete_result_folder(tmp_path: Path) -> None:
     assert summary["contact_area_projected"] <= summary["contact_area"]
     assert summary["kappa"] == pytest.approx(summary["h"] ** 2.0)
     assert summary["versions"]["dolfinx"].startswith("0.11")
+    assert summary["versions"]["malloc"] == ("system" if user_tuned() else "kept")
     resolved = tomllib.loads((out / "config.toml").read_text())
     assert resolved["domain"]["h"] == 0.05
     assert resolved["discretization"]["transverse"] == "clamped"

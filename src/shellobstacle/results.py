@@ -101,11 +101,14 @@ def _jsonable(obj: Any) -> Any:
 
 
 def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
-    """Package, library, interpreter and machine versions for a results record."""
+    """Package, library, interpreter and machine versions for a results record, and the
+    process settings that change timings (malloc's policy, :mod:`shellobstacle.memory`)."""
     import dolfinx
     import numpy
     import sympy
     from petsc4py import PETSc
+
+    from shellobstacle.memory import malloc_policy
 
     petsc = ".".join(map(str, PETSc.Sys.getVersion()))
     return {
@@ -118,5 +121,6 @@ def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
         "mpi_ranks": comm.size,
         "machine": f"{platform.machine()} {platform.system()} {socket.gethostname()}",
         "cpus": os.cpu_count(),
+        "malloc": malloc_policy(),
         "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
     }

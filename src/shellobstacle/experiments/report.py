@@ -600,6 +600,7 @@ def reproduce(
     times["solvers"] = time.perf_counter() - t
     total = time.perf_counter() - t0
     v = versions()
+    memory = "kept in the process" if v["malloc"] == "kept" else "given back (glibc's policy)"
     head = [
         "# Meixner & Piersanti (2024), section 10, reproduced",
         "",
@@ -607,7 +608,8 @@ def reproduce(
         + ", ".join(f"{k} {s:.0f} s" for k, s in times.items())
         + ").",
         "",
-        f"Machine: {v['machine']}, {v['cpus']} CPUs, {v['mpi_ranks']} MPI rank(s). shellobstacle "
+        f"Machine: {v['machine']}, {v['cpus']} CPUs, {v['mpi_ranks']} MPI rank(s), freed memory "
+        f"{memory}. shellobstacle "
         f"{v['shellobstacle']}, DOLFINx {v['dolfinx']}, PETSc {v['petsc']}, Python {v['python']}; "
         f"{v['date']}.",
         "",
