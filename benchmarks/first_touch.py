@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import argparse
 import ctypes
-import ctypes.util
 import json
 import mmap
 import multiprocessing

@@ -36,8 +36,11 @@ print(json.dumps({"policy": malloc_policy(),
 
 
 def _probe(**environ: str) -> dict:
-    env = {k: v for k, v in os.environ.items() if k != OPT_OUT and k != "GLIBC_TUNABLES"}
-    env = {k: v for k, v in env.items() if not k.startswith("MALLOC_")}
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in (OPT_OUT, "GLIBC_TUNABLES") and not k.startswith("MALLOC_")
+    }
     out = subprocess.run(
         [sys.executable, "-c", PROBE], env=env | environ, capture_output=True, text=True, check=True
     )

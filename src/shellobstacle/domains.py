@@ -444,10 +444,8 @@ def _onto_curve(mesh: dolfinx.mesh.Mesh, x: np.ndarray, spec: DomainSpec) -> Non
     of a boundary edge, and all the cells through it are children of the one cell that had
     that edge, on one rank (``uniform_refine`` keeps children on their parent's rank).
     """
-    tdim = mesh.topology.dim
-    mesh.topology.create_connectivity(tdim - 1, tdim)
-    facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-    nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, facets))
+    facets = boundary_facets(mesh)
+    nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, facets))
     c = np.asarray(spec.center, dtype=float)
     a, b = (spec.radius, spec.radius) if spec.kind == "disk" else spec.semi_axes
     d = x[nodes] - c
