@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from mpi4py import MPI
 from petsc4py import PETSc
 
 from shellobstacle.pipeline import continuation
@@ -138,17 +139,32 @@ def test_the_zone_grows_when_an_active_point_leaves_it() -> None:
 
 @pytest.mark.mpi
 def test_a_restored_zone_continues_to_the_last_bit() -> None:
-    """A solver given another's zone (a resumed run) repeats its iterates exactly."""
+    """A solver given another's zone (a resumed run) repeats its iterates exactly.
+
+    Exactly on one and two ranks. On three or more, MUMPS' parallel factorization is not
+    bitwise reproducible (its dynamic scheduling picks the processes of a front at run time:
+    two factorizations of the same K solve to different last bits, measured on 3 and 4
+    ranks), so no two runs agree bitwise there, and the restored run agrees to round-off in
+    the same Newton steps (measured: 1e-15 relative).
+    """
     p1, s1, _ = solved(NewtonOptions())
     p2 = PenalizedProblem(paper_shell(), square(n=32))
     s2 = NewtonSolver(p2, NewtonOptions())
     s2.set_zone_indicator(s1.zone_indicator())
     assert np.array_equal(s2.zone.Z, s1.zone.Z)
     p2.zeta.x.array[:] = p1.zeta.x.array
+    steps = []
     for problem, solver in ((p1, s1), (p2, s2)):
         problem.set_kappa(1e-5)
-        solver.solve()
-    assert np.array_equal(p1.zeta.x.array, p2.zeta.x.array)
+        steps.append(solver.solve().iterations)
+    assert steps[0] == steps[1]
+    if p1.mesh.comm.size <= 2:
+        same = np.array_equal(p1.zeta.x.array, p2.zeta.x.array)
+        assert p1.mesh.comm.allreduce(same, MPI.LAND)
+    else:
+        d = p2.zeta.x.petsc_vec.copy()
+        d.axpy(-1.0, p1.zeta.x.petsc_vec)
+        assert d.norm() <= 1e-13 * p1.zeta.x.petsc_vec.norm()
 
 
 @pytest.mark.mpi
