@@ -521,3 +521,25 @@ def test_zero_load_solves_to_zero(capsys, tmp_path) -> None:
     code, _, err = run(capsys, "solve", str(write_config(tmp_path, changes)), "-o", str(out))
     assert code == 0, err
     assert "Traceback" not in err
+
+
+@pytest.mark.parametrize("case", ["hyperbolic", "crosses the plane", "not an immersion"])
+def test_checks_in_chunks_find_the_same_extremes(tmp_path, monkeypatch, case: str) -> None:
+    """The checks evaluate the geometry a chunk of points at a time: chunks of 7 points give
+    the table of one chunk for the whole mesh (values, points, verdicts), NaNs included."""
+    from shellobstacle import checks
+    from shellobstacle.config import load_config
+    from shellobstacle.pipeline import make_mesh
+
+    cfg = load_config(write_config(tmp_path, ASSUMPTIONS[case][0]))
+    mesh = make_mesh(cfg.domain)
+    assert len(checks.sample_points(mesh)) > 50 * 7
+
+    def table() -> list[tuple]:  # repr: NaN equals NaN
+        return [(c.name, repr(c.value), repr(c.where), c.passed) for c in
+                checks.check_assumptions(cfg.shell, mesh)]  # fmt: skip
+
+    whole = table()
+    monkeypatch.setattr(checks, "CHUNK", 7)
+    assert table() == whole
+    assert not all(passed for *_, passed in whole)
