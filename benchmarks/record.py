@@ -10,9 +10,13 @@ import resource
 import time
 from typing import Any
 
+import shellobstacle.compat  # noqa: F401  (must precede dolfinx / petsc4py)
+
+# isort: split
 import dolfinx
 from mpi4py import MPI
 
+from shellobstacle.blas import gemmt_calls, gemmt_policy
 from shellobstacle.checks import check_assumptions
 from shellobstacle.config import Config
 from shellobstacle.domains import mesh_size
@@ -41,7 +45,9 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     in a ladder every size so far) against the wall clock show how many cores a run kept busy.
     The system CPU seconds and the memory faulted in (minor page faults times the page size,
     GiB, summed over ranks) show what first touches of memory cost, and ``malloc`` whether
-    freed memory was kept in the process (:mod:`shellobstacle.memory`).
+    freed memory was kept in the process (:mod:`shellobstacle.memory`); ``gemmt`` whether
+    MUMPS ran on the blocked DGEMMT and ``gemmt_calls`` how many calls it took in blocks or
+    passed to OpenBLAS (:mod:`shellobstacle.blas`).
     Floats keep 6 significant digits.
     """
     usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -54,6 +60,8 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     faulted = usage.ru_minflt * resource.getpagesize() / 2**30
     rec["faulted_gib_total"] = comm.allreduce(faulted, op=MPI.SUM)
     rec["malloc"] = malloc_policy()
+    rec["gemmt"] = gemmt_policy()
+    rec["gemmt_calls"] = gemmt_calls()
     rec["petsc_blas"] = petsc_blas()
     rec["numpy_blas_threads"] = blas_threads()
     if comm.rank == 0:

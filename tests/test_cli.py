@@ -9,6 +9,7 @@ from pathlib import Path
 import pytest
 from mpi4py import MPI
 
+from shellobstacle.blas import gemmt_policy
 from shellobstacle.cli import main
 from shellobstacle.memory import user_tuned
 
@@ -43,6 +44,7 @@ def test_solve_writes_a_complete_result_folder(tmp_path: Path) -> None:
     assert summary["kappa"] == pytest.approx(summary["h"] ** 2.0)
     assert summary["versions"]["dolfinx"].startswith("0.11")
     assert summary["versions"]["malloc"] == ("system" if user_tuned() else "kept")
+    assert summary["versions"]["gemmt"] == gemmt_policy()
     resolved = tomllib.loads((out / "config.toml").read_text())
     assert resolved["domain"]["h"] == 0.05
     assert resolved["discretization"]["transverse"] == "clamped"

@@ -8,13 +8,18 @@ The Python API mirrors the configuration file::
                   Load(("0", "0", "-1e-5")))
     result = solve(shell, DomainSpec("disk", h=0.02), PenaltySpec(exponent=1.5))
 
-Names are imported lazily, so ``import shellobstacle`` does not start DOLFINx.
+Names are imported lazily, so ``import shellobstacle`` does not start DOLFINx. It does set
+up the process first (:mod:`shellobstacle.compat`: the DOLFINx wheel's MPI bootstrap, NumPy's
+BLAS threads, glibc's malloc, the blocked DGEMMT under MUMPS), which must happen before
+DOLFINx or PETSc are loaded: import ``shellobstacle`` before ``dolfinx`` and ``petsc4py``.
 """
 
 from __future__ import annotations
 
 import importlib
 from typing import Any
+
+from shellobstacle import compat  # noqa: F401  (before any DOLFINx or PETSc import)
 
 __version__ = "0.1.0"
 

@@ -1,8 +1,9 @@
 """The one place that orders the DOLFINx wheel's MPI bootstrap ahead of dolfinx/petsc4py.
 
 It also gives NumPy's BLAS one thread per rank under ``mpiexec`` unless ``OMP_NUM_THREADS``
-or ``OPENBLAS_NUM_THREADS`` is set (:mod:`shellobstacle.threads`), and keeps freed memory in
-the process unless the user tuned malloc (:mod:`shellobstacle.memory`).
+or ``OPENBLAS_NUM_THREADS`` is set (:mod:`shellobstacle.threads`), keeps freed memory in
+the process unless the user tuned malloc (:mod:`shellobstacle.memory`), and gives MUMPS a
+DGEMMT made of DGEMM blocks before PETSc is loaded (:mod:`shellobstacle.blas`).
 """
 
 import contextlib
@@ -12,8 +13,10 @@ with contextlib.suppress(ImportError):
 
 from mpi4py import MPI
 
+from shellobstacle.blas import block_gemmt
 from shellobstacle.memory import keep_freed_memory
 from shellobstacle.threads import limit_blas_threads
 
 keep_freed_memory()
 limit_blas_threads(MPI.COMM_WORLD.size)
+block_gemmt()

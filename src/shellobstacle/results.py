@@ -102,12 +102,14 @@ def _jsonable(obj: Any) -> Any:
 
 def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
     """Package, library, interpreter and machine versions for a results record, and the
-    process settings that change timings (malloc's policy, :mod:`shellobstacle.memory`)."""
+    process settings that change timings (malloc's policy, :mod:`shellobstacle.memory`; the
+    DGEMMT under MUMPS, :mod:`shellobstacle.blas`)."""
     import dolfinx
     import numpy
     import sympy
     from petsc4py import PETSc
 
+    from shellobstacle.blas import gemmt_policy
     from shellobstacle.memory import malloc_policy
 
     petsc = ".".join(map(str, PETSc.Sys.getVersion()))
@@ -122,5 +124,6 @@ def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
         "machine": f"{platform.machine()} {platform.system()} {socket.gethostname()}",
         "cpus": os.cpu_count(),
         "malloc": malloc_policy(),
+        "gemmt": gemmt_policy(),
         "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
     }
