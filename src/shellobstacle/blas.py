@@ -2,8 +2,8 @@
 
 MUMPS updates the contribution block of every front of an LDLᵀ (Cholesky) factorization with
 DGEMMT, the product that computes one triangle of a symmetric result. The OpenBLAS of the
-DOLFINx wheel (0.3.32) computes DGEMMT column by column with GEMV: at n = 600, k = 64 it took
-1.16× the time of a whole DGEMM that does twice its flops (``benchmarks/dgemm.py --gemmt``),
+DOLFINx wheel (0.3.32) computes DGEMMT column by column with GEMV: for n = 300 … 3,000 it took
+1.15–1.46× the time of a whole DGEMM that does twice its flops (``benchmarks/dgemm.py --gemmt``),
 and in a serial solve at 1.93 M dofs its GEMV kernel was 19 % of all CPU samples
 (docs/performance.md, eleventh session).
 
