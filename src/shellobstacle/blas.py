@@ -56,8 +56,8 @@ def _cache_dir() -> Path:
 
 
 def _compiler() -> str | None:
-    cc = os.environ.get("CC") or (sysconfig.get_config_var("CC") or "cc").split()[0]
-    return shutil.which(cc)
+    cc = os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc"
+    return shutil.which(cc.split()[0]) if cc.split() else None
 
 
 def _build(cc: str) -> Path:

@@ -35,7 +35,7 @@ EXPORT int shellobstacle_gemmt_init(const char *openblas) {
 
 /* calls taken in blocks (blocked != 0) or passed to OpenBLAS' DGEMMT so far */
 EXPORT long shellobstacle_gemmt_calls(int blocked) {
-  return blocked ? calls_blocked : calls_forwarded;
+  return __atomic_load_n(blocked ? &calls_blocked : &calls_forwarded, __ATOMIC_RELAXED);
 }
 
 static int is(const char *c, char x) { return *c == x || *c == x + 32; }
@@ -49,11 +49,11 @@ EXPORT void dgemmt_(const char *uplo, const char *transa, const char *transb, co
   int valid = (lower || is(uplo, 'U')) && (is(transa, 'N') || is(transa, 'T') || is(transa, 'C'))
               && (is(transb, 'N') || is(transb, 'T') || is(transb, 'C'));
   if (!valid || N <= 2 * NB || K == 0 || *alpha == 0.0) {
-    calls_forwarded++;
+    __atomic_fetch_add(&calls_forwarded, 1, __ATOMIC_RELAXED);
     blas_dgemmt(uplo, transa, transb, n, k, alpha, a, lda, b, ldb, beta, c, ldc, l1, l2, l3);
     return;
   }
-  calls_blocked++;
+  __atomic_fetch_add(&calls_blocked, 1, __ATOMIC_RELAXED);
   size_t LDA = (size_t)*lda, LDB = (size_t)*ldb, LDC = (size_t)*ldc;
   double t[NB * NB];
   const double zero = 0.0;
