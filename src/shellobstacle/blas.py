@@ -75,6 +75,9 @@ def _build(cc: str) -> Path:
         os.replace(tmp, target)
     finally:
         tmp.unlink(missing_ok=True)
+    for stale in target.parent.glob("gemmt-*.so"):  # builds of earlier sources or compilers
+        if stale != target:
+            stale.unlink(missing_ok=True)
     return target
 
 
