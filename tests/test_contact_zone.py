@@ -141,11 +141,11 @@ def test_the_zone_grows_when_an_active_point_leaves_it() -> None:
 def test_a_restored_zone_continues_to_the_last_bit() -> None:
     """A solver given another's zone (a resumed run) repeats its iterates exactly.
 
-    Exactly on one and two ranks. On three or more, MUMPS' parallel factorization is not
-    bitwise reproducible (its dynamic scheduling picks the processes of a front at run time:
-    two factorizations of the same K solve to different last bits, measured on 3 and 4
-    ranks), so no two runs agree bitwise there, and the restored run agrees to round-off in
-    the same Newton steps (measured: 1e-15 relative).
+    Exactly serially and, for this small problem, on two ranks. MUMPS' parallel factorization
+    is not bitwise reproducible in general (its dynamic scheduling picks the processes of a
+    front at run time): on three or more ranks two factorizations of this K already solve to
+    different last bits (benchmarks/mumps_reproducibility.py), so the restored run agrees to
+    round-off in the same Newton steps there (measured: 1e-15 relative).
     """
     p1, s1, _ = solved(NewtonOptions())
     p2 = PenalizedProblem(paper_shell(), square(n=32))

@@ -293,9 +293,9 @@ class Checkpoint:
         """Save the state a Newton solver carries between steps (its contact zone), collective.
 
         A resumed run restores it with :meth:`restore_solver`, so that the steps it solves
-        again are those of the uninterrupted run (to the last bit on one or two ranks; on
-        three or more MUMPS' parallel factorization is not bitwise reproducible, and they agree
-        to round-off).
+        again are those of the uninterrupted run (to the last bit serially; under MPI to
+        round-off, as MUMPS' parallel factorization does not repeat its last bits from run to
+        run).
         """
         if self.dir is None:
             return

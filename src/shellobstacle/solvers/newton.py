@@ -541,8 +541,9 @@ class NewtonSolver:
         """The kept contact zone as a 0/1 function on the displacement space (or None).
 
         A resumed sweep restores it (:meth:`set_zone_indicator`) so that its iterates are
-        those of the uninterrupted run: to the last bit on one or two ranks, to round-off on
-        three or more, where MUMPS' parallel factorization itself is not bitwise reproducible.
+        those of the uninterrupted run: to the last bit serially; under MPI to round-off, as
+        MUMPS' parallel factorization itself does not repeat its last bits from run to run (on
+        3 or more ranks, and on 2 ranks for large problems).
         """
         zone = self.zone
         if zone is None or zone.Z is None:
