@@ -30,6 +30,7 @@ import shutil
 import subprocess
 import sys
 import sysconfig
+from collections.abc import Mapping
 from pathlib import Path
 
 __all__ = ["OPT_OUT", "block_gemmt", "gemmt_calls", "gemmt_policy", "openblas_path"]
@@ -81,13 +82,12 @@ def _build(cc: str) -> Path:
     return target
 
 
-def block_gemmt(environ: dict[str, str] | None = None) -> bool:
+def block_gemmt(environ: Mapping[str, str] = os.environ) -> bool:
     """Give PETSc's MUMPS the blocked DGEMMT, unless the user or the setting rules it out.
 
     Returns whether it was installed; :func:`gemmt_policy` records the outcome.
     """
     global _policy, _library
-    environ = os.environ if environ is None else environ
     if _library is not None:
         return True
     if environ.get(OPT_OUT, "").strip().lower() == "openblas":
