@@ -191,6 +191,23 @@ def test_numpy_backend_matches_sympy(name, request):
         np.testing.assert_allclose(got_values, expected, rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.parametrize("name", ["sphere", "ellipsoid"])
+def test_theta_numpy_is_the_geometry_theta(name, request):
+    """``theta_numpy`` gives θ of ``geometry_numpy`` as full arrays, also for a constant
+    component and when evaluated again (the lambdified expressions are reused)."""
+    surface = request.getfixturevalue(name)
+    pts = np.array(POINTS)
+    for _ in range(2):
+        theta = surface.theta_numpy(pts)
+        reference = surface.geometry_numpy(pts).theta
+        assert len(theta) == 3
+        for t, r in zip(theta, reference, strict=True):
+            assert t.shape == (len(pts),)
+            np.testing.assert_array_equal(t, np.broadcast_to(r, t.shape))
+    flat = Surface.from_strings(["y1", "y2", "0.25"])
+    np.testing.assert_array_equal(flat.theta_numpy(pts)[2], np.full(len(pts), 0.25))
+
+
 @pytest.mark.mpi
 @pytest.mark.parametrize("name", ["sphere", "ellipsoid"])
 def test_ufl_backend_at_nodes(name, request):

@@ -9,6 +9,7 @@ mesh nodes for checks and post-processing).
 
 from __future__ import annotations
 
+import functools
 import keyword
 import re
 import tokenize
@@ -331,9 +332,16 @@ def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
     return rec(sp.sympify(expr))
 
 
+@functools.lru_cache(maxsize=1024)
+def _lambdified(expr: sp.Expr, args: tuple[sp.Symbol, ...]) -> Callable[..., Any]:
+    """``sympy.lambdify`` of ``expr``, made once per expression (1-2 ms each: the geometry's
+    42 expressions took 60 ms per evaluation, in every chunk of the checks and every output)."""
+    return sp.lambdify(args, expr, modules="numpy")
+
+
 def to_numpy(expr: sp.Expr, args: tuple[sp.Symbol, ...] = (y1, y2)) -> Callable[..., np.ndarray]:
     """A vectorized NumPy function of ``args`` evaluating ``expr`` (broadcast to the inputs)."""
-    fn = sp.lambdify(args, expr, modules="numpy")
+    fn = _lambdified(sp.sympify(expr), tuple(args))
 
     def evaluate(*values: np.ndarray) -> np.ndarray:
         out = np.asarray(fn(*values), dtype=float)

@@ -213,9 +213,7 @@ def write_paraview(
     V = problem.V
     U = post.cartesian_displacement()
     points = V.tabulate_dof_coordinates()
-    G = problem.shell.surface.geometry_numpy(points)
-    n = len(points)
-    theta = np.column_stack([np.broadcast_to(np.asarray(t, float), (n,)) for t in G.theta])
+    theta = np.column_stack(problem.shell.surface.theta_numpy(points))
     position = dolfinx.fem.Function(V, name="position")
     position.x.array[:] = theta.ravel()
     deformed = dolfinx.fem.Function(V, name="deformed_position")

@@ -210,9 +210,9 @@ class Postprocessor:
 
         n_owned = self.P1.dofmap.index_map.size_local
         points = self.P1.tabulate_dof_coordinates()[:n_owned]
-        theta = problem.shell.surface.geometry_numpy(points).theta
-        theta_q = sum(np.asarray(theta[k], float) * problem.q[k] for k in range(3))
-        self.gap_scale = _global_max(self.comm, np.abs(np.broadcast_to(theta_q, (n_owned,))), 0.0)
+        theta = problem.shell.surface.theta_numpy(points)
+        theta_q = sum(theta[k] * problem.q[k] for k in range(3))
+        self.gap_scale = _global_max(self.comm, np.abs(theta_q), 0.0)
         self._trees: dict[tuple[str, float], dolfinx.geometry.BoundingBoxTree] = {}
 
     def _assemble_owned(self, linear_form: Any) -> np.ndarray:

@@ -198,6 +198,13 @@ class Surface:
         d2 = [[[tr(e) for e in col] for col in row] for row in self.d2]
         return Geometry(theta, d1, d2, ufl.sqrt)
 
+    def theta_numpy(self, points: np.ndarray) -> list[np.ndarray]:
+        """``θ`` at ``points`` (shape ``(n, ≥2)``, columns y1, y2), three arrays of shape ``(n,)``
+        (without the derivatives :meth:`geometry_numpy` evaluates)."""
+        Y1, Y2 = np.asarray(points[:, 0], float), np.asarray(points[:, 1], float)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return [to_numpy(t)(Y1, Y2) for t in self.theta]
+
     def geometry_numpy(self, points: np.ndarray) -> Geometry:
         """Geometry evaluated at ``points`` (shape ``(n, ≥2)``, columns y1, y2) with NumPy."""
         Y1, Y2 = np.asarray(points[:, 0], float), np.asarray(points[:, 1], float)
