@@ -1,4 +1,5 @@
-"""Threads of NumPy's BLAS under MPI: one per rank unless the user chose otherwise.
+"""NumPy's BLAS: one thread per rank under MPI unless the user chose otherwise, and a warning
+for forced kernels known to crash it.
 
 NumPy's wheels bring their own threaded OpenBLAS (``scipy-openblas``), which starts as many
 threads as there are cores. Under ``mpiexec`` every rank does so, and the ranks' threads then
@@ -10,6 +11,12 @@ affected.
 :func:`limit_blas_threads` runs when :mod:`shellobstacle.compat` is imported: on more than one
 rank, and when none of ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS`` is set, NumPy's BLAS gets
 one thread per rank. Setting either variable (hybrid MPI + threads) keeps the user's choice.
+
+:func:`coretype_warning` names a known crash: NumPy 2.5.2-2.5.5 ship OpenBLAS 0.3.34, which died
+of a segmentation fault in a plain 500 x 500 matrix product when ``OPENBLAS_CORETYPE`` forced its
+``Haswell`` or ``Zen`` kernels on this project's AVX-512 machine (NumPy 2.5.1's OpenBLAS 0.3.33
+did not; ``benchmarks/numpy_coretype.py`` checks a machine, docs/performance.md, twelfth
+session). Some machines set that variable for older OpenBLAS builds.
 """
 
 from __future__ import annotations
@@ -21,9 +28,13 @@ import os
 from collections.abc import Callable, Mapping
 from typing import Any
 
-__all__ = ["blas_threads", "limit_blas_threads"]
+__all__ = ["blas_threads", "coretype_warning", "limit_blas_threads"]
 
 USER_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
+
+# OPENBLAS_CORETYPE values (lower case) that crashed NumPy's OpenBLAS of the release below
+CRASHING_CORETYPES = ("haswell", "zen")
+CRASHING_OPENBLAS = "OpenBLAS 0.3.34"
 
 # (set, get) entry points of the OpenBLAS builds NumPy ships or links
 _SYMBOLS = (
@@ -76,3 +87,32 @@ def limit_blas_threads(ranks: int, environ: Mapping[str, str] = os.environ) -> i
         return None
     functions[0](1)
     return 1
+
+
+def _numpy_blas_config() -> str:
+    """The configuration string of NumPy's BLAS (``"OpenBLAS 0.3.34.237.2 ..."``), or ``""``."""
+    import numpy
+
+    with contextlib.suppress(Exception):  # (show_config's layout is NumPy's, not ours)
+        blas = numpy.show_config(mode="dicts")["Build Dependencies"]["blas"]
+        return str(blas.get("openblas configuration", ""))
+    return ""
+
+
+def coretype_warning(
+    environ: Mapping[str, str] = os.environ, config: str | None = None
+) -> str | None:
+    """What to tell the user when ``OPENBLAS_CORETYPE`` forces kernels that crashed NumPy's
+    OpenBLAS (``config``: its configuration string, NumPy's by default); None otherwise."""
+    coretype = environ.get("OPENBLAS_CORETYPE", "").strip()
+    if coretype.lower() not in CRASHING_CORETYPES:
+        return None
+    config = _numpy_blas_config() if config is None else config
+    if not config.startswith(CRASHING_OPENBLAS):
+        return None
+    return (
+        f"OPENBLAS_CORETYPE={coretype} forces kernels with which NumPy's BLAS "
+        f"({config.split('  ')[0]}) crashed with a segmentation fault in a plain matrix product "
+        "on an AVX-512 machine: unset OPENBLAS_CORETYPE for this run, or install numpy<=2.5.1 "
+        "(OpenBLAS 0.3.33). benchmarks/numpy_coretype.py tells whether this machine is affected."
+    )
