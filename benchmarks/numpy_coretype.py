@@ -35,8 +35,9 @@ def numpy_blas() -> str:
     """NumPy's version and the configuration string of its BLAS."""
     import numpy as np
 
-    config = np.show_config(mode="dicts")["Build Dependencies"]["blas"]
-    return f"numpy {np.__version__}, {config.get('openblas configuration', config.get('name'))}"
+    from shellobstacle.threads import numpy_blas_config
+
+    return f"numpy {np.__version__}, {numpy_blas_config()}"
 
 
 def main() -> None:

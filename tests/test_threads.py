@@ -13,11 +13,11 @@ from mpi4py import MPI
 from shellobstacle import compat  # noqa: F401
 from shellobstacle.threads import (
     USER_VARIABLES,
-    _numpy_blas_config,
     _numpy_openblas,
     blas_threads,
     coretype_warning,
     limit_blas_threads,
+    numpy_blas_config,
 )
 
 pytestmark = pytest.mark.skipif(
@@ -103,5 +103,5 @@ def test_importing_the_package_warns_exactly_when_numpy_is_affected() -> None:
         [sys.executable, "-c", "import shellobstacle"], env=env, capture_output=True, text=True
     )
     assert proc.returncode == 0, proc.stderr
-    affected = _numpy_blas_config().startswith("OpenBLAS 0.3.34")
+    affected = numpy_blas_config().startswith("OpenBLAS 0.3.34")
     assert ("RuntimeWarning: OPENBLAS_CORETYPE=Haswell" in proc.stderr) == affected

@@ -208,8 +208,8 @@ class Surface:
     def geometry_numpy(self, points: np.ndarray) -> Geometry:
         """Geometry evaluated at ``points`` (shape ``(n, ≥2)``, columns y1, y2) with NumPy."""
         Y1, Y2 = np.asarray(points[:, 0], float), np.asarray(points[:, 1], float)
+        ev = self.theta_numpy(points)
         with np.errstate(invalid="ignore", divide="ignore"):
-            ev = [to_numpy(t)(Y1, Y2) for t in self.theta]
             d1 = [[to_numpy(e)(Y1, Y2) for e in row] for row in self.d1]
             d2 = [[[to_numpy(e)(Y1, Y2) for e in col] for col in row] for row in self.d2]
         return Geometry(ev, d1, d2, np.sqrt)

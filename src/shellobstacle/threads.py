@@ -28,7 +28,7 @@ import os
 from collections.abc import Callable, Mapping
 from typing import Any
 
-__all__ = ["blas_threads", "coretype_warning", "limit_blas_threads"]
+__all__ = ["blas_threads", "coretype_warning", "limit_blas_threads", "numpy_blas_config"]
 
 USER_VARIABLES = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
 
@@ -89,7 +89,7 @@ def limit_blas_threads(ranks: int, environ: Mapping[str, str] = os.environ) -> i
     return 1
 
 
-def _numpy_blas_config() -> str:
+def numpy_blas_config() -> str:
     """The configuration string of NumPy's BLAS (``"OpenBLAS 0.3.34.237.2 ..."``), or ``""``."""
     import numpy
 
@@ -107,7 +107,7 @@ def coretype_warning(
     coretype = environ.get("OPENBLAS_CORETYPE", "").strip()
     if coretype.lower() not in CRASHING_CORETYPES:
         return None
-    config = _numpy_blas_config() if config is None else config
+    config = numpy_blas_config() if config is None else config
     if not config.startswith(CRASHING_OPENBLAS):
         return None
     return (
