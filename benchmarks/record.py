@@ -22,6 +22,7 @@ from shellobstacle.config import Config
 from shellobstacle.domains import mesh_size
 from shellobstacle.memory import malloc_policy
 from shellobstacle.pipeline import make_mesh
+from shellobstacle.prefault import prefault_policy, prefaulted_gib
 from shellobstacle.solvers.newton import NewtonOptions
 from shellobstacle.threads import blas_threads
 
@@ -47,7 +48,9 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     GiB, summed over ranks) show what first touches of memory cost, and ``malloc`` whether
     freed memory was kept in the process (:mod:`shellobstacle.memory`); ``gemmt`` whether
     MUMPS ran on the blocked DGEMMT and ``gemmt_calls`` how many calls it took in blocks or
-    passed to OpenBLAS (:mod:`shellobstacle.blas`).
+    passed to OpenBLAS (:mod:`shellobstacle.blas`); ``prefault`` whether a helper thread
+    faulted the heap's new pages in and ``prefaulted_gib_total`` how much
+    (:mod:`shellobstacle.prefault`).
     Floats keep 6 significant digits.
     """
     usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -62,6 +65,8 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     rec["malloc"] = malloc_policy()
     rec["gemmt"] = gemmt_policy()
     rec["gemmt_calls"] = gemmt_calls()
+    rec["prefault"] = prefault_policy()
+    rec["prefaulted_gib_total"] = comm.allreduce(prefaulted_gib(), op=MPI.SUM)
     rec["petsc_blas"] = petsc_blas()
     rec["numpy_blas_threads"] = blas_threads()
     if comm.rank == 0:

@@ -11,12 +11,12 @@ import sys
 import numpy as np
 import pytest
 
-from shellobstacle import blas
+from shellobstacle import blas, cbuild
 
 EXPECTED = (
     os.environ.get(blas.OPT_OUT, "").lower() != "openblas"
     and blas.openblas_path() is not None
-    and blas._compiler() is not None
+    and cbuild.compiler() is not None
 )
 pytestmark = pytest.mark.skipif(
     not EXPECTED, reason=f"blocked DGEMMT not expected here: {blas.gemmt_policy()}"
@@ -100,7 +100,7 @@ LAPLACIAN_3D = """
 import json, sys
 import shellobstacle.compat
 from petsc4py import PETSc
-from shellobstacle import blas
+from shellobstacle import blas, cbuild
 m = 18  # 7-point Laplacian on an m^3 grid: fronts of several hundred rows
 n = m ** 3
 A = PETSc.Mat().createAIJ([n, n], nnz=7, comm=PETSc.COMM_SELF)

@@ -103,7 +103,8 @@ def _jsonable(obj: Any) -> Any:
 def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
     """Package, library, interpreter and machine versions for a results record, and the
     process settings that change timings (malloc's policy, :mod:`shellobstacle.memory`; the
-    DGEMMT under MUMPS, :mod:`shellobstacle.blas`)."""
+    DGEMMT under MUMPS, :mod:`shellobstacle.blas`; the heap's helper thread,
+    :mod:`shellobstacle.prefault`)."""
     import dolfinx
     import numpy
     import sympy
@@ -111,6 +112,7 @@ def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
 
     from shellobstacle.blas import gemmt_policy
     from shellobstacle.memory import malloc_policy
+    from shellobstacle.prefault import prefault_policy
 
     petsc = ".".join(map(str, PETSc.Sys.getVersion()))
     return {
@@ -125,5 +127,6 @@ def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
         "cpus": os.cpu_count(),
         "malloc": malloc_policy(),
         "gemmt": gemmt_policy(),
+        "prefault": prefault_policy(),
         "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
     }

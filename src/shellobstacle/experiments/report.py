@@ -609,7 +609,7 @@ def reproduce(
         + ").",
         "",
         f"Machine: {v['machine']}, {v['cpus']} CPUs, {v['mpi_ranks']} MPI rank(s), freed memory "
-        f"{memory}, MUMPS' DGEMMT {v['gemmt']}. shellobstacle "
+        f"{memory}, MUMPS' DGEMMT {v['gemmt']}, heap prefault {v['prefault']}. shellobstacle "
         f"{v['shellobstacle']}, DOLFINx {v['dolfinx']}, PETSc {v['petsc']}, Python {v['python']}; "
         f"{v['date']}.",
         "",
