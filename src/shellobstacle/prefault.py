@@ -8,11 +8,13 @@ serial solve at 1.93 M dofs the kernel's page clearing was 18–19 % of all CPU 
 about 5 GiB faulted in (docs/performance.md, thirteenth session).
 
 :func:`start_prefault` runs when :mod:`shellobstacle.compat` is imported. When a core is
-left over (fewer ranks on the node than cores this process may run on), it makes malloc grow
-the heap :data:`TOP_PAD` bytes ahead of its needs (``M_TOP_PAD``) and starts a helper thread
-that populates every new heap page with ``madvise(MADV_POPULATE_WRITE)``: the same page
-faults, taken on the spare core instead of the computing thread, and the contents untouched.
-A process' resident memory grows by at most :data:`TOP_PAD` more than it would have.
+left over (fewer ranks on the node than cores this process may run on), it starts a helper
+thread that populates every new heap page with ``madvise(MADV_POPULATE_WRITE)``: the same
+page faults, taken on the spare core instead of the computing thread, and the contents
+untouched. Large blocks (MUMPS' factors, GiBs at 1.93 M dofs) move the heap's end at once and
+are then written over seconds, so the helper runs ahead of the writes; growing the heap ahead
+of its needs as well (``M_TOP_PAD`` 64 or 256 MiB) gained nothing more that runs could show
+and cost that much resident memory even in small solves, so glibc's default (128 kB) stays.
 
 Nothing is started (and :func:`prefault_policy` says why) with
 ``SHELLOBSTACLE_PREFAULT=off``, when freed memory is not kept (the heap would shrink and
@@ -31,7 +33,6 @@ from shellobstacle.cbuild import build, compiler
 
 __all__ = [
     "OPT_OUT",
-    "TOP_PAD",
     "local_ranks",
     "prefault_policy",
     "prefaulted_gib",
@@ -41,8 +42,6 @@ __all__ = [
 ]
 
 OPT_OUT = "SHELLOBSTACLE_PREFAULT"  # "off": no helper thread
-TOP_PAD = 256 << 20  # bytes by which malloc grows its heap beyond a request
-M_TOP_PAD = -2  # mallopt's parameter (glibc's malloc.h)
 # ranks of this job on this node, as MPICH's hydra, Open MPI and PMI launchers announce them
 LOCAL_SIZE_VARIABLES = ("MPI_LOCALNRANKS", "OMPI_COMM_WORLD_LOCAL_SIZE", "PMI_LOCAL_SIZE")
 
@@ -105,11 +104,6 @@ def start_prefault(
         return False
     library.shellobstacle_prefault_bytes.restype = ctypes.c_long
     library.shellobstacle_prefault_error.restype = ctypes.c_long
-    mallopt = ctypes.CDLL(None).mallopt
-    mallopt.argtypes, mallopt.restype = [ctypes.c_int, ctypes.c_int], ctypes.c_int
-    if not mallopt(M_TOP_PAD, TOP_PAD):
-        _policy = "off (malloc refused M_TOP_PAD)"
-        return False
     error = library.shellobstacle_prefault_start()
     if error != 0:
         _policy = f"off (the helper did not start: {os.strerror(error)})"

@@ -4,8 +4,8 @@
    GiB for memory the guest had not used before). The helper watches the break and populates
    every page below it once, with madvise(MADV_POPULATE_WRITE): the same fault, taken on
    another core, without touching the contents (Linux >= 5.14), so it is safe while the
-   other threads use the memory. Loaded by shellobstacle.prefault, which also makes malloc
-   grow the heap ahead of its needs (M_TOP_PAD) and never shrink it. */
+   other threads use the memory. Loaded by shellobstacle.prefault when malloc keeps its heap
+   (it never shrinks it) and a core is spare. */
 #define _GNU_SOURCE
 #include <errno.h>
 #include <pthread.h>
