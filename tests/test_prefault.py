@@ -107,6 +107,29 @@ def test_opting_out_in_a_fresh_interpreter() -> None:
     assert got == {"policy": "off (SHELLOBSTACLE_PREFAULT=off)", "gib": 0.0}
 
 
+FORK = """
+import json, os
+import shellobstacle.compat
+from shellobstacle.prefault import prefault_policy
+parent = prefault_policy()
+r, w = os.pipe()
+pid = os.fork()
+if pid == 0:
+    os.write(w, prefault_policy().encode())
+    os._exit(0)
+os.waitpid(pid, 0)
+child = os.read(r, 1000).decode()
+print(json.dumps({"parent": parent, "child": child, "after": prefault_policy()}))
+"""
+
+
+@pytest.mark.skipif(not EXPECTED_ON, reason="the helper thread is not expected here")
+def test_a_forked_child_says_it_has_no_helper() -> None:
+    got = _run(FORK)
+    assert got["parent"] == got["after"] == "on"
+    assert got["child"] == "off (a forked child: the helper thread stayed in the parent)"
+
+
 @pytest.mark.mpi
 def test_ranks_without_a_spare_core_run_no_helper() -> None:
     """Under mpiexec the policy follows the ranks on this node and the cores."""

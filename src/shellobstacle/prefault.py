@@ -19,7 +19,8 @@ and cost that much resident memory even in small solves, so glibc's default (128
 Nothing is started (and :func:`prefault_policy` says why) with
 ``SHELLOBSTACLE_PREFAULT=off``, when freed memory is not kept (the heap would shrink and
 grow again), when no core is spare (as for 2 ranks on 2 cores), off Linux or before Linux
-5.14, or when the helper cannot be compiled or loaded.
+5.14, or when the helper cannot be compiled or loaded. A forked child (``multiprocessing``'s
+``fork``) has no helper: fork copies only the calling thread, and its policy says so.
 """
 
 from __future__ import annotations
@@ -104,6 +105,7 @@ def start_prefault(
         return False
     library.shellobstacle_prefault_bytes.restype = ctypes.c_long
     library.shellobstacle_prefault_error.restype = ctypes.c_long
+    library.shellobstacle_prefault_running.restype = ctypes.c_int
     error = library.shellobstacle_prefault_start()
     if error != 0:
         _policy = f"off (the helper did not start: {os.strerror(error)})"
@@ -117,6 +119,8 @@ def prefault_policy() -> str:
     """``"on"`` while the helper thread runs, else ``"off (why)"``."""
     if _library is not None and (error := _library.shellobstacle_prefault_error()) != 0:
         return f"off (stopped: {os.strerror(error)})"
+    if _library is not None and not _library.shellobstacle_prefault_running():
+        return "off (a forked child: the helper thread stayed in the parent)"
     return _policy
 
 

@@ -61,6 +61,11 @@ static void *watch(void *arg) {
   }
 }
 
+/* A forked child has no helper thread (fork copies only the calling thread): it starts
+   anew if asked, from the child's own break (populating the pages it shares with its parent
+   would copy them). */
+static void forked_child(void) { __atomic_store_n(&running, 0, __ATOMIC_RELAXED); }
+
 /* Start the helper (once). 0 on success; otherwise the errno of what failed: ENOSYS off
    Linux, EINVAL when the kernel has no MADV_POPULATE_WRITE (tried on one fresh page). */
 EXPORT int shellobstacle_prefault_start(void) {
@@ -81,13 +86,21 @@ EXPORT int shellobstacle_prefault_start(void) {
   pthread_attr_setdetachstate(&attr, PTHREAD_CREATE_DETACHED);
   rc = pthread_create(&thread, &attr, watch, NULL);
   pthread_attr_destroy(&attr);
-  if (rc == 0) __atomic_store_n(&running, 1, __ATOMIC_RELAXED);
-  return rc;
+  if (rc != 0) return rc;
+  __atomic_store_n(&running, 1, __ATOMIC_RELAXED);
+  static int registered = 0;
+  if (!registered) registered = pthread_atfork(NULL, NULL, forked_child) == 0;
+  return 0;
 }
 
 /* Bytes populated so far by the helper. */
 EXPORT long shellobstacle_prefault_bytes(void) {
   return __atomic_load_n(&populated, __ATOMIC_RELAXED);
+}
+
+/* Whether the helper thread runs in this process. */
+EXPORT int shellobstacle_prefault_running(void) {
+  return __atomic_load_n(&running, __ATOMIC_RELAXED);
 }
 
 /* 0 while the helper runs or was never started; the errno that stopped it otherwise. */
