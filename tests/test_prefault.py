@@ -13,7 +13,7 @@ from mpi4py import MPI
 from shellobstacle import cbuild, prefault
 from shellobstacle.memory import malloc_policy
 
-CORES = len(os.sched_getaffinity(0))
+CORES = prefault.usable_cores()
 EXPECTED_ON = (
     sys.platform == "linux"
     and malloc_policy() == "kept"

@@ -40,6 +40,7 @@ __all__ = [
     "refusal",
     "spare_core",
     "start_prefault",
+    "usable_cores",
 ]
 
 OPT_OUT = "SHELLOBSTACLE_PREFAULT"  # "off": no helper thread
@@ -57,6 +58,13 @@ def local_ranks(world_size: int, environ: Mapping[str, str] = os.environ) -> int
         if value.isdigit() and int(value) > 0:
             return int(value)
     return world_size
+
+
+def usable_cores() -> int:
+    """Cores this process may run on (its CPU affinity where the platform has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
 
 
 def spare_core(ranks_on_node: int, cores: int) -> bool:
@@ -90,7 +98,7 @@ def start_prefault(
     global _policy, _library
     if _library is not None:
         return True
-    reason = refusal(world_size, malloc_kept, environ, len(os.sched_getaffinity(0)))
+    reason = refusal(world_size, malloc_kept, environ, usable_cores())
     if reason is not None:
         _policy = f"off ({reason})"
         return False
