@@ -73,6 +73,7 @@ def run_size(size: float, args: argparse.Namespace, comm: MPI.Comm) -> dict:
     rec["zone_steps"] = [s.newton.zone_steps for s in steps]
     rec["zone"] = solver.zone.sizes if solver.zone is not None else None
     rec["linear_iterations"] = [s.newton.linear_iterations for s in steps]
+    rec["multigrid_builds"] = solver.multigrid_builds
     t = time.perf_counter()
     post = Postprocessor(problem)
     summary = post.summary()

@@ -87,6 +87,19 @@ def add_solver_arguments(ap: argparse.ArgumentParser) -> None:
         "at every step, the sixth session's solver)",
     )
     ap.add_argument(
+        "--split-sweep",
+        default="forward",
+        choices=("forward", "symmetric"),
+        help="iterative solver: one block Gauss-Seidel sweep with flexible CG, or the "
+        "symmetric sweep with CG (the thirteenth session's solver)",
+    )
+    ap.add_argument(
+        "--no-keep-multigrid",
+        action="store_true",
+        help="iterative solver: build GAMG at every κ's first step (the thirteenth session's "
+        "solver) instead of keeping it while it converges",
+    )
+    ap.add_argument(
         "--no-zone",
         action="store_true",
         help="direct solver without the contact-zone condensation (one factorization per κ "
@@ -105,7 +118,10 @@ def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptio
     rec["linear_solver"] = args.linear_solver
     rec["reuse_factorization"] = not args.no_reuse
     rec["factorization"] = args.factorization
-    rec["forcing"] = args.forcing if args.linear_solver == "iterative" else None
+    iterative = args.linear_solver == "iterative"
+    rec["forcing"] = args.forcing if iterative else None
+    rec["split_sweep"] = args.split_sweep if iterative else None
+    rec["keep_multigrid"] = not args.no_keep_multigrid if iterative else None
     rec["contact_zone"] = args.linear_solver == "direct" and not args.no_zone
     rec["zone_newton"] = rec["contact_zone"] and not args.no_zone_newton
     rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
@@ -116,6 +132,8 @@ def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptio
         forcing=args.forcing,
         contact_zone=not args.no_zone,
         zone_newton=not args.no_zone_newton,
+        split_sweep=args.split_sweep,
+        keep_multigrid=not args.no_keep_multigrid,
     )
 
 

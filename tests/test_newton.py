@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
+import math
+
 import basix
 import dolfinx
 import numpy as np
@@ -10,10 +13,11 @@ from mpi4py import MPI
 
 from shellobstacle.config import PenaltySpec
 from shellobstacle.domains import mesh_size
-from shellobstacle.model import Load, Material, Shell
+from shellobstacle.model import Load, Material, Obstacle, Shell
 from shellobstacle.pipeline import continuation, solve
 from shellobstacle.postprocess import Postprocessor, l2_norm
 from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.solvers import newton as newton_module
 from shellobstacle.solvers.newton import (
     WARM_FORCING,
     ConvergenceError,
@@ -123,6 +127,132 @@ def test_iterative_matches_direct() -> None:
     continuation(a, NewtonSolver(a), kappas)
     continuation(b, NewtonSolver(b, NewtonOptions(linear_solver="iterative")), kappas)
     assert l2_norm(a.zeta - b.zeta) <= 1e-8 * l2_norm(a.zeta)
+
+
+def test_both_split_sweeps_give_the_direct_solvers_answer() -> None:
+    """One block Gauss–Seidel sweep with flexible CG, or the symmetric sweep with CG: the
+    direct solver's solution at every κ; the symmetric sweep (two V-cycles per iteration)
+    needs fewer iterations, and both the same Newton steps here."""
+    mesh = square(n=16)
+    kappas = [1e-1, 1e-2, 1e-3]
+    a = PenalizedProblem(paper_shell(), mesh)
+    continuation(a, NewtonSolver(a), kappas)
+    iterations, newton_steps = {}, {}
+    for sweep in ("forward", "symmetric"):
+        b = PenalizedProblem(paper_shell(), mesh)
+        options = NewtonOptions(linear_solver="iterative", split_sweep=sweep)
+        steps = continuation(b, NewtonSolver(b, options), kappas)
+        assert all(s.newton.converged for s in steps)
+        assert l2_norm(a.zeta - b.zeta) <= 1e-8 * l2_norm(a.zeta)
+        iterations[sweep] = sum(sum(s.newton.linear_iterations) for s in steps)
+        newton_steps[sweep] = [s.newton.iterations for s in steps]
+    assert iterations["symmetric"] < iterations["forward"]
+    assert newton_steps["symmetric"] == newton_steps["forward"]
+
+
+def test_the_split_sweep_is_validated() -> None:
+    with pytest.raises(ValueError, match="split_sweep must be 'forward' or 'symmetric'"):
+        NewtonOptions(split_sweep="backward")
+
+
+def _builds_and_solution(kappas, drift: float, monkeypatch) -> tuple[int, np.ndarray, list]:
+    """GAMG builds, the solution and the Newton results of an iterative continuation on the
+    paper's shell over the square with ``MULTIGRID_DRIFT = drift``."""
+    monkeypatch.setattr(newton_module, "MULTIGRID_DRIFT", drift)
+    problem = PenalizedProblem(paper_shell(), square(n=16))
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))
+    steps = continuation(problem, solver, kappas)
+    return solver.multigrid_builds, problem.zeta.x.array.copy(), steps
+
+
+def test_gamg_is_kept_across_kappa_while_the_diagonal_holds(monkeypatch) -> None:
+    """``keep_multigrid``: the hierarchy is built once while the Jacobian's ζ_α diagonal stays
+    within the drift bound, again whenever the diagonal moved with a bound of 0, and at each
+    κ's first step with ``keep_multigrid = False``; the solutions agree to Newton's
+    tolerance."""
+    kappas = [1e-1, 1e-2, 1e-3]
+    kept, z_kept, steps = _builds_and_solution(kappas, math.inf, monkeypatch)
+    every, z_every, steps_every = _builds_and_solution(kappas, 0.0, monkeypatch)
+    monkeypatch.setattr(newton_module, "MULTIGRID_DRIFT", 0.05)
+    problem = PenalizedProblem(paper_shell(), square(n=16))
+    options = NewtonOptions(linear_solver="iterative", keep_multigrid=False)
+    solver = NewtonSolver(problem, options)
+    per_kappa = continuation(problem, solver, kappas)
+    assert all(s.newton.converged for s in steps + steps_every + per_kappa)
+    assert kept == 1
+    # (a bound of 0 builds whenever the diagonal moved at all: not between two steps whose
+    # active sets are the same)
+    assert 1 < every <= sum(len(s.newton.linear_iterations) for s in steps_every)
+    assert solver.multigrid_builds == len(kappas)
+    for z in (z_every, problem.zeta.x.array):
+        assert np.linalg.norm(z - z_kept) <= 1e-8 * np.linalg.norm(z_kept)
+
+
+def test_a_drifting_diagonal_builds_gamg_again() -> None:
+    """Past the drift bound the hierarchy is built again. With the plane tilted (q = (0.3, 0,
+    0.954)), ``c_1 = a^1·q`` is about 0.3 where the shell touches, and from κ = 1e-3 on the
+    penalty moves the ζ_α diagonal by more than 5 %: every build after the first happened at
+    a drift above the bound, every kept solve below it, and the solution is the direct
+    solver's."""
+    base = paper_shell()
+    q = (0.3, 0.0, math.sqrt(1.0 - 0.09))
+    shell = Shell(base.surface, base.material, base.load, Obstacle(q))
+    kappas = [1e-1, 1e-2, 1e-3, 1e-4]
+    mesh = square(n=16)
+    problem = PenalizedProblem(shell, mesh)
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))
+    drifts: list[tuple[float, int]] = []
+    measure = solver._multigrid_drift
+
+    def record(diagonal: np.ndarray) -> float:
+        drift = measure(diagonal)
+        drifts.append((drift, solver.multigrid_builds))
+        return drift
+
+    solver._multigrid_drift = record
+    steps = continuation(problem, solver, kappas)
+    assert all(s.newton.converged for s in steps)
+    drifts.append((math.nan, solver.multigrid_builds))
+    rebuilt = [d for (d, before), (_, after) in itertools.pairwise(drifts) if after > before]
+    kept = [d for (d, before), (_, after) in itertools.pairwise(drifts) if after == before]
+    assert solver.multigrid_builds == 1 + len(rebuilt) > 2
+    assert min(rebuilt) > 0.05 and kept and max(kept) <= 0.05
+    reference = PenalizedProblem(shell, mesh)
+    continuation(reference, NewtonSolver(reference), kappas)
+    assert l2_norm(reference.zeta - problem.zeta) <= 1e-8 * l2_norm(reference.zeta)
+
+
+def test_a_failed_solve_with_the_kept_gamg_is_repeated_with_a_new_one() -> None:
+    """A solve whose kept hierarchy fails (here: CG capped at one iteration for it) is solved
+    again with a new hierarchy; the failed iterations count in the step's total."""
+    mesh = square(n=16)
+    problem = PenalizedProblem(paper_shell(), mesh)
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))
+    original = solver._solve_split
+    failed: list[int] = []
+    repeated: list[int] = []  # the iterations of the repeated solve
+
+    def capped(b, build, diagonal) -> None:
+        if build or failed:
+            original(b, build, diagonal)
+            if failed and not repeated:
+                repeated.append(solver.ksp.getIterationNumber())
+            return
+        solver.ksp.setTolerances(max_it=1)
+        original(b, build, diagonal)
+        solver.ksp.setTolerances(max_it=2000)
+        failed.append(solver.ksp.getConvergedReason())
+
+    solver._solve_split = capped
+    steps = continuation(problem, solver, [1e-1, 1e-2])
+    assert all(s.newton.converged for s in steps)
+    assert failed and failed[0] < 0
+    assert solver.multigrid_builds == 2
+    iterations = [n for s in steps for n in s.newton.linear_iterations]
+    assert repeated[0] + 1 in iterations  # the failed solve's one iteration counted
+    reference = PenalizedProblem(paper_shell(), mesh)
+    continuation(reference, NewtonSolver(reference), [1e-1, 1e-2])
+    assert l2_norm(reference.zeta - problem.zeta) <= 1e-8 * l2_norm(reference.zeta)
 
 
 def test_inexact_newton_needs_fewer_cg_iterations_for_the_same_solution() -> None:

@@ -56,6 +56,10 @@ PREDICTOR_RTOL = 1e-2
 # 1e-2: 9/5/6, 0.1 with the Euler predictor: 9/7/5 and 11/8/8).
 WARM_FORCING = 1e-4
 
+# How far the Jacobian's ζ_α diagonal may move (relative, at any dof) before the iterative
+# solver builds GAMG's hierarchy again (NewtonOptions.keep_multigrid).
+MULTIGRID_DRIFT = 0.05
+
 
 @dataclass(frozen=True)
 class NewtonOptions:
@@ -71,8 +75,21 @@ class NewtonOptions:
             ``ε/κ`` large this floor is far above ``rtol ‖L‖``, and iterating further only
             stirs round-off.
         max_iterations: give up (and raise) after this many Newton steps.
-        linear_solver: ``"direct"`` (MUMPS) or ``"iterative"`` (CG preconditioned by a
-            symmetric block Gauss–Seidel split: GAMG on ζ_α, Jacobi on ζ_3).
+        linear_solver: ``"direct"`` (MUMPS) or ``"iterative"`` (a Krylov method
+            preconditioned by a block Gauss–Seidel split: GAMG on ζ_α, Jacobi on ζ_3).
+        split_sweep: of the iterative solver's split. ``"forward"``: one sweep (a V-cycle on
+            ζ_α, then Jacobi on ζ_3 with the residual updated), not symmetric, so the Krylov
+            method is flexible CG keeping one earlier direction (PETSc's FCG, Notay's
+            truncated form). ``"symmetric"``: a forward and a backward sweep (two V-cycles),
+            symmetric, with CG. The forward sweep took 1.4–1.5× the iterations for half the
+            work each and the same Newton steps on the paper's problem (docs/performance.md,
+            fourteenth session).
+        keep_multigrid: keep GAMG's hierarchy on ζ_α across κ (its finest level, the
+            smoothers' matrix, is always that of the current Jacobian) while the Jacobian's ζ_α
+            diagonal stays within ``MULTIGRID_DRIFT`` (5 %) of its values at the build, and
+            build it again when it does not or a solve with the kept one failed (that solve is
+            then repeated). ``False``: built at every κ's first step and kept for its later
+            steps whatever their diagonal.
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ for symmetric
             positive definite matrices, which K_II and the Jacobian are: half the factors'
             memory; docs/performance.md measured a continuation 7–10 % faster than with LU
@@ -151,6 +168,8 @@ class NewtonOptions:
     seed_zone: bool = True
     seed_active: bool = True
     euler_predictor: bool | None = None
+    split_sweep: str = "forward"
+    keep_multigrid: bool = True
 
     def __post_init__(self) -> None:
         if self.linear_solver not in ("direct", "iterative"):
@@ -160,6 +179,10 @@ class NewtonOptions:
         if self.forcing not in ("eisenstat-walker", "fixed"):
             raise ValueError(
                 f"solver.forcing must be 'eisenstat-walker' or 'fixed', got {self.forcing!r}"
+            )
+        if self.split_sweep not in ("forward", "symmetric"):
+            raise ValueError(
+                f"split_sweep must be 'forward' or 'symmetric', got {self.split_sweep!r}"
             )
         if self.factorization not in ("lu", "cholesky"):
             raise ValueError(
@@ -269,13 +292,14 @@ class NewtonSolver:
             else:
                 self.ksp.setType("preonly")
         else:
-            self.ksp.setType("cg")
+            symmetric = opts.split_sweep == "symmetric"
+            self.ksp.setType("cg" if symmetric else "fcg")
             # ζ_3 enters the membrane strain without derivatives: its block is a (penalty-
             # augmented) mass matrix, Jacobi is enough there, and AMG works on ζ_α alone.
             # Measured (docs/performance.md): CG iterations then hardly grow with ε/κ.
             split = {
                 "pc_type": "fieldsplit",
-                "pc_fieldsplit_type": "symmetric_multiplicative",
+                "pc_fieldsplit_type": "symmetric_multiplicative" if symmetric else "multiplicative",
                 "pc_fieldsplit_block_size": 3,
                 "pc_fieldsplit_0_fields": "0,1",
                 "pc_fieldsplit_1_fields": "2",
@@ -289,6 +313,9 @@ class NewtonSolver:
                 "fieldsplit_1_ksp_type": "preonly",
                 "fieldsplit_1_pc_type": "jacobi",
             }
+            if not symmetric:
+                # one kept direction: FCG's default 30 gave the same iterations (329k dofs)
+                split["ksp_fcg_mmax"] = 1
             set_options(self, prefix, split)
             # ‖J δ + R‖ itself, the quantity the forcing term bounds
             self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
@@ -307,6 +334,12 @@ class NewtonSolver:
         self._factored_kappa: float | None = None  # κ of the factorization held by the KSP
         self._eta: float | None = None  # the last forcing term of the iterative solver
         self._split: list[PETSc.KSP] | None = None  # the field split's solvers (iterative)
+        # GAMG's hierarchy on ζ_α (iterative): the κ it was built at and the Jacobian's ζ_α
+        # diagonal then (owned entries)
+        self._multigrid_kappa: float | None = None
+        self._multigrid_diagonal = np.zeros(0)
+        self.multigrid_builds = 0
+        self._rejected_iterations = 0  # of a solve repeated with a new hierarchy
         self.factorizations = 0  # in the current solve
         self._reuse_failures = 0
         self._g = np.zeros(0)  # gap at the quadrature points of the current iterate
@@ -514,22 +547,65 @@ class NewtonSolver:
         return self.problem.mesh.comm.allreduce(bool((self._g < 0).any()), op=MPI.LOR)
 
     def _solve_direction(self, b: PETSc.Vec) -> None:
-        """``δ ← A⁻¹ b`` by the KSP; with the iterative solver GAMG on ζ_α is built at a
-        solve's first direction and kept for its later Newton steps (the rest of the split,
-        Jacobi on ζ_3 and the coupling blocks, is always that of the current Jacobian).
+        """``δ ← A⁻¹ b`` by the KSP; with the iterative solver GAMG's hierarchy on ζ_α is
+        kept from an earlier direction (the rest of the split, Jacobi on ζ_3 and the
+        coupling blocks, and the finest level are always those of the current Jacobian).
 
         Between Newton steps at one κ the ζ_α block changes only by the penalty's
         ``(1/κ) c_α c_β`` terms at the points that changed activity; the paper's problem
         took the same CG iterations at every step with the kept hierarchy as with a new one,
         for about a quarter less time (docs/performance.md, seventh session). A new κ scales
-        the penalty: every solve builds it again.
+        those terms; on the paper's problem, where ``c_α`` is small in the contact region,
+        the hierarchy kept across κ gave the same iterations too (fourteenth session). With
+        ``keep_multigrid`` it is kept while :meth:`_multigrid_drift` stays small, else built
+        at every κ's first direction.
         """
-        iterative = self.options.linear_solver == "iterative"
-        if iterative and self._split is not None:  # (the split exists after its first set-up)
-            self._split[0].getPC().setReusePreconditioner(self._factored_kappa == self.kappa)
+        if self.options.linear_solver != "iterative":
+            self.ksp.solve(b, self.dz)
+            return
+        diagonal = self._alpha_diagonal()
+        if self._multigrid_kappa is None:
+            build = True
+        elif self.options.keep_multigrid:
+            build = self._multigrid_drift(diagonal) > MULTIGRID_DRIFT
+        else:
+            build = self._multigrid_kappa != self.kappa
+        self._solve_split(b, build, diagonal)
+        if not build and self.ksp.getConvergedReason() < 0:
+            self._rejected_iterations += self.ksp.getIterationNumber()
+            self._solve_split(b, True, diagonal)
+
+    def _solve_split(self, b: PETSc.Vec, build: bool, diagonal: np.ndarray) -> None:
+        """One solve with the field split, building GAMG's hierarchy anew if ``build``
+        (``diagonal``: the current Jacobian's, :meth:`_alpha_diagonal`)."""
+        if self._split is not None:  # (the split exists after its first set-up)
+            self._split[0].getPC().setReusePreconditioner(not build)
         self.ksp.solve(b, self.dz)
-        if iterative and self._split is None:
+        if self._split is None:
             self._split = self.ksp.getPC().getFieldSplitSubKSP()
+        if build:
+            self._multigrid_kappa = self.kappa
+            self._multigrid_diagonal = diagonal
+            self.multigrid_builds += 1
+
+    def _alpha_diagonal(self) -> np.ndarray:
+        """The current Jacobian's diagonal at the owned ζ_α dofs."""
+        d = self.A.getDiagonal()
+        values = d.array_r.reshape(-1, 3)[:, :2].copy()
+        d.destroy()
+        return values
+
+    def _multigrid_drift(self, diagonal: np.ndarray) -> float:
+        """``max |d_i − d_i⁰| / |d_i⁰|`` over the ζ_α diagonal ``d`` of the Jacobian against
+        ``d⁰`` at the hierarchy's build (collective).
+
+        The kept hierarchy's smoothers are Chebyshev–Jacobi with the diagonal and the
+        eigenvalue bounds of the build (the upper one 10 % above the estimate): a Jacobian
+        whose diagonal moved by more than a few percent can leave those bounds.
+        """
+        d0 = self._multigrid_diagonal
+        local = float(np.max(np.abs(diagonal - d0) / np.abs(d0), initial=0.0))
+        return self.problem.mesh.comm.allreduce(local, op=MPI.MAX)
 
     def _active_set_moved(self) -> bool:
         """Whether more points changed activity since the factorization than CG may iterate."""
@@ -1007,7 +1083,10 @@ class NewtonSolver:
             if self.zone is not None:  # an exact solve, not a Krylov method
                 result.linear_iterations.append(1)
             else:
-                result.linear_iterations.append(self.ksp.getIterationNumber() + discarded)
+                result.linear_iterations.append(
+                    self.ksp.getIterationNumber() + discarded + self._rejected_iterations
+                )
+            self._rejected_iterations = 0
             if self.zone is None and self.ksp.getConvergedReason() < 0:
                 result.reason = (
                     f"linear solver failed (PETSc reason {self.ksp.getConvergedReason()})"
