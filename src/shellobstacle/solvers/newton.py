@@ -339,6 +339,7 @@ class NewtonSolver:
         self._multigrid_kappa: float | None = None
         self._multigrid_diagonal = np.zeros(0)
         self.multigrid_builds = 0
+        self._blocks: tuple[PETSc.IS, PETSc.Mat, PETSc.Mat, PETSc.Vec] | None = None
         self._rejected_iterations = 0  # of a solve repeated with a new hierarchy
         self.factorizations = 0  # in the current solve
         self._reuse_failures = 0
@@ -563,11 +564,11 @@ class NewtonSolver:
         if self.options.linear_solver != "iterative":
             self.ksp.solve(b, self.dz)
             return
-        diagonal = self._alpha_diagonal()
+        diagonal = self._diagonal()
         if self._multigrid_kappa is None:
             build = True
         elif self.options.keep_multigrid:
-            build = self._multigrid_drift(diagonal) > MULTIGRID_DRIFT
+            build = self._multigrid_drift(diagonal[:, :2]) > MULTIGRID_DRIFT
         else:
             build = self._multigrid_kappa != self.kappa
         self._solve_split(b, build, diagonal)
@@ -577,21 +578,46 @@ class NewtonSolver:
 
     def _solve_split(self, b: PETSc.Vec, build: bool, diagonal: np.ndarray) -> None:
         """One solve with the field split, building GAMG's hierarchy anew if ``build``
-        (``diagonal``: the current Jacobian's, :meth:`_alpha_diagonal`)."""
+        (``diagonal``: the current Jacobian's, :meth:`_diagonal`).
+
+        The split's blocks are not extracted from the Jacobian at every set-up (PETSc's
+        default): after the first, the ζ_α block, GAMG's finest level, is refreshed at a
+        build only (between builds its diagonal drifts by at most ``MULTIGRID_DRIFT``), and
+        the ζ_3 block, where Jacobi reads only the diagonal, gets the current diagonal. The
+        coupling block the sweep multiplies by is still the current Jacobian's.
+        """
         if self._split is not None:  # (the split exists after its first set-up)
+            is_alpha, P_alpha, P_3, d_3 = self._blocks
+            if build:
+                self.A.createSubMatrix(is_alpha, is_alpha, submat=P_alpha)
+            d_3.array[:] = diagonal[:, 2]
+            P_3.setDiagonal(d_3)
             self._split[0].getPC().setReusePreconditioner(not build)
         self.ksp.solve(b, self.dz)
         if self._split is None:
             self._split = self.ksp.getPC().getFieldSplitSubKSP()
+            self._blocks = self._hold_blocks()
         if build:
             self._multigrid_kappa = self.kappa
-            self._multigrid_diagonal = diagonal
+            self._multigrid_diagonal = diagonal[:, :2].copy()
             self.multigrid_builds += 1
 
-    def _alpha_diagonal(self) -> np.ndarray:
-        """The current Jacobian's diagonal at the owned ζ_α dofs."""
+    def _hold_blocks(self) -> tuple[PETSc.IS, PETSc.Mat, PETSc.Mat, PETSc.Vec]:
+        """The split's ζ_α index set and block, its ζ_3 block and a vector of that block's
+        rows, after the first set-up; each block is composed with its index set as
+        ``"pmat"``, which makes PETSc's field split keep it instead of extracting it again."""
+        pc = self.ksp.getPC()
+        sets = [pc.getFieldSplitSubIS(name) for name in ("0", "1")]
+        blocks = [ksp.getOperators()[1] for ksp in self._split]
+        for index_set, block in zip(sets, blocks, strict=True):
+            index_set.compose("pmat", block)
+        return sets[0], blocks[0], blocks[1], blocks[1].createVecLeft()
+
+    def _diagonal(self) -> np.ndarray:
+        """The current Jacobian's diagonal at the owned dofs, one row ``(ζ_1, ζ_2, ζ_3)`` per
+        node."""
         d = self.A.getDiagonal()
-        values = d.array_r.reshape(-1, 3)[:, :2].copy()
+        values = d.array_r.reshape(-1, 3).copy()
         d.destroy()
         return values
 
