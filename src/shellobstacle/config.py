@@ -117,7 +117,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "linear_solver": Key(
             "str",
             "direct",
-            "MUMPS, or inexact Newton with CG and a field split (GAMG on ζ_α): half the memory",
+            "MUMPS, or inexact Newton with flexible CG and a field split (GAMG on ζ_α): "
+            "about 70 % of the memory",
             ("direct", "iterative"),
         ),
         "factorization": Key(
