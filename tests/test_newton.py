@@ -255,6 +255,36 @@ def test_a_failed_solve_with_the_kept_gamg_is_repeated_with_a_new_one() -> None:
     assert l2_norm(reference.zeta - problem.zeta) <= 1e-8 * l2_norm(reference.zeta)
 
 
+def test_a_kept_gamg_gets_a_bounded_number_of_iterations(monkeypatch) -> None:
+    """A solve with a kept hierarchy may take at most ``KEPT_ITERATION_FACTOR`` times the
+    most iterations since the build (here capped to one iteration): every kept solve that
+    needs more is repeated with a new hierarchy, the solution is unchanged and the KSP's own
+    iteration limit is left as it was."""
+    monkeypatch.setattr(newton_module, "KEPT_ITERATION_FACTOR", 0)
+    monkeypatch.setattr(newton_module, "KEPT_MIN_ITERATIONS", 1)
+    mesh = square(n=16)
+    kappas = [1e-1, 1e-2]
+    problem = PenalizedProblem(paper_shell(), mesh)
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))
+    limits: list[int] = []
+    original = solver._solve_split
+
+    def watched(b, build, diagonal) -> None:
+        original(b, build, diagonal)
+        limits.append(solver.ksp.getTolerances()[3])
+
+    solver._solve_split = watched
+    steps = continuation(problem, solver, kappas)
+    assert all(s.newton.converged for s in steps)
+    directions = sum(len(s.newton.linear_iterations) for s in steps)
+    assert solver.multigrid_builds > 2  # (a solve in one iteration keeps it)
+    assert len(limits) == directions + solver.multigrid_builds - 1
+    assert set(limits) == {2000}
+    reference = PenalizedProblem(paper_shell(), mesh)
+    continuation(reference, NewtonSolver(reference), kappas)
+    assert l2_norm(reference.zeta - problem.zeta) <= 1e-8 * l2_norm(reference.zeta)
+
+
 def test_inexact_newton_needs_fewer_cg_iterations_for_the_same_solution() -> None:
     """Eisenstat–Walker forcing: the solution of every κ as with CG solved to 1e-12 at each
     Newton step, for fewer CG iterations in all; every tolerance asked is in [1e-12, 0.1], the

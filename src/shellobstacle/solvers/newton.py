@@ -60,6 +60,12 @@ WARM_FORCING = 1e-4
 # solver builds GAMG's hierarchy again (NewtonOptions.keep_multigrid).
 MULTIGRID_DRIFT = 0.05
 
+# A solve with a kept hierarchy that has not converged within this factor times the most
+# iterations of a solve since the build (at least KEPT_MIN_ITERATIONS) is repeated with a new
+# one.
+KEPT_ITERATION_FACTOR = 4
+KEPT_MIN_ITERATIONS = 50
+
 
 @dataclass(frozen=True)
 class NewtonOptions:
@@ -88,8 +94,10 @@ class NewtonOptions:
             smoothers' matrix, is always that of the current Jacobian) while the Jacobian's ζ_α
             diagonal stays within ``MULTIGRID_DRIFT`` (5 %) of its values at the build, and
             build it again when it does not or a solve with the kept one failed (that solve is
-            then repeated). ``False``: built at every κ's first step and kept for its later
-            steps whatever their diagonal.
+            then repeated). A solve with the kept one that needs more than
+            ``KEPT_ITERATION_FACTOR`` (4) times the most iterations of a solve since the build
+            (at least 50) is given up and repeated with a new one. ``False``: built at every
+            κ's first step and kept for its later steps whatever their diagonal.
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ for symmetric
             positive definite matrices, which K_II and the Jacobian are: half the factors'
             memory; docs/performance.md measured a continuation 7–10 % faster than with LU
@@ -314,8 +322,10 @@ class NewtonSolver:
                 "fieldsplit_1_pc_type": "jacobi",
             }
             if not symmetric:
-                # one kept direction: FCG's default 30 gave the same iterations (329k dofs)
-                split["ksp_fcg_mmax"] = 1
+                # four kept directions: the same iterations as FCG's default 30 (329k dofs)
+                # for less orthogonalization; with one, a solve with a kept GAMG stagnated
+                # (batch 1 at 329k, κ = h²: residual stuck at 4e-3 of its start)
+                split["ksp_fcg_mmax"] = 4
             set_options(self, prefix, split)
             # ‖J δ + R‖ itself, the quantity the forcing term bounds
             self.ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
@@ -339,6 +349,7 @@ class NewtonSolver:
         self._multigrid_kappa: float | None = None
         self._multigrid_diagonal = np.zeros(0)
         self.multigrid_builds = 0
+        self._multigrid_most = 0  # the most iterations of a solve since the build
         self._blocks: tuple[PETSc.IS, PETSc.Mat, PETSc.Mat, PETSc.Vec] | None = None
         self._rejected_iterations = 0  # of a solve repeated with a new hierarchy
         self.factorizations = 0  # in the current solve
@@ -575,6 +586,7 @@ class NewtonSolver:
         if not build and self.ksp.getConvergedReason() < 0:
             self._rejected_iterations += self.ksp.getIterationNumber()
             self._solve_split(b, True, diagonal)
+        self._multigrid_most = max(self._multigrid_most, self.ksp.getIterationNumber())
 
     def _solve_split(self, b: PETSc.Vec, build: bool, diagonal: np.ndarray) -> None:
         """One solve with the field split, building GAMG's hierarchy anew if ``build``
@@ -593,13 +605,19 @@ class NewtonSolver:
             d_3.array[:] = diagonal[:, 2]
             P_3.setDiagonal(d_3)
             self._split[0].getPC().setReusePreconditioner(not build)
+        max_it = self.ksp.getTolerances()[3]
+        if not build:  # a kept hierarchy that stagnates is given up early
+            cap = max(KEPT_MIN_ITERATIONS, KEPT_ITERATION_FACTOR * self._multigrid_most)
+            self.ksp.setTolerances(max_it=min(max_it, cap))
         self.ksp.solve(b, self.dz)
+        self.ksp.setTolerances(max_it=max_it)
         if self._split is None:
             self._split = self.ksp.getPC().getFieldSplitSubKSP()
             self._blocks = self._hold_blocks()
         if build:
             self._multigrid_kappa = self.kappa
             self._multigrid_diagonal = diagonal[:, :2].copy()
+            self._multigrid_most = 0
             self.multigrid_builds += 1
 
     def _hold_blocks(self) -> tuple[PETSc.IS, PETSc.Mat, PETSc.Mat, PETSc.Vec]:
