@@ -85,16 +85,15 @@ class NewtonOptions:
             preconditioned by a block Gauss–Seidel split: GAMG on ζ_α, Jacobi on ζ_3).
         split_sweep: of the iterative solver's split. ``"forward"``: one sweep (a V-cycle on
             ζ_α, then Jacobi on ζ_3 with the residual updated), not symmetric, so the Krylov
-            method is flexible CG keeping one earlier direction (PETSc's FCG, Notay's
+            method is flexible CG keeping four earlier directions (PETSc's FCG, Notay's
             truncated form). ``"symmetric"``: a forward and a backward sweep (two V-cycles),
             symmetric, with CG. The forward sweep took 1.4–1.5× the iterations for half the
             work each and the same Newton steps on the paper's problem (docs/performance.md,
             fourteenth session).
-        keep_multigrid: keep GAMG's hierarchy on ζ_α across κ (its finest level, the
-            smoothers' matrix, is always that of the current Jacobian) while the Jacobian's ζ_α
-            diagonal stays within ``MULTIGRID_DRIFT`` (5 %) of its values at the build, and
-            build it again when it does not or a solve with the kept one failed (that solve is
-            then repeated). A solve with the kept one that needs more than
+        keep_multigrid: keep GAMG's hierarchy on ζ_α, its finest level included, across κ
+            while the Jacobian's ζ_α diagonal stays within ``MULTIGRID_DRIFT`` (5 %) of its
+            values at the build, and build it again when it does not or a solve with the kept
+            one failed (that solve is then repeated). A solve with the kept one that needs more than
             ``KEPT_ITERATION_FACTOR`` (4) times the most iterations of a solve since the build
             (at least 50) is given up and repeated with a new one. ``False``: built at every
             κ's first step and kept for its later steps whatever their diagonal.
@@ -560,8 +559,8 @@ class NewtonSolver:
 
     def _solve_direction(self, b: PETSc.Vec) -> None:
         """``δ ← A⁻¹ b`` by the KSP; with the iterative solver GAMG's hierarchy on ζ_α is
-        kept from an earlier direction (the rest of the split, Jacobi on ζ_3 and the
-        coupling blocks, and the finest level are always those of the current Jacobian).
+        kept from an earlier direction (Jacobi on ζ_3 and the coupling block are always
+        those of the current Jacobian: :meth:`_solve_split`).
 
         Between Newton steps at one κ the ζ_α block changes only by the penalty's
         ``(1/κ) c_α c_β`` terms at the points that changed activity; the paper's problem
