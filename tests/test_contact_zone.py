@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from mpi4py import MPI
 from petsc4py import PETSc
 
 from shellobstacle.pipeline import continuation
@@ -141,11 +140,12 @@ def test_the_zone_grows_when_an_active_point_leaves_it() -> None:
 def test_a_restored_zone_continues_to_the_last_bit() -> None:
     """A solver given another's zone (a resumed run) repeats its iterates exactly.
 
-    Exactly serially and, for this small problem, on two ranks. MUMPS' parallel factorization
-    is not bitwise reproducible in general (its dynamic scheduling picks the processes of a
-    front at run time): on three or more ranks two factorizations of this K already solve to
-    different last bits (benchmarks/mumps_reproducibility.py), so the restored run agrees to
-    round-off in the same Newton steps there (measured: 1e-15 relative).
+    Exactly serially. MUMPS' parallel factorization is not bitwise reproducible (its dynamic
+    scheduling picks the processes of a front at run time): on three or more ranks two
+    factorizations of this K already solve to different last bits
+    (benchmarks/mumps_reproducibility.py), and on two ranks this test's bitwise check failed
+    once in about a dozen runs of the MPI tests (fourteenth session). Under MPI the restored
+    run agrees to round-off in the same Newton steps (measured: 1e-15 relative).
     """
     p1, s1, _ = solved(NewtonOptions())
     p2 = PenalizedProblem(paper_shell(), square(n=32))
@@ -158,9 +158,8 @@ def test_a_restored_zone_continues_to_the_last_bit() -> None:
         problem.set_kappa(1e-5)
         steps.append(solver.solve().iterations)
     assert steps[0] == steps[1]
-    if p1.mesh.comm.size <= 2:
-        same = np.array_equal(p1.zeta.x.array, p2.zeta.x.array)
-        assert p1.mesh.comm.allreduce(same, MPI.LAND)
+    if p1.mesh.comm.size == 1:
+        assert np.array_equal(p1.zeta.x.array, p2.zeta.x.array)
     else:
         d = p2.zeta.x.petsc_vec.copy()
         d.axpy(-1.0, p1.zeta.x.petsc_vec)

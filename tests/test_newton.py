@@ -10,6 +10,7 @@ import dolfinx
 import numpy as np
 import pytest
 from mpi4py import MPI
+from petsc4py import PETSc
 
 from shellobstacle.config import PenaltySpec
 from shellobstacle.domains import mesh_size
@@ -253,6 +254,45 @@ def test_a_failed_solve_with_the_kept_gamg_is_repeated_with_a_new_one() -> None:
     reference = PenalizedProblem(paper_shell(), mesh)
     continuation(reference, NewtonSolver(reference), [1e-1, 1e-2])
     assert l2_norm(reference.zeta - problem.zeta) <= 1e-8 * l2_norm(reference.zeta)
+
+
+def test_the_split_keeps_its_blocks_between_builds() -> None:
+    """After the first set-up the field split keeps its diagonal blocks instead of extracting
+    them from each Jacobian: the ζ_α block (GAMG's finest level) is the Jacobian's at the last
+    build, the ζ_3 block carries the current Jacobian's diagonal."""
+    problem = PenalizedProblem(paper_shell(), square(n=16))
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))
+    seen: list[tuple] = []
+    original = solver._solve_split
+
+    def watched(b, build, diagonal) -> None:
+        if solver._split is not None:
+            before = solver._split[0].getOperators()[1]
+        original(b, build, diagonal)
+        ksp_alpha, ksp_3 = solver._split
+        P_alpha, P_3 = ksp_alpha.getOperators()[1], ksp_3.getOperators()[1]
+        is_alpha = solver.ksp.getPC().getFieldSplitSubIS("0")
+        current = solver.A.createSubMatrix(is_alpha, is_alpha)
+        current.axpy(-1.0, P_alpha)
+        d_3 = P_3.getDiagonal()
+        seen.append(
+            (
+                build,
+                current.norm(PETSc.NormType.NORM_INFINITY),
+                np.abs(d_3.array_r - diagonal[:, 2]).max(initial=0.0),
+                len(seen) == 0 or before.handle == P_alpha.handle,
+            )
+        )
+        current.destroy()
+        d_3.destroy()
+
+    solver._solve_split = watched
+    steps = continuation(problem, solver, [1e-1, 1e-2, 1e-3])
+    assert all(s.newton.converged for s in steps)
+    assert len(seen) > 3 and all(same for *_, same in seen)  # one ζ_α block throughout
+    assert all(d3 == 0.0 for _, _, d3, _ in seen)  # the current ζ_3 diagonal, exactly
+    assert all(diff == 0.0 for build, diff, _, _ in seen if build)  # refreshed at a build
+    assert any(diff > 0.0 for build, diff, _, _ in seen if not build)  # kept between builds
 
 
 def test_a_kept_gamg_gets_a_bounded_number_of_iterations(monkeypatch) -> None:
