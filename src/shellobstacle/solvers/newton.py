@@ -93,10 +93,10 @@ class NewtonOptions:
         keep_multigrid: keep GAMG's hierarchy on ζ_α, its finest level included, across κ
             while the Jacobian's ζ_α diagonal stays within ``MULTIGRID_DRIFT`` (5 %) of its
             values at the build, and build it again when it does not or a solve with the kept
-            one failed (that solve is then repeated). A solve with the kept one that needs more than
-            ``KEPT_ITERATION_FACTOR`` (4) times the most iterations of a solve since the build
-            (at least 50) is given up and repeated with a new one. ``False``: built at every
-            κ's first step and kept for its later steps whatever their diagonal.
+            one failed (that solve is then repeated). A solve with the kept one that needs
+            more than ``KEPT_ITERATION_FACTOR`` (4) times the most iterations of a solve since
+            the build (at least 50) is given up and repeated with a new one. ``False``: built
+            at every κ's first step and kept for its later steps whatever their diagonal.
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ for symmetric
             positive definite matrices, which K_II and the Jacobian are: half the factors'
             memory; docs/performance.md measured a continuation 7–10 % faster than with LU
