@@ -14,16 +14,13 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 from mpi4py import MPI
-from record import add_solver_arguments, emit, solver_options, timed_mesh
+from record import PAPER, add_solver_arguments, emit, solver_options, timed_mesh
 
 from shellobstacle.config import load_config
 from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
 from shellobstacle.problem import Discretization
-
-PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 
 
 def main() -> None:

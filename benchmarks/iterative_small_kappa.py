@@ -1,6 +1,7 @@
 """The iterative solver far below the paper's penalty range: κ = 1e-1 … 1e-12 on a square.
 
-The paper's shell over [-0.25, 0.25]² (as the tests use), a continuation over twelve decades of
+The paper's shell (its configuration's surface, material, load and plane) over
+[-0.25, 0.25]² (as the tests use), a continuation over twelve decades of
 κ with the iterative solver, for both split sweeps and both penalty quadratures: per κ whether
 Newton converged, its steps and the Krylov iterations, and how often GAMG was built. One JSON
 line per (sweep, quadrature) on rank 0.
@@ -20,14 +21,12 @@ import shellobstacle.compat  # noqa: F401  (must precede dolfinx / petsc4py)
 # isort: split
 import dolfinx
 from mpi4py import MPI
+from record import PAPER
 
-from shellobstacle.model import Load, Material, Shell
+from shellobstacle.config import load_config
 from shellobstacle.pipeline import continuation
 from shellobstacle.problem import Discretization, PenalizedProblem
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
-from shellobstacle.surface import Surface
-
-PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 
 
 def main() -> None:
@@ -36,9 +35,7 @@ def main() -> None:
     ap.add_argument("--cells", type=int, default=24, help="cells per side of the square")
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
-    shell = Shell(
-        Surface.spherical_cap(1.0, 0.85), Material(1e-3, 0.4, 0.012), Load(("0", "0", PAPER_LOAD))
-    )
+    shell = load_config(PAPER).shell
     kappas = [10.0**-k for k in range(1, 13)]
     for sweep, keep in (("forward", True), ("symmetric", False)):
         for quadrature in ("gauss", "vertex"):

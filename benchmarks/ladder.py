@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 
 from mpi4py import MPI
-from record import add_solver_arguments, emit, solver_options, timed_mesh
+from record import PAPER, add_solver_arguments, emit, solver_options, timed_mesh
 
 from shellobstacle.config import load_config
 from shellobstacle.output import write_paraview
@@ -30,8 +30,6 @@ from shellobstacle.plotting import plot_cross_section
 from shellobstacle.postprocess import Postprocessor
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
-
-PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 
 
 def main() -> None:

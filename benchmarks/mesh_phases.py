@@ -15,16 +15,13 @@ from __future__ import annotations
 
 import argparse
 import time
-from pathlib import Path
 
 import numpy as np
 from mpi4py import MPI
-from record import emit
+from record import PAPER, emit
 
 from shellobstacle import domains
 from shellobstacle.config import load_config
-
-PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 
 
 def phases(spec: domains.DomainSpec, steps: int, comm: MPI.Comm) -> dict:
