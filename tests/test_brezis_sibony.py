@@ -127,6 +127,42 @@ def test_spectrum_brackets_the_jacobian(reference) -> None:
     assert at_solution[-1] <= lam_max * (1 + 1e-8)
 
 
+def check_residual_is_the_forms(problem: PenalizedProblem, ref, h: float) -> None:
+    """The step's residual ``Kψ − L + (1/κ) Mᵀ min(g, 0)`` is the assembled residual form, at
+    Newton's solution and at three times it (deeper in the plane), where the penalty is a
+    large part of it."""
+    solver = BrezisSibonySolver(problem, h)
+    mass = solver.ksp.getPC().getFactorSolverType()
+    assert mass == ("petsc" if problem.mesh.comm.size == 1 else "mumps")
+    norm_load = solver._load()
+    for scale in (1.0, 3.0):
+        problem.zeta.x.array[:] = scale * ref.x.array
+        g = solver.penalty.gap(problem.zeta.x.petsc_vec)
+        assert problem.mesh.comm.allreduce(int(np.count_nonzero(g < 0))) > 0
+        solver._residual()
+        form = solver._form_residual()
+        elastic = solver.K.createVecLeft()
+        solver.K.mult(problem.zeta.x.petsc_vec, elastic)
+        elastic.axpy(-1.0, solver.L)
+        elastic.axpy(-1.0, form)  # minus the form's penalty part
+        penalty = elastic.norm()
+        assert penalty > 1e-3 * norm_load
+        form.axpy(-1.0, solver.R)
+        assert form.norm() <= 1e-13 * (norm_load + penalty)  # round-off of the terms' sizes
+    problem.zeta.x.array[:] = ref.x.array
+
+
+def test_step_residual_is_the_residual_form(reference) -> None:
+    """See :func:`check_residual_is_the_forms` (serially)."""
+    check_residual_is_the_forms(*reference)
+
+
+@pytest.mark.mpi
+def test_step_residual_is_the_residual_form_in_parallel() -> None:
+    """:func:`check_residual_is_the_forms` on the distributed mesh."""
+    check_residual_is_the_forms(*newton_reference(MPI.COMM_WORLD))
+
+
 def test_iteration_cap_returns_the_iterate(reference) -> None:
     """At max_iterations: converged=False, the iterate in problem.zeta, the increments; a
     second run from start='current' continues exactly where the first stopped."""

@@ -10,6 +10,15 @@ against the basis of ``V_h``) and ``M`` the mass matrix of ``V_h``, the paper's 
 Dirichlet dofs carry identity rows (and columns) in ``M`` and zero rows in ``R``, so ``ψ``
 stays 0 on them.
 
+**Residual.** A step does not assemble the residual form: ``R(ψ) = Kψ − L + (1/κ) Mᵀ min(g, 0)``
+from the stiffness matrix ``K`` and the penalty's point matrix ``M``
+(:class:`~shellobstacle.penalty.QuadraturePenalty`, the operators
+:class:`~shellobstacle.solvers.newton.NewtonSolver` uses), which is the form's vector up to
+round-off (tested) for a fraction of the cost: a product with ``K``, one with the point
+matrix and its transpose. The mass matrix is factorized once by Cholesky (PETSc's own
+serially, MUMPS under MPI). On the reproduction's 1,152-dof mesh a step takes 136 instead of
+723 µs (docs/performance.md, fifteenth session).
+
 **Step and contraction.** ``R`` is piecewise linear: at every penalty quadrature point
 ``min(g, 0)`` is a piecewise-linear function of the affine gap ``g(ψ)``, so
 ``R(ψ) − R(φ) = J̄ (ψ − φ)`` exactly, with ``J̄ = K + (ε/κ) Σ_x w_x θ_x (c·)(c·)/|c|``,
@@ -55,6 +64,7 @@ from petsc4py import PETSc
 from slepc4py import SLEPc
 
 from shellobstacle.membrane import elastic_product
+from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.options import unique_prefix
 
@@ -185,8 +195,9 @@ class BrezisSibonyResult:
 class BrezisSibonySolver:
     """The iteration (38) for one :class:`PenalizedProblem` on a mesh of size ``h``.
 
-    The mass matrix is assembled and factorized once (or lumped once); each step assembles
-    the residual into a preallocated vector, applies ``M⁻¹`` and updates ``problem.zeta``.
+    The mass matrix is assembled and factorized once (or lumped once), and the stiffness
+    and the penalty's point matrix are assembled once; each step forms the residual from
+    them (module docstring), applies ``M⁻¹`` and updates ``problem.zeta``.
     ``κ`` is read from ``problem.kappa`` at every :meth:`solve` (the spectrum is re-estimated
     when it changed). Collective under MPI.
 
@@ -257,8 +268,14 @@ class BrezisSibonySolver:
             self.M.setDiagonal(D)
             self.M.assemble()
         else:
-            self.ksp = self._lu(self.M, "mass_")
+            self.ksp = self._mass_solver()
 
+        # the residual's operators (as NewtonSolver's): K (Dirichlet rows identity), the
+        # penalty at its points, the load vector L (Dirichlet rows 0; assembled per solve)
+        self.K = dolfinx.fem.petsc.assemble_matrix(problem.forms["stiffness"], bcs=bcs)
+        self.K.assemble()
+        self.penalty = QuadraturePenalty(problem)
+        self.L = dolfinx.fem.petsc.create_vector(V)
         self.R = dolfinx.fem.petsc.create_vector(V)
         self.d = dolfinx.fem.petsc.create_vector(V)
         self.Md = dolfinx.fem.petsc.create_vector(V)
@@ -288,19 +305,39 @@ class BrezisSibonySolver:
         ksp.setFromOptions()
         return ksp
 
+    def _mass_solver(self) -> PETSc.KSP:
+        """A Cholesky solver for the mass matrix: PETSc's own serially (a MUMPS solve costs
+        about 0.15 ms at 1k dofs, most of a step), MUMPS under MPI."""
+        ksp = PETSc.KSP().create(self.comm)
+        ksp.setOperators(self.M)
+        ksp.setOptionsPrefix(self._prefix + "mass_")
+        ksp.setType("preonly")
+        pc = ksp.getPC()
+        pc.setType("cholesky")
+        pc.setFactorSolverType("petsc" if self.comm.size == 1 else "mumps")
+        ksp.setFromOptions()
+        return ksp
+
     def _assemble_matrix(self, form: dolfinx.fem.Form) -> PETSc.Mat:
         A = dolfinx.fem.petsc.assemble_matrix(form, bcs=self.problem.bcs, diag=1.0)
         A.assemble()
         return A
 
     def _residual(self) -> None:
-        """``R ← R(problem.zeta)`` with zero rows at Dirichlet dofs (as NewtonSolver)."""
-        b = self.R
-        with b.localForm() as loc:
-            loc.set(0.0)
-        dolfinx.fem.petsc.assemble_vector(b, self.problem.forms["residual"])
+        """``R ← R(problem.zeta) = Kψ − L + (1/κ) Mᵀ min(g, 0)``, zero at Dirichlet dofs."""
+        psi = self.problem.zeta.x.petsc_vec
+        self.K.mult(psi, self.R)
+        self.R.axpy(-1.0, self.L)
+        g = self.penalty.gap(psi)
+        self.penalty.add_residual(np.minimum(g, 0.0), float(self.problem.kappa.value), self.R)
+
+    def _form_residual(self) -> PETSc.Vec:
+        """The residual form assembled at ``problem.zeta`` (a new vector; what
+        :meth:`_residual` computes, up to round-off)."""
+        b = dolfinx.fem.petsc.assemble_vector(self.problem.forms["residual"])
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
+        return b
 
     def _apply_inverse_mass(self) -> None:
         """``d ← M⁻¹ R``."""
@@ -380,33 +417,30 @@ class BrezisSibonySolver:
         return lam_min, lam_max
 
     def _start(self) -> None:
-        """Set ``problem.zeta`` to ``ψ_0`` (homogeneous Dirichlet values in every case)."""
+        """Set ``problem.zeta`` to ``ψ_0`` (homogeneous Dirichlet values in every case; the
+        load vector ``L`` must be current: :meth:`_load`)."""
         zeta = self.problem.zeta
         if self.options.start == "zero":
             zeta.x.array[:] = 0.0
         elif self.options.start == "linearized":
-            K = self._assemble_matrix(self._elastic_form)
-            L = dolfinx.fem.petsc.assemble_vector(self.problem.forms["load"])
-            L.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-            dolfinx.fem.petsc.set_bc(L, self.problem.bcs)
-            ksp = self._lu(K, "linearized_")
-            ksp.solve(L, zeta.x.petsc_vec)
+            ksp = self._lu(self.K, "linearized_")
+            ksp.solve(self.L, zeta.x.petsc_vec)
             reason = ksp.getConvergedReason()
-            for obj in (ksp, K, L):
-                obj.destroy()
+            ksp.destroy()
             if reason < 0:
                 raise RuntimeError(f"linearized start: linear solve failed (PETSc reason {reason})")
         dolfinx.fem.petsc.set_bc(zeta.x.petsc_vec, self.problem.bcs)
         zeta.x.scatter_forward()
 
-    def _load_norm(self) -> float:
-        """``‖R(0)‖``: the load vector's norm (the penalty vanishes at ψ = 0 as θ·q > 0)."""
-        b = dolfinx.fem.petsc.assemble_vector(self.problem.forms["load"])
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        dolfinx.fem.petsc.set_bc(b, self.problem.bcs)
-        norm = b.norm()
-        b.destroy()
-        return norm
+    def _load(self) -> float:
+        """``L ←`` the load vector (its parameters may have changed since the last solve);
+        returns ``‖L‖ = ‖R(0)‖`` (the penalty vanishes at ψ = 0 as θ·q > 0)."""
+        with self.L.localForm() as loc:
+            loc.set(0.0)
+        dolfinx.fem.petsc.assemble_vector(self.L, self.problem.forms["load"])
+        self.L.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(self.L, self.problem.bcs)
+        return self.L.norm()
 
     # -- the iteration ------------------------------------------------------------------------
     def solve(self, progress: Progress | None = None) -> BrezisSibonyResult:
@@ -428,8 +462,8 @@ class BrezisSibonySolver:
             lam_min, lam_max = self.spectrum()
         tau = opts.xi * h4 if opts.xi is not None else 2.0 / (lam_max * (1.0 + opts.safety))
         bound = max(abs(1.0 - tau * lam_min), abs(1.0 - tau * lam_max))
+        ref = self._load()
         self._start()
-        ref = self._load_norm()
         scale = ref if ref > 0.0 else 1.0
         setup = time.perf_counter() - t_start
 
