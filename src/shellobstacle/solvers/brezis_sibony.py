@@ -15,9 +15,9 @@ from the stiffness matrix ``K`` and the penalty's point matrix ``M``
 (:class:`~shellobstacle.penalty.QuadraturePenalty`, the operators
 :class:`~shellobstacle.solvers.newton.NewtonSolver` uses), which is the form's vector up to
 round-off (tested) for a fraction of the cost: a product with ``K``, one with the point
-matrix and its transpose. The mass matrix is factorized once by Cholesky (PETSc's own
-serially, MUMPS under MPI). On the reproduction's 1,152-dof mesh a step takes 136 instead of
-723 µs (docs/performance.md, fifteenth session).
+matrix and one with its stored transpose. The mass matrix is factorized once by Cholesky
+(PETSc's own serially, MUMPS under MPI). On the reproduction's 1,152-dof mesh a step takes
+125 instead of 723 µs (docs/performance.md, fifteenth session).
 
 **Step and contraction.** ``R`` is piecewise linear: at every penalty quadrature point
 ``min(g, 0)`` is a piecewise-linear function of the affine gap ``g(ψ)``, so
