@@ -191,6 +191,18 @@ class PenalizedProblem:
             raise KeyError(f"no load parameter {name!r}; the load has {sorted(self.parameters)}")
         self.parameters[name].value = value
 
+    def load_vector(self, b: PETSc.Vec | None = None) -> PETSc.Vec:
+        """The load vector ``(p√a, v)`` with zero Dirichlet rows, assembled into ``b`` (its
+        old values discarded) or into a new vector; returns it (collective)."""
+        if b is None:
+            b = dolfinx.fem.petsc.create_vector(self.V)
+        with b.localForm() as loc:
+            loc.set(0.0)
+        dolfinx.fem.petsc.assemble_vector(b, self.forms["load"])
+        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
+        dolfinx.fem.petsc.set_bc(b, self.bcs)
+        return b
+
     def scalar(self, name: str) -> float:
         """Assemble one of the energy forms (global value, all ranks)."""
         local = dolfinx.fem.assemble_scalar(self.forms[name])

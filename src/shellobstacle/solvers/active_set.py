@@ -441,9 +441,7 @@ class ActiveSetSolver:
         n3 = self.n * self.bs
 
         ta = time.perf_counter()
-        b = dolfinx.fem.petsc.assemble_vector(problem.forms["load"])
-        b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        dolfinx.fem.petsc.set_bc(b, problem.bcs)
+        b = problem.load_vector()
         self.f.array[:] = b.array_r[:n3]
         b.destroy()
         self.Q.multTranspose(self.f, self.fr)

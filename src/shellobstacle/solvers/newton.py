@@ -380,11 +380,7 @@ class NewtonSolver:
     # -- residual and Jacobian ----------------------------------------------------------------
     def _load(self) -> None:
         """``f ←`` the load vector (load parameters may have changed since the last solve)."""
-        with self.f.localForm() as loc:
-            loc.set(0.0)
-        dolfinx.fem.petsc.assemble_vector(self.f, self.problem.forms["load"])
-        self.f.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
-        dolfinx.fem.petsc.set_bc(self.f, self.problem.bcs)
+        self.problem.load_vector(self.f)
 
     def _residual(self) -> None:
         """``R ← R(ζ) = Kζ − f + (1/κ) Mᵀ min(g, 0)`` and ``g ← g(ζ)`` at the points.
