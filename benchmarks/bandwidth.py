@@ -23,13 +23,15 @@ import time
 
 def kernels(tag: int, rows: int, seconds: float, barrier) -> dict:
     """Products and triads on a ``rows``-row matrix for ``seconds`` each; their rates."""
-    import shellobstacle  # noqa: F401  (the package's BLAS and memory settings)
+    from mpi4py import MPI
 
-    # isort: split
+    from shellobstacle import tuning
+
+    tuning.apply(MPI.COMM_WORLD.size)  # as the command tunes itself
+
     import dolfinx
     import dolfinx.fem.petsc
     import ufl
-    from mpi4py import MPI
 
     n = max(2, round(math.sqrt(rows / 2.0)) - 1)  # 2 (n + 1)² rows
     mesh = dolfinx.mesh.create_unit_square(MPI.COMM_SELF, n, n)

@@ -16,11 +16,12 @@ import argparse
 import time
 
 from mpi4py import MPI
+
 from record import PAPER, add_solver_arguments, emit, solver_options, timed_mesh
 
 from shellobstacle.config import load_config
 from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
-from shellobstacle.problem import Discretization
+from shellobstacle.model import Discretization
 
 
 def main() -> None:
@@ -29,14 +30,14 @@ def main() -> None:
     ap.add_argument("--target", type=float, default=0.0029, help="gmsh target mesh size")
     ap.add_argument("--qmax", type=float, default=2.0)
     ap.add_argument("--quadrature", default="gauss", choices=("gauss", "vertex"))
-    add_solver_arguments(ap)
+    add_solver_arguments(ap, strategies=False)
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
     t_all = time.perf_counter()
     cfg = load_config(PAPER, [f"domain.h={args.target}"])
     rec: dict = {"benchmark": "batch1", "target": args.target, "ranks": comm.size}
     rec["quadrature"] = args.quadrature
-    newton = solver_options(args, rec)
+    newton, _ = solver_options(args, rec)
     mesh, h = timed_mesh(cfg, rec)
     t = time.perf_counter()
     study = penalty_study(

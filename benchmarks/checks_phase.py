@@ -17,10 +17,9 @@ import resource
 import time
 from pathlib import Path
 
-import shellobstacle.compat  # noqa: F401  (must precede dolfinx / petsc4py)
+from mpi4py import MPI
 
 # isort: split
-from mpi4py import MPI
 
 from shellobstacle.checks import check_assumptions
 from shellobstacle.config import load_config

@@ -1,3 +1,4 @@
+# ruff: noqa: E402  (the tuning must come before PETSc and NumPy are loaded)
 """Dense matrix products in the OpenBLAS that PETSc and MUMPS run on: Gflop/s by size.
 
 MUMPS' dense kernels (its fronts) run on the DOLFINx wheel's OpenBLAS. That library picks its
@@ -7,7 +8,7 @@ double matrices through ``cblas_dgemm``, about 2 Gflop per size, best of three.
 
 ``--gemmt`` times instead the update MUMPS makes in an LDLᵀ factorization, C := C − A Bᵀ on
 the lower triangle of an n × n C with k columns (DGEMMT), by OpenBLAS' own DGEMMT, by the
-package's blocked one (:mod:`shellobstacle.blas`) and, for comparison, by one DGEMM of the
+package's blocked one (:mod:`shellobstacle.tuning.gemmt`) and, for comparison, by one DGEMM of the
 whole C (twice the flops): milliseconds per call and Gflop/s counted on the triangle's n² k.
 
     OPENBLAS_CORETYPE=Haswell .venv/bin/python benchmarks/dgemm.py
@@ -23,21 +24,27 @@ import json
 import os
 import time
 
-import shellobstacle.compat  # noqa: F401  (must precede dolfinx / petsc4py)
+from mpi4py import MPI
+
+from shellobstacle import tuning
+
+tuning.apply(MPI.COMM_WORLD.size)  # as the command does, before PETSc loads its OpenBLAS
 
 # isort: split
-import numpy as np
 from petsc4py import PETSc  # noqa: F401  (loads the wheel's OpenBLAS)
+
+import numpy as np
 
 ROW_MAJOR, NO_TRANS = 101, 111
 
 
 def gemmt(config: str) -> None:
     """DGEMMT (OpenBLAS', blocked) against one whole DGEMM, at MUMPS-like shapes."""
-    from shellobstacle.blas import gemmt_policy, openblas_path
+    from shellobstacle.tuning.gemmt import openblas_path
 
-    if gemmt_policy() != "blocked":
-        raise SystemExit(f"the blocked DGEMMT is not in use: {gemmt_policy()}")
+    policy = tuning.policies()["gemmt"]
+    if policy != "blocked":
+        raise SystemExit(f"the blocked DGEMMT is not in use: {policy}")
     theirs = ctypes.CDLL(str(openblas_path()), mode=os.RTLD_NOLOAD)
     ours = ctypes.CDLL(None).dgemmt_  # the process' first dgemmt_: the one MUMPS calls
     ref = ctypes.c_int

@@ -21,14 +21,15 @@ import time
 from pathlib import Path
 
 from mpi4py import MPI
+
 from record import PAPER, add_solver_arguments, emit, solver_options, timed_mesh
 
 from shellobstacle.config import load_config
-from shellobstacle.output import write_paraview
-from shellobstacle.pipeline import continuation
-from shellobstacle.plotting import plot_cross_section
-from shellobstacle.postprocess import Postprocessor
+from shellobstacle.io.paraview import write_paraview
+from shellobstacle.post.contact import Postprocessor
+from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 
 
@@ -46,7 +47,7 @@ def main() -> None:
         # free the previous size's solver (MUMPS factors, meshes) before the next size: its
         # objects hold reference cycles that only the collector frees. The largest size's
         # peak RSS is still 1.0-1.5 GB above that of a run of that size alone (the heap of
-        # the earlier sizes; docs/performance.md, eighth session): one-solve figures come
+        # the earlier sizes): one-solve figures come
         # from single-size runs.
         gc.collect()
 
@@ -55,11 +56,11 @@ def run_size(size: float, args: argparse.Namespace, comm: MPI.Comm) -> dict:
     """One rung of the ladder: mesh, set-up, continuation, post-processing and output."""
     cfg = load_config(PAPER, [f"domain.h={size}"])
     rec: dict = {"target": size, "ranks": comm.size}
-    options = solver_options(args, rec)
+    options, linear = solver_options(args, rec)
     mesh, h = timed_mesh(cfg, rec)
     t = time.perf_counter()
     problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization)
-    solver = NewtonSolver(problem, options)
+    solver = NewtonSolver(problem, options, linear)
     rec["compile_s"] = time.perf_counter() - t
     kappas = [h**q for q in (0.5, 1.0, args.exponent)]
     t = time.perf_counter()
@@ -71,7 +72,7 @@ def run_size(size: float, args: argparse.Namespace, comm: MPI.Comm) -> dict:
     rec["zone_steps"] = [s.newton.zone_steps for s in steps]
     rec["zone"] = solver.zone.sizes if solver.zone is not None else None
     rec["linear_iterations"] = [s.newton.linear_iterations for s in steps]
-    rec["multigrid_builds"] = solver.multigrid_builds
+    rec["multigrid_builds"] = getattr(solver.linear, "multigrid_builds", None)
     t = time.perf_counter()
     post = Postprocessor(problem)
     summary = post.summary()

@@ -5,7 +5,7 @@ then k uniform refinements of the distributed mesh), one JSON line on rank 0 per
 seconds and vertices (rank 0), distribution of the coarse mesh (``create_mesh``), the k
 refinements, the whole mesh, the fine mesh's cells, dofs (3 per vertex) and h; and, for
 comparison, ``create_mesh`` of the fine mesh's cells (what distributing the refined arrays
-cost before the ninth session).
+would cost).
 
     .venv/bin/python benchmarks/mesh_phases.py --target 0.0029 --steps 1,2,3
     .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/mesh_phases.py --target 0.0012 --steps 3,4
@@ -16,35 +16,39 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
 from mpi4py import MPI
+
+import numpy as np
 from record import PAPER, emit
 
-from shellobstacle import domains
+from shellobstacle import meshing
 from shellobstacle.config import load_config
+from shellobstacle.domains import DomainSpec
+from shellobstacle.measures import mesh_size, num_cells_global
+from shellobstacle.refinement import red_refinement
 
 
-def phases(spec: domains.DomainSpec, steps: int, comm: MPI.Comm) -> dict:
-    """Time each phase of ``domains._gmsh_mesh(spec, comm, steps)``, done step by step."""
+def phases(spec: DomainSpec, steps: int, comm: MPI.Comm) -> dict:
+    """Time each phase of ``meshing._gmsh_mesh(spec, comm, steps)``, done step by step."""
     rec: dict = {"target": spec.h, "ranks": comm.size, "steps": steps}
     comm.Barrier()
     t0 = time.perf_counter()
-    x, cells = domains._gmsh_arrays(spec, comm, steps)
+    x, cells = meshing._gmsh_arrays(spec, comm, steps)
     rec["gmsh_s"], rec["gmsh_vertices"] = time.perf_counter() - t0, comm.bcast(len(x), root=0)
     t = time.perf_counter()
-    domain = domains.dolfinx.io.gmsh.ufl_mesh(domains._TRIANGLE, 2, dtype=np.float64)
-    mesh = domains.dolfinx.mesh.create_mesh(comm, cells, domain, x, domains._partitioner())
+    domain = meshing.dolfinx.io.gmsh.ufl_mesh(meshing._TRIANGLE, 2, dtype=np.float64)
+    mesh = meshing.dolfinx.mesh.create_mesh(comm, cells, domain, x, meshing._partitioner())
     comm.Barrier()
     rec["distribute_s"] = time.perf_counter() - t
     t = time.perf_counter()
     for _ in range(steps):
-        mesh = domains._red_refinement(mesh, spec)
+        mesh = red_refinement(mesh, spec)
     comm.Barrier()
     rec["refine_s"] = time.perf_counter() - t
     rec["mesh_s"] = time.perf_counter() - t0
-    rec["cells"] = domains.num_cells_global(mesh)
+    rec["cells"] = num_cells_global(mesh)
     rec["dofs"] = 3 * mesh.geometry.index_map().size_global
-    rec["h"] = domains.mesh_size(mesh)
+    rec["h"] = mesh_size(mesh)
     # the fine mesh distributed from arrays, as before: its owned cells and nodes
     n_owned = mesh.topology.index_map(2).size_local
     nodes = mesh.geometry.index_map()
@@ -52,8 +56,8 @@ def phases(spec: domains.DomainSpec, steps: int, comm: MPI.Comm) -> dict:
     fine_x = mesh.geometry.x[: nodes.size_local, :2]
     comm.Barrier()
     t = time.perf_counter()
-    domains.dolfinx.mesh.create_mesh(
-        comm, fine_cells.reshape(-1, 3), domain, fine_x, domains._partitioner()
+    meshing.dolfinx.mesh.create_mesh(
+        comm, fine_cells.reshape(-1, 3), domain, fine_x, meshing._partitioner()
     )
     comm.Barrier()
     rec["create_mesh_fine_s"] = time.perf_counter() - t

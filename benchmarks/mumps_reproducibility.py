@@ -16,12 +16,12 @@ import json
 import sys
 from pathlib import Path
 
-import shellobstacle.compat  # noqa: F401  (must precede dolfinx / petsc4py)
+from mpi4py import MPI
 
 # isort: split
-import numpy as np
-from mpi4py import MPI
 from petsc4py import PETSc
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from shellobstacle.problem import PenalizedProblem

@@ -3,7 +3,7 @@
 Some machines set ``OPENBLAS_CORETYPE`` for older OpenBLAS builds. On this project's machine
 (AMD EPYC, family 25, AVX-512), NumPy 2.5.2-2.5.5 (their OpenBLAS 0.3.34) crashed with a
 segmentation fault in a plain 500 x 500 matrix product when it was ``Haswell`` or ``Zen``
-(docs/performance.md, twelfth session). For each core type this runs that product in a fresh
+(``shellobstacle doctor`` names it). For each core type this runs that product in a fresh
 interpreter and prints one JSON line: the core type, NumPy's version and OpenBLAS, and the
 interpreter's return code (0: fine, -11: killed by SIGSEGV).
 

@@ -20,15 +20,17 @@ import json
 import resource
 import time
 
-import numpy as np
 from mpi4py import MPI
 
+import numpy as np
+
 from shellobstacle.config import load_config
-from shellobstacle.domains import mesh_size
+from shellobstacle.measures import mesh_size
+from shellobstacle.model import Discretization
 from shellobstacle.penalty import penalty_rule
 from shellobstacle.pipeline import make_mesh
-from shellobstacle.postprocess import Postprocessor
-from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.post.contact import Postprocessor
+from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
 PAPER = "src/shellobstacle/configs/paper.toml"

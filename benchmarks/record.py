@@ -1,3 +1,4 @@
+# ruff: noqa: E402  (the tuning must come before dolfinx, PETSc and NumPy are loaded)
 """Shared parts of the benchmark scripts: solver arguments, peak memory, one JSON line."""
 
 from __future__ import annotations
@@ -11,21 +12,31 @@ import time
 from pathlib import Path
 from typing import Any
 
-import shellobstacle.compat  # noqa: F401  (must precede dolfinx / petsc4py)
-
-# isort: split
-import dolfinx
 from mpi4py import MPI
 
-from shellobstacle.blas import gemmt_calls, gemmt_policy
+from shellobstacle import tuning
+from shellobstacle.compat import bootstrap
+
+# the benchmarks run as the ``shellobstacle`` command does: tuned before PETSc and NumPy are
+# loaded, as SHELLOBSTACLE_TUNING says (import this module first)
+bootstrap()
+tuning.apply(MPI.COMM_WORLD.size)
+
+# isort: split
+
+import dolfinx
+
 from shellobstacle.checks import check_assumptions
 from shellobstacle.config import Config
-from shellobstacle.domains import mesh_size
-from shellobstacle.memory import malloc_policy
+from shellobstacle.measures import mesh_size
 from shellobstacle.pipeline import make_mesh
-from shellobstacle.prefault import prefault_policy, prefaulted_gib
+from shellobstacle.solvers.linear import LinearStrategy
+from shellobstacle.solvers.linear.direct import DirectStrategy
+from shellobstacle.solvers.linear.iterative import IterativeStrategy
+from shellobstacle.solvers.linear.zone import ZoneStrategy
 from shellobstacle.solvers.newton import NewtonOptions
-from shellobstacle.threads import blas_threads
+from shellobstacle.tuning.gemmt import gemmt_calls
+from shellobstacle.tuning.prefault import prefaulted_gib
 
 
 def petsc_blas() -> str:
@@ -50,12 +61,10 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     CPU seconds (user + system, all threads, since the process started: imports included, and
     in a ladder every size so far) against the wall clock show how many cores a run kept busy.
     The system CPU seconds and the memory faulted in (minor page faults times the page size,
-    GiB, summed over ranks) show what first touches of memory cost, and ``malloc`` whether
-    freed memory was kept in the process (:mod:`shellobstacle.memory`); ``gemmt`` whether
-    MUMPS ran on the blocked DGEMMT and ``gemmt_calls`` how many calls it took in blocks or
-    passed to OpenBLAS (:mod:`shellobstacle.blas`); ``prefault`` whether a helper thread
-    faulted the heap's new pages in and ``prefaulted_gib_total`` how much
-    (:mod:`shellobstacle.prefault`).
+    GiB, summed over ranks) show what first touches of memory cost; ``tuning`` the process
+    tuning in force (:mod:`shellobstacle.tuning`), ``gemmt_calls`` how many DGEMMT calls the
+    blocked DGEMMT took in blocks or passed to OpenBLAS and ``prefaulted_gib_total`` how much
+    of the heap the helper thread faulted in.
     Floats keep 6 significant digits.
     """
     usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -67,79 +76,74 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     rec["cpu_sys_s_total"] = comm.allreduce(usage.ru_stime, op=MPI.SUM)
     faulted = usage.ru_minflt * resource.getpagesize() / 2**30
     rec["faulted_gib_total"] = comm.allreduce(faulted, op=MPI.SUM)
-    rec["malloc"] = malloc_policy()
-    rec["gemmt"] = gemmt_policy()
+    rec["tuning"] = tuning.policies()
     rec["gemmt_calls"] = gemmt_calls()
-    rec["prefault"] = prefault_policy()
     rec["prefaulted_gib_total"] = comm.allreduce(prefaulted_gib(), op=MPI.SUM)
     rec["petsc_blas"] = petsc_blas()
-    rec["numpy_blas_threads"] = blas_threads()
+    rec["openblas_num_threads"] = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
     if comm.rank == 0:
         values = {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in rec.items()}
         print(json.dumps(values), flush=True)
 
 
-def add_solver_arguments(ap: argparse.ArgumentParser) -> None:
-    """The linear-solver choices shared by the benchmarks."""
+def add_solver_arguments(ap: argparse.ArgumentParser, strategies: bool = True) -> None:
+    """The linear-solver choices shared by the benchmarks (``strategies``: also the knobs of
+    the linear strategies, for scripts that build the solver themselves)."""
     ap.add_argument("--linear-solver", default="direct", choices=("direct", "iterative"))
-    ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
     ap.add_argument("--factorization", default="cholesky", choices=("cholesky", "lu"))
+    ap.add_argument(
+        "--no-zone",
+        action="store_true",
+        help="direct solver without the contact-zone condensation (one factorization per κ "
+        "reused by CG)",
+    )
+    if not strategies:
+        return
+    ap.add_argument("--no-reuse", action="store_true", help="factorize at every Newton step")
     ap.add_argument(
         "--forcing",
         default="eisenstat-walker",
         choices=("eisenstat-walker", "fixed"),
         help="iterative solver: CG tolerance per Newton step (inexact Newton, or linear_rtol "
-        "at every step, the sixth session's solver)",
-    )
-    ap.add_argument(
-        "--split-sweep",
-        default="forward",
-        choices=("forward", "symmetric"),
-        help="iterative solver: one block Gauss-Seidel sweep with flexible CG, or the "
-        "symmetric sweep with CG (the thirteenth session's solver)",
-    )
-    ap.add_argument(
-        "--no-keep-multigrid",
-        action="store_true",
-        help="iterative solver: build GAMG at every κ's first step (the thirteenth session's "
-        "solver) instead of keeping it while the ζ_α diagonal drifts by less than 5 %%",
-    )
-    ap.add_argument(
-        "--no-zone",
-        action="store_true",
-        help="direct solver without the contact-zone condensation (one factorization per κ "
-        "reused by CG, the second session's solver)",
+        "at every step)",
     )
     ap.add_argument(
         "--no-zone-newton",
         action="store_true",
         help="contact zone, but full Newton steps (one back-substitution each) instead of steps "
-        "on the zone's own problem (the third session's solver)",
+        "on the zone's own problem",
     )
 
 
-def solver_options(args: argparse.Namespace, rec: dict[str, Any]) -> NewtonOptions:
-    """The Newton options the arguments ask for; records them (and OMP_NUM_THREADS) in ``rec``."""
-    rec["linear_solver"] = args.linear_solver
-    rec["reuse_factorization"] = not args.no_reuse
-    rec["factorization"] = args.factorization
+def solver_options(
+    args: argparse.Namespace, rec: dict[str, Any]
+) -> tuple[NewtonOptions, LinearStrategy | None]:
+    """The Newton options and linear strategy (None: the options' own) the arguments ask for;
+    records them (and OMP_NUM_THREADS) in ``rec``."""
     iterative = args.linear_solver == "iterative"
-    rec["forcing"] = args.forcing if iterative else None
-    rec["split_sweep"] = args.split_sweep if iterative else None
-    rec["keep_multigrid"] = not args.no_keep_multigrid if iterative else None
-    rec["contact_zone"] = args.linear_solver == "direct" and not args.no_zone
-    rec["zone_newton"] = rec["contact_zone"] and not args.no_zone_newton
+    no_reuse = getattr(args, "no_reuse", False)
+    forcing = getattr(args, "forcing", "eisenstat-walker")
+    zone_newton = not getattr(args, "no_zone_newton", False)
+    rec["linear_solver"] = args.linear_solver
+    rec["factorization"] = args.factorization
+    rec["contact_zone"] = not iterative and not args.no_zone
+    rec["reuse_factorization"] = not no_reuse if not iterative else None
+    rec["forcing"] = forcing if iterative else None
+    rec["zone_newton"] = rec["contact_zone"] and zone_newton
     rec["omp_num_threads"] = os.environ.get("OMP_NUM_THREADS", "unset")
-    return NewtonOptions(
+    options = NewtonOptions(
         linear_solver=args.linear_solver,
-        reuse_factorization=not args.no_reuse,
         factorization=args.factorization,
-        forcing=args.forcing,
         contact_zone=not args.no_zone,
-        zone_newton=not args.no_zone_newton,
-        split_sweep=args.split_sweep,
-        keep_multigrid=not args.no_keep_multigrid,
     )
+    linear: LinearStrategy | None = None
+    if iterative and forcing != "eisenstat-walker":
+        linear = IterativeStrategy(options.linear_rtol, forcing=forcing)
+    elif rec["contact_zone"] and not zone_newton:
+        linear = ZoneStrategy(options.factorization, options.linear_rtol, reduced=False)
+    elif not iterative and args.no_zone and no_reuse:
+        linear = DirectStrategy(options.factorization, options.linear_rtol, reuse=False)
+    return options, linear
 
 
 def timed_mesh(cfg: Config, rec: dict[str, Any]) -> tuple[dolfinx.mesh.Mesh, float]:

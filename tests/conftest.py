@@ -1,3 +1,9 @@
-"""Test configuration: the DOLFINx wheel's MPI bootstrap is loaded before any test module."""
+"""Test configuration: the DOLFINx wheel's environment is checked once, as the command does.
 
-from shellobstacle import compat  # noqa: F401  (orders mpi4py ahead of dolfinx/petsc4py)
+The suite runs the plain library: ``./run test`` sets ``SHELLOBSTACLE_TUNING=off`` for the
+commands it starts, and the tuning's own tests start their processes with it set.
+"""
+
+from shellobstacle.compat import bootstrap
+
+bootstrap()

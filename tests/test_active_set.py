@@ -2,25 +2,23 @@
 
 from __future__ import annotations
 
-from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py)
-
 # isort: split
+from mpi4py import MPI
+
 import dolfinx
 import numpy as np
 import pytest
-from mpi4py import MPI
 
-from shellobstacle.model import Load, Material, Shell
-from shellobstacle.pipeline import continuation
-from shellobstacle.postprocess import Postprocessor, l2_norm, vm_norm
-from shellobstacle.problem import Discretization, PenalizedProblem
-from shellobstacle.solvers.active_set import (
-    ActiveSetOptions,
-    ActiveSetResult,
-    ActiveSetSolver,
-    nodal_rotations,
-)
-from shellobstacle.solvers.newton import ConvergenceError, NewtonSolver
+from shellobstacle.model import Discretization, Load, Material, Shell
+from shellobstacle.post.contact import Postprocessor
+from shellobstacle.post.norms import l2_norm, vm_norm
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.active_set import ActiveSetResult, ActiveSetSolver
+from shellobstacle.solvers.base import ConvergenceError
+from shellobstacle.solvers.continuation import continuation
+from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.nodal import nodal_rotations
+from shellobstacle.solvers.options import ActiveSetOptions
 from shellobstacle.surface import Surface
 
 PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"

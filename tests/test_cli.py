@@ -6,13 +6,12 @@ import json
 import tomllib
 from pathlib import Path
 
-import pytest
 from mpi4py import MPI
 
-from shellobstacle.blas import gemmt_policy
+import pytest
+
+from shellobstacle import tuning
 from shellobstacle.cli import main
-from shellobstacle.memory import user_tuned
-from shellobstacle.prefault import prefault_policy
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
@@ -44,9 +43,8 @@ def test_solve_writes_a_complete_result_folder(tmp_path: Path) -> None:
     assert summary["contact_area_projected"] <= summary["contact_area"]
     assert summary["kappa"] == pytest.approx(summary["h"] ** 2.0)
     assert summary["versions"]["dolfinx"].startswith("0.11")
-    assert summary["versions"]["malloc"] == ("system" if user_tuned() else "kept")
-    assert summary["versions"]["gemmt"] == gemmt_policy()
-    assert summary["versions"]["prefault"] == prefault_policy()
+    assert summary["versions"]["tuning"] == tuning.policies()  # (the library's: none)
+    assert set(summary["versions"]["tuning"]) == set(tuning.KNOBS)
     resolved = tomllib.loads((out / "config.toml").read_text())
     assert resolved["domain"]["h"] == 0.05
     assert resolved["discretization"]["transverse"] == "clamped"

@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import math
 
+from petsc4py import PETSc
+
 import dolfinx.fem.petsc
 import numpy as np
 import pytest
-from petsc4py import PETSc
 
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.coarse_space import CoarseSpace
@@ -41,8 +42,9 @@ def test_the_coarse_solve_is_the_galerkin_projection(ratio: float) -> None:
     in the energy norm than the other vectors of the subspace (here: δ̃ perturbed in it)."""
     problem = PenalizedProblem(paper_shell(), square(n=32))
     solver = NewtonSolver(problem)
-    solver._load()
-    K, f = solver.K, solver.f
+    system = solver.system
+    system.load()
+    K, f = system.K, system.f
     coarse = CoarseSpace(problem.V, K, problem.bcs, ratio)
     n_dofs = K.getSize()[0]
     assert 0 < coarse.size < 3 * n_dofs / ratio
@@ -75,8 +77,9 @@ def test_the_grid_has_at_most_about_max_nodes_nodes() -> None:
     would give 68; the capped space is still a Galerkin space (Pᵀ(Kδ̃ − f) = 0)."""
     problem = PenalizedProblem(paper_shell(), square(n=32))
     solver = NewtonSolver(problem)
-    solver._load()
-    K, f = solver.K, solver.f
+    system = solver.system
+    system.load()
+    K, f = system.K, system.f
     uncapped = CoarseSpace(problem.V, K, problem.bcs, 16.0)
     capped = CoarseSpace(problem.V, K, problem.bcs, 16.0, max_nodes=30)
     grid = (math.ceil(math.sqrt(30)) + 1) ** 2  # nodes of the 6 × 6 grid

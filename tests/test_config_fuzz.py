@@ -21,14 +21,16 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from mpi4py import MPI
+
 import pytest
 import sympy as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from mpi4py import MPI
 
-from shellobstacle.config import SCHEMA, Config, ConfigError, parse_config
+from shellobstacle.config import Config, ConfigError, parse_config
 from shellobstacle.expressions import FUNCTIONS, ExpressionError, parse, y1, y2
+from shellobstacle.schema import SCHEMA
 
 pytestmark = [
     pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fuzz tests run serially"),

@@ -2,21 +2,27 @@
 
 from __future__ import annotations
 
-import numpy as np
-import pytest
 from petsc4py import PETSc
 
-from shellobstacle.pipeline import continuation
+import numpy as np
+import pytest
+
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.continuation import continuation, predict
+from shellobstacle.solvers.linear.direct import DirectStrategy
+from shellobstacle.solvers.linear.zone import ZoneStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.zone.reduced import ZoneModel
 from tests.test_newton import paper_shell, square
 
 KAPPAS = [1e-2, 1e-3, 1e-4]
 
 
-def solved(options: NewtonOptions, n: int = 32) -> tuple[PenalizedProblem, NewtonSolver, list]:
+def solved(
+    options: NewtonOptions, n: int = 32, linear: object = None
+) -> tuple[PenalizedProblem, NewtonSolver, list]:
     problem = PenalizedProblem(paper_shell(), square(n=n))
-    solver = NewtonSolver(problem, options)
+    solver = NewtonSolver(problem, options, linear)
     steps = continuation(problem, solver, KAPPAS, predictor=False)
     assert all(s.converged for s in steps)
     return problem, solver, steps
@@ -42,17 +48,19 @@ def test_the_condensed_solve_is_the_jacobian_solve() -> None:
     assert zone is not None and not zone.whole
     sizes = zone.sizes
     assert 0 < sizes["interface_dofs"] < sizes["zone_dofs"] < problem.num_dofs
-    solver._residual()
-    solver._jacobian()
-    assert zone.covers(solver._g < 0)
-    b = solver.R.duplicate()
+    system = solver.system
+    system.residual()
+    A = system.jacobian()
+    assert zone.covers(system.g < 0)
+    zone.set_up(A)
+    b = system.R.duplicate()
     rng = np.random.default_rng(problem.mesh.comm.rank)
     b.array[:] = rng.standard_normal(b.getLocalSize())
     x = b.duplicate()
-    solver.ksp.solve(b, x)
-    exact = lu_solve(solver.A, b)
+    zone.cond.apply(b, x)
+    exact = lu_solve(A, b)
     r = b.duplicate()
-    solver.A.mult(x, r)
+    A.mult(x, r)
     r.axpy(-1.0, b)
     assert r.norm() <= 1e-10 * b.norm()
     x.axpy(-1.0, exact)
@@ -69,12 +77,14 @@ def test_zone_continuation_equals_factorizing_every_step() -> None:
     the minimizer of the model whose active set is the seed's penetrated points, which saves
     Newton steps at the first κ (the later κ start from the same solution).
     """
-    p_fresh, _, fresh = solved(NewtonOptions(contact_zone=False, reuse_factorization=False))
+    p_fresh, _, fresh = solved(
+        NewtonOptions(contact_zone=False), linear=DirectStrategy(reuse=False)
+    )
     assert [s.newton.factorizations for s in fresh] == [s.iterations for s in fresh]
     z_fresh = p_fresh.zeta.x.petsc_vec
     # seeded: K_II only; unseeded: K at the first Newton step (no contact yet), then K_II
     for seed, first in ((True, 1), (False, 2)):
-        p_zone, solver, zoned = solved(NewtonOptions(seed_zone=seed))
+        p_zone, solver, zoned = solved(NewtonOptions(), linear=ZoneStrategy(seed=seed))
         if seed:
             assert zoned[0].iterations < fresh[0].iterations
             assert [s.iterations for s in zoned[1:]] == [s.iterations for s in fresh[1:]]
@@ -94,21 +104,19 @@ def test_a_seed_step_that_does_not_descend_is_replaced_by_a_newton_step(
 ) -> None:
     """If the step towards the seed's model minimizer is not a descent direction (forced here
     by reversing it), the usual Newton step is taken: the steps of an unseeded zone."""
-    _, _, plain = solved(NewtonOptions(seed_zone=False))
+    _, _, plain = solved(NewtonOptions(), linear=ZoneStrategy(seed=False))
     p_ref, _, _ = solved(NewtonOptions())
-    seed_step = NewtonSolver._zone_seed_step
+    seed_step = ZoneModel._seed_step
     calls = []
 
-    def reversed_step(
-        self: NewtonSolver, seed: np.ndarray, g: np.ndarray, r: PETSc.Vec, d: PETSc.Vec
-    ) -> int:
-        cg = seed_step(self, seed, g, r, d)
-        assert r.dot(d) < 0.0  # the true step descends ...
-        d.scale(-1.0)  # ... its reverse does not
+    def reversed_step(self: ZoneModel, seed: np.ndarray) -> int:
+        cg = seed_step(self, seed)
+        assert self.r.dot(self.d) < 0.0  # the true step descends ...
+        self.d.scale(-1.0)  # ... its reverse does not
         calls.append(cg)
         return cg
 
-    monkeypatch.setattr(NewtonSolver, "_zone_seed_step", reversed_step)
+    monkeypatch.setattr(ZoneModel, "_seed_step", reversed_step)
     p_rev, _, rev = solved(NewtonOptions())
     assert len(calls) == 1
     assert [s.iterations for s in rev] == [s.iterations for s in plain]
@@ -125,7 +133,7 @@ def test_the_zone_grows_when_an_active_point_leaves_it() -> None:
     zone = solver.zone
     small = zone.Z[:: max(1, zone.Z.size // 6)][:6]  # a few dofs: misses the contact region
     zone.set_zone(small)
-    assert not zone.covers(solver.penalty.gap(problem.zeta.x.petsc_vec) < 0)
+    assert not zone.covers(solver.system.penalty.gap(problem.zeta.x.petsc_vec) < 0)
     builds = zone.builds
     problem.zeta.x.array[:] = 0.0
     steps = continuation(problem, solver, KAPPAS, predictor=False)
@@ -143,9 +151,9 @@ def test_a_restored_zone_continues_to_the_last_bit() -> None:
     Exactly serially. MUMPS' parallel factorization is not bitwise reproducible (its dynamic
     scheduling picks the processes of a front at run time): on three or more ranks two
     factorizations of this K already solve to different last bits
-    (benchmarks/mumps_reproducibility.py), and on two ranks this test's bitwise check failed
-    once in about a dozen runs of the MPI tests (fourteenth session). Under MPI the restored
-    run agrees to round-off in the same Newton steps (measured: 1e-15 relative).
+    (benchmarks/mumps_reproducibility.py), and on two ranks a bitwise check fails about once
+    in a dozen runs. Under MPI the restored run agrees to round-off in the same Newton steps
+    (measured: 1e-15 relative).
     """
     p1, s1, _ = solved(NewtonOptions())
     p2 = PenalizedProblem(paper_shell(), square(n=32))
@@ -168,10 +176,11 @@ def test_a_restored_zone_continues_to_the_last_bit() -> None:
 
 @pytest.mark.mpi
 def test_a_zone_too_large_factorizes_the_whole_jacobian() -> None:
-    """Above zone_max_fraction the Jacobian is factorized at every step; same answer (and
-    the same steps as an unseeded zone, whose Newton steps are those of J_κ)."""
-    p_small, _, small = solved(NewtonOptions(seed_zone=False), n=24)
-    p_whole, solver, whole = solved(NewtonOptions(zone_max_fraction=1e-6), n=24)
+    """Above the zone's largest fraction of the dofs the Jacobian is factorized at every
+    step; same answer (and the same steps as an unseeded zone, whose Newton steps are those
+    of J_κ)."""
+    p_small, _, small = solved(NewtonOptions(), n=24, linear=ZoneStrategy(seed=False))
+    p_whole, solver, whole = solved(NewtonOptions(), n=24, linear=ZoneStrategy(max_fraction=1e-6))
     assert solver.zone.whole
     assert [s.iterations for s in whole] == [s.iterations for s in small]
     # the first step factorizes K (no contact yet, an empty zone), every later one J
@@ -183,23 +192,24 @@ def test_a_zone_too_large_factorizes_the_whole_jacobian() -> None:
 
 def test_zone_max_fraction_is_checked() -> None:
     with pytest.raises(ValueError, match="zone_max_fraction"):
-        NewtonOptions(zone_max_fraction=0.0)
+        ZoneStrategy(max_fraction=0.0)
 
 
 def test_without_mumps_selected_inverses_the_solver_warns_and_falls_back(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """No reachable MatMumpsGetInverse: a warning, and the factorization-reuse solver."""
-    from shellobstacle.solvers import contact_zone
+    from shellobstacle.solvers import mumps
 
     def missing() -> None:
         raise RuntimeError("cannot locate the loaded libpetsc")
 
-    monkeypatch.setattr(contact_zone, "_libpetsc", missing)
+    monkeypatch.setattr(mumps, "_libpetsc", missing)
     problem = PenalizedProblem(paper_shell(), square(n=8))
     with pytest.warns(RuntimeWarning, match="selected inverse entries are not reachable"):
         solver = NewtonSolver(problem, NewtonOptions())
-    assert solver.zone is None and solver.reuse
+    assert solver.zone is None and isinstance(solver.linear, DirectStrategy)
+    assert solver.linear.reuse
     steps = continuation(problem, solver, [1e-2], predictor=False)
     assert steps[0].converged
 
@@ -214,9 +224,9 @@ def test_newton_on_the_zone_problem_solves_the_whole_problem() -> None:
     one the history reports.
     """
     p_red, s_red, reduced = solved(NewtonOptions())
-    p_cold, _, cold = solved(NewtonOptions(seed_zone=False))
-    p_full, _, full = solved(NewtonOptions(zone_newton=False))
-    p_fresh, _, _ = solved(NewtonOptions(contact_zone=False, reuse_factorization=False))
+    p_cold, _, cold = solved(NewtonOptions(), linear=ZoneStrategy(seed=False))
+    p_full, _, full = solved(NewtonOptions(), linear=ZoneStrategy(reduced=False))
+    p_fresh, _, _ = solved(NewtonOptions(contact_zone=False), linear=DirectStrategy(reuse=False))
     assert [s.newton.zone_steps for s in reduced] == [s.iterations for s in reduced]
     assert [s.newton.zone_steps for s in cold] == [
         cold[0].iterations - 1,
@@ -228,45 +238,40 @@ def test_newton_on_the_zone_problem_solves_the_whole_problem() -> None:
         d = problem.zeta.x.petsc_vec.copy()
         d.axpy(-1.0, ref)
         assert d.norm() <= 1e-10 * ref.norm()
-    s_red._residual()
-    assert s_red.R.norm() == pytest.approx(reduced[-1].newton.residual_norms[-1], rel=1e-12)
+    s_red.system.residual()
+    assert s_red.system.R.norm() == pytest.approx(reduced[-1].newton.residual_norms[-1], rel=1e-12)
     assert reduced[-1].newton.relative_residual <= 1e-10
 
 
-def test_the_euler_predictor_is_off_for_zone_steps_by_default() -> None:
-    """NewtonOptions.euler_predictor = None: no prediction with steps on the zone or with the
-    iterative solver (ζ is left as it is), a prediction with the direct solver without a zone
-    and whenever it is asked for."""
+def test_only_the_direct_strategy_predicts() -> None:
+    """The Euler predictor needs a kept factorization of the whole Jacobian: the zone's and
+    the iterative strategy leave ζ as it is, the direct strategy predicts."""
     for options in (NewtonOptions(), NewtonOptions(linear_solver="iterative")):
         problem, solver, _ = solved(options)
         zeta0 = problem.zeta.x.array.copy()
-        assert not solver.predicts
-        assert not solver.predict(solver.kappa / 10)
+        assert not solver.linear.predicts
+        assert not predict(solver, solver.kappa / 10)
         assert np.array_equal(problem.zeta.x.array, zeta0)
-    for options in (
-        NewtonOptions(contact_zone=False),
-        NewtonOptions(linear_solver="iterative", euler_predictor=True),
-    ):
-        problem, solver, _ = solved(options)
-        zeta0 = problem.zeta.x.array.copy()
-        assert solver.predicts and solver.predict(solver.kappa / 10)
-        assert not np.array_equal(problem.zeta.x.array, zeta0)
+    problem, solver, _ = solved(NewtonOptions(contact_zone=False))
+    zeta0 = problem.zeta.x.array.copy()
+    assert solver.linear.predicts and predict(solver, solver.kappa / 10)
+    assert not np.array_equal(problem.zeta.x.array, zeta0)
 
 
 @pytest.mark.mpi
-def test_the_zone_predictor_is_the_euler_step() -> None:
-    """predict() through the zone: ζ + Δκ J⁻¹(−∂R/∂κ), J the Jacobian at the solution."""
-    problem, solver, _ = solved(NewtonOptions(euler_predictor=True))
+def test_the_predictor_is_the_euler_step() -> None:
+    """predict(): ζ + Δκ J⁻¹(−∂R/∂κ), J the Jacobian at the solution."""
+    problem, solver, _ = solved(NewtonOptions(contact_zone=False))
+    system = solver.system
     kappa = solver.kappa
     zeta0 = problem.zeta.x.petsc_vec.copy()
-    g = solver.penalty.gap(zeta0)
-    b = solver.R.duplicate()
+    g = system.penalty.gap(zeta0)
+    b = system.R.duplicate()
     b.set(0.0)
-    solver.penalty.add_residual(np.minimum(g, 0.0), kappa * kappa, b)  # −∂R/∂κ
-    solver._g = g
-    solver._jacobian()
-    expected = lu_solve(solver.A, b)
-    assert solver.predict(kappa / 10)
+    system.penalty.add_residual(np.minimum(g, 0.0), kappa * kappa, b)  # −∂R/∂κ
+    system.g = g
+    expected = lu_solve(system.jacobian(), b)
+    assert predict(solver, kappa / 10)
     step = problem.zeta.x.petsc_vec.copy()
     step.axpy(-1.0, zeta0)
     step.scale(1.0 / (kappa / 10 - kappa))
@@ -304,11 +309,11 @@ def test_the_replicated_schur_factor_solves_on_all_ranks_together(factorization:
     is the sequential one to round-off and bitwise the same on every rank."""
     from mpi4py import MPI
 
-    from shellobstacle.solvers.contact_zone import _ReplicatedFactor
+    from shellobstacle.solvers.mumps import ReplicatedFactor
 
     comm = MPI.COMM_WORLD
     S = _laplacian_with_dense_block(30, np.arange(0, 900, 7))
-    factor = _ReplicatedFactor(comm, S, factorization, {7: 2})
+    factor = ReplicatedFactor(comm, S, factorization, {7: 2})
     assert factor.parallel == (comm.size > 1)
     b = S.createVecLeft()
     b.array[:] = np.sin(np.arange(b.getSize()))
@@ -326,14 +331,14 @@ def test_the_replicated_schur_factor_solves_on_all_ranks_together(factorization:
 
 def test_a_failed_factorization_raises_a_clear_error() -> None:
     """MUMPS' failure (here: a singular matrix) raises, naming the matrix and INFOG(1)."""
-    from shellobstacle.solvers.contact_zone import _lu, _set_up
+    from shellobstacle.solvers.base import direct_solver, factorize
 
     A = _laplacian_with_dense_block(6, np.arange(3))
     A.zeroEntries()
     A.assemble()
-    ksp = _lu(PETSc.COMM_SELF, A, "lu")
+    ksp = direct_solver(A, "lu")
     with pytest.raises(
         RuntimeError, match=r"could not factorize the test matrix: INFOG\(1\) = -10"
     ):
-        _set_up(ksp, "the test matrix")
+        factorize(ksp, "the test matrix")
     ksp.destroy()

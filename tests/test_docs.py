@@ -2,7 +2,7 @@
 
 from pathlib import Path
 
-from shellobstacle.config import reference_text
+from shellobstacle.schema import reference_text
 
 
 def test_config_reference_is_up_to_date() -> None:

@@ -1,4 +1,4 @@
-"""Tests of shellobstacle.domains: areas, mesh sizes, nested refinement, errors, .msh files.
+"""Tests of the domains and their meshes: areas, mesh sizes, nested refinement, errors, .msh files.
 
 Only global (allreduced) quantities are asserted, so the ``mpi`` tests hold on any number of
 ranks (``mpiexec -n 2 python -m pytest -m mpi``).
@@ -7,21 +7,22 @@ ranks (``mpiexec -n 2 python -m pytest -m mpi``).
 import math
 
 # isort: split
+from mpi4py import MPI
+
 import gmsh
 import numpy as np
 import pytest
-from mpi4py import MPI
 
-from shellobstacle.domains import (
-    DomainSpec,
+from shellobstacle.domains import DomainSpec
+from shellobstacle.measures import (
     boundary_facets,
-    create_mesh,
     domain_area,
     mesh_size,
     mesh_size_min,
     num_cells_global,
-    refine_uniformly,
 )
+from shellobstacle.meshing import create_mesh
+from shellobstacle.refinement import refine_uniformly
 
 COMM = MPI.COMM_WORLD
 L_SHAPE = ((0.0, 0.0), (1.0, 0.0), (1.0, 0.5), (0.5, 0.5), (0.5, 1.0), (0.0, 1.0))
@@ -308,7 +309,7 @@ def test_large_mesh_is_the_coarse_gmsh_mesh_refined_twice(spec: DomainSpec):
     cells, node for node."""
     import dataclasses
 
-    from shellobstacle import domains
+    from shellobstacle import meshing as domains
 
     coarse_spec = dataclasses.replace(spec, h=4 * spec.h, gmsh_max_vertices=0)
     with domains._gmsh_model("reference", domains._gmsh_options(coarse_spec)) as model:

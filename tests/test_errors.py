@@ -14,8 +14,9 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-import pytest
 from mpi4py import MPI
+
+import pytest
 
 from shellobstacle.cli import main
 from shellobstacle.config import to_toml
@@ -451,7 +452,7 @@ def test_failed_figure_keeps_the_previous_png(tmp_path, monkeypatch) -> None:
     """A figure is written to a temporary file and renamed: a failure leaves the old file."""
     import matplotlib.pyplot as plt
 
-    from shellobstacle.plotting import _save_atomically
+    from shellobstacle.post.plotting import _save_atomically
 
     path = tmp_path / "cross_section.png"
     path.write_bytes(b"previous figure")
@@ -496,7 +497,7 @@ def test_vtx_folder_is_replaced_atomically(tmp_path, monkeypatch, fail: bool) ->
     """A .bp folder appears complete or not at all; an old one survives a failed write."""
     import dolfinx.io
 
-    from shellobstacle import output
+    from shellobstacle.io import paraview as output
 
     monkeypatch.setattr(_FakeVTXWriter, "fail", fail)
     monkeypatch.setattr(dolfinx.io, "VTXWriter", _FakeVTXWriter)

@@ -8,14 +8,15 @@ discrete solution equals it up to the solver tolerance and the quadrature of the
 """
 
 # isort: split
+from mpi4py import MPI
+
 import dolfinx
 import numpy as np
 import pytest
-from mpi4py import MPI
 
 from shellobstacle.membrane import gap
-from shellobstacle.model import Load, Material, Obstacle, Shell
-from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
+from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.surface import Surface
 

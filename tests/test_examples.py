@@ -9,8 +9,9 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import pytest
 from mpi4py import MPI
+
+import pytest
 
 from shellobstacle.cli import main
 from shellobstacle.config import load_config

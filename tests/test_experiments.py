@@ -6,20 +6,23 @@ import dataclasses
 import itertools
 from pathlib import Path
 
+from mpi4py import MPI
+
 import dolfinx
 import numpy as np
 import pytest
-from mpi4py import MPI
 
 from shellobstacle.cli import main
-from shellobstacle.config import PenaltySpec, load_config
-from shellobstacle.domains import DomainSpec, create_mesh, refine_uniformly
-from shellobstacle.experiments.common import DifferenceNorms, transfer
+from shellobstacle.config import load_config
+from shellobstacle.domains import DomainSpec
+from shellobstacle.experiments.common import transfer
 from shellobstacle.experiments.load import PAPER_BATCH3_LOAD, load_study
 from shellobstacle.experiments.mesh import mesh_levels, mesh_study
 from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
-from shellobstacle.model import Load
-from shellobstacle.problem import Discretization
+from shellobstacle.meshing import create_mesh
+from shellobstacle.model import Discretization, Load, PenaltySpec
+from shellobstacle.post.norms import DifferenceNorms
+from shellobstacle.refinement import refine_uniformly
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "examples" / "paper.toml"

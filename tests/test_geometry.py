@@ -10,13 +10,14 @@ sphere and the ellipsoid.
 import math
 
 # isort: split
+from mpi4py import MPI
+
 import dolfinx
 import dolfinx.fem
 import numpy as np
 import pytest
 import sympy as sp
 import ufl
-from mpi4py import MPI
 
 from shellobstacle.expressions import y1, y2
 from shellobstacle.surface import Surface

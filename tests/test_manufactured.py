@@ -20,17 +20,18 @@ regularity in ζ_3, so duality cannot give h³).
 from functools import cached_property
 
 # isort: split
+from mpi4py import MPI
+
 import dolfinx
 import numpy as np
 import pytest
 import sympy as sp
 import ufl
-from mpi4py import MPI
 
 from shellobstacle.expressions import to_ufl, y1, y2
 from shellobstacle.membrane import elastic_product, gap, membrane_stress, strain, stress_divergence
-from shellobstacle.model import Load, Material, Obstacle, Shell
-from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
+from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.surface import Surface
 

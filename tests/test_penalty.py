@@ -2,15 +2,18 @@
 
 from __future__ import annotations
 
+from petsc4py import PETSc
+
 import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 import pytest
-from petsc4py import PETSc
 
+from shellobstacle.model import Discretization
 from shellobstacle.penalty import QuadraturePenalty
-from shellobstacle.pipeline import continuation
-from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.continuation import continuation
+from shellobstacle.solvers.linear.direct import DirectStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 from tests.test_newton import paper_shell, square
 
@@ -81,7 +84,8 @@ def test_factorization_reuse_same_solution_fewer_factorizations() -> None:
     results = {}
     for reuse in (False, True):
         problem = PenalizedProblem(paper_shell(), square(n=32))
-        solver = NewtonSolver(problem, NewtonOptions(reuse_factorization=reuse, contact_zone=False))
+        options = NewtonOptions(contact_zone=False)
+        solver = NewtonSolver(problem, options, DirectStrategy(reuse=reuse))
         steps = continuation(problem, solver, kappas)
         results[reuse] = (problem.zeta.x.petsc_vec.copy(), steps)
     (z_fresh, fresh), (z_reuse, reused) = results[False], results[True]
@@ -100,12 +104,13 @@ def test_factorization_reuse_same_solution_fewer_factorizations() -> None:
 def test_reuse_gives_up_and_factorizes_when_cg_is_slow(monkeypatch: pytest.MonkeyPatch) -> None:
     """CG that does not converge within its budget falls back to a new factorization."""
     problem = PenalizedProblem(paper_shell(), square(n=24))
-    solver = NewtonSolver(problem, NewtonOptions(reuse_max_iterations=1, contact_zone=False))
+    linear = DirectStrategy(reuse_max_iterations=1)
+    solver = NewtonSolver(problem, NewtonOptions(contact_zone=False), linear)
     # always try CG, however much the active set moved: with one iteration it must fail
-    monkeypatch.setattr(solver, "_active_set_moved", lambda: False)
+    monkeypatch.setattr(linear, "_moved", lambda: 0)
     steps = continuation(problem, solver, [1e-2, 1e-3])
     assert all(s.converged for s in steps)
-    assert solver._reuse_failures > 0
+    assert linear.reuse_failures > 0  # (in the last κ's solve)
     assert sum(s.newton.factorizations for s in steps) > len(steps)
 
 

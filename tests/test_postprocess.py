@@ -12,26 +12,22 @@ import math
 from pathlib import Path
 
 # isort: split
+from mpi4py import MPI
+
 import dolfinx
 import dolfinx.fem
 import dolfinx.mesh
 import numpy as np
 import pytest
 import ufl
-from mpi4py import MPI
 
-from shellobstacle.model import Load, Material, Shell
-from shellobstacle.output import SurfaceMesh, write_paraview
-from shellobstacle.plotting import plot_cross_section
-from shellobstacle.postprocess import (
-    Postprocessor,
-    cross_section,
-    h1_norm,
-    l2_norm,
-    norms,
-    vm_norm,
-)
-from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.io.paraview import SurfaceMesh, write_paraview
+from shellobstacle.model import Discretization, Load, Material, Shell
+from shellobstacle.post.contact import Postprocessor
+from shellobstacle.post.norms import h1_norm, l2_norm, norms, vm_norm
+from shellobstacle.post.plotting import plot_cross_section
+from shellobstacle.post.sections import cross_section
+from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.surface import Surface
 

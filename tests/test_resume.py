@@ -11,12 +11,13 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-import numpy as np
-import pytest
 from mpi4py import MPI
 
-from shellobstacle.checkpoint import Checkpoint
+import numpy as np
+import pytest
+
 from shellobstacle.cli import EXIT_INTERRUPTED, main
+from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.solvers.newton import NewtonSolver
 
 ROOT = Path(__file__).parents[1]

@@ -8,18 +8,16 @@ The Python API mirrors the configuration file::
                   Load(("0", "0", "-1e-5")))
     result = solve(shell, DomainSpec("disk", h=0.02), PenaltySpec(exponent=1.5))
 
-Names are imported lazily, so ``import shellobstacle`` does not start DOLFINx. It does set
-up the process first (:mod:`shellobstacle.compat`: the DOLFINx wheel's MPI bootstrap, NumPy's
-BLAS threads, glibc's malloc, the blocked DGEMMT under MUMPS), which must happen before
-DOLFINx or PETSc are loaded: import ``shellobstacle`` before ``dolfinx`` and ``petsc4py``.
+Names are imported lazily: ``import shellobstacle`` loads neither DOLFINx nor MPI and changes
+nothing in the process, and the package may be imported before or after ``dolfinx`` and
+``petsc4py``. Process tuning for long runs is the command line's, opt-in
+(:mod:`shellobstacle.tuning`).
 """
 
 from __future__ import annotations
 
 import importlib
 from typing import Any
-
-from shellobstacle import compat  # noqa: F401  (before any DOLFINx or PETSc import)
 
 __version__ = "0.1.0"
 
@@ -30,12 +28,17 @@ _EXPORTS = {
     "Load": "shellobstacle.model",
     "Obstacle": "shellobstacle.model",
     "DomainSpec": "shellobstacle.domains",
-    "Discretization": "shellobstacle.problem",
+    "Discretization": "shellobstacle.model",
     "PenalizedProblem": "shellobstacle.problem",
-    "PenaltySpec": "shellobstacle.config",
+    "PenaltySpec": "shellobstacle.model",
     "load_config": "shellobstacle.config",
-    "NewtonOptions": "shellobstacle.solvers.newton",
-    "Postprocessor": "shellobstacle.postprocess",
+    "NewtonOptions": "shellobstacle.solvers.options",
+    "NewtonSolver": "shellobstacle.solvers.newton",
+    "ConvergenceError": "shellobstacle.solvers.base",
+    "continuation": "shellobstacle.solvers.continuation",
+    "exact_solution": "shellobstacle.pipeline",
+    "make_mesh": "shellobstacle.pipeline",
+    "Postprocessor": "shellobstacle.post.contact",
     "solve": "shellobstacle.pipeline",
     "solve_config": "shellobstacle.pipeline",
 }

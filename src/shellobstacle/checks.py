@@ -9,10 +9,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
+
 import dolfinx
 import numpy as np
 
-from shellobstacle import compat  # noqa: F401
 from shellobstacle.model import Shell
 
 __all__ = ["AssumptionError", "Check", "check_assumptions", "format_checks", "sample_points"]

@@ -1,28 +1,29 @@
-"""The one place that orders the DOLFINx wheel's MPI bootstrap ahead of dolfinx/petsc4py.
+"""The DOLFINx binary wheel's bootstrap, called by the command line.
 
-It also gives NumPy's BLAS one thread per rank under ``mpiexec`` unless ``OMP_NUM_THREADS``
-or ``OPENBLAS_NUM_THREADS`` is set, warns when ``OPENBLAS_CORETYPE`` forces kernels known to
-crash it (:mod:`shellobstacle.threads`), keeps freed memory in
-the process unless the user tuned malloc (:mod:`shellobstacle.memory`), faults the heap's new
-pages in on a spare core (:mod:`shellobstacle.prefault`), and gives MUMPS a DGEMMT made of
-DGEMM blocks before PETSc is loaded (:mod:`shellobstacle.blas`).
+The wheel ``dolfinx-solver-real`` needs ``mpi4py.MPI`` loaded before its compiled modules; the
+package's modules import ``mpi4py`` first for that, as DOLFINx's own demos do, so the import
+order of ``shellobstacle``, ``dolfinx`` and ``petsc4py`` in a user's script does not matter.
+``import dolfinx_solver`` also refuses a broken environment (a foreign petsc4py, both scalar
+variants installed) with a message that says what to uninstall: the command line calls
+:func:`bootstrap` before anything else. Other DOLFINx installs (conda-forge, Docker, source
+builds) have no such package and need nothing.
 """
 
-import contextlib
-import warnings
+from __future__ import annotations
 
-with contextlib.suppress(ImportError):
-    import dolfinx_solver  # noqa: F401  (binary wheel: loads mpi4py.MPI first)
+__all__ = ["bootstrap"]
 
-from mpi4py import MPI
 
-from shellobstacle.blas import block_gemmt
-from shellobstacle.memory import keep_freed_memory
-from shellobstacle.prefault import start_prefault
-from shellobstacle.threads import coretype_warning, limit_blas_threads
+def bootstrap() -> str:
+    """Check the DOLFINx wheel's environment and load MPI; returns how DOLFINx is installed.
 
-start_prefault(MPI.COMM_WORLD.size, keep_freed_memory())
-limit_blas_threads(MPI.COMM_WORLD.size)
-block_gemmt()
-if (_message := coretype_warning()) and MPI.COMM_WORLD.rank == 0:
-    warnings.warn(_message, RuntimeWarning, stacklevel=2)
+    Raises:
+        ImportError: the wheel's own message for an environment that cannot work.
+    """
+    try:
+        import dolfinx_solver
+    except ModuleNotFoundError:
+        from mpi4py import MPI  # noqa: F401  (what the wheel's bootstrap would load)
+
+        return "not from the dolfinx-solver wheel (conda-forge, Docker or a source build)"
+    return f"the {dolfinx_solver.__name__.replace('_', '-')} wheel {dolfinx_solver.__version__}"

@@ -1,11 +1,11 @@
 """TOML configuration → validated objects, with errors that name the key and the fix.
 
-The schema below is the single source of truth: the loader validates against it
-and ``shellobstacle config-reference`` prints it, so documentation cannot drift.
+Keys, types and defaults come from :mod:`shellobstacle.schema`.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import difflib
 import math
 import tomllib
@@ -17,163 +17,23 @@ from typing import Any
 
 from shellobstacle.domains import DomainSpec
 from shellobstacle.expressions import ExpressionError
-from shellobstacle.model import Load, Material, Obstacle, Shell
-from shellobstacle.problem import PENALTY_QUADRATURES, TRANSVERSE, Discretization
-from shellobstacle.solvers.newton import NewtonOptions
-from shellobstacle.surface import SURFACE_KINDS, Surface
+from shellobstacle.model import (
+    Discretization,
+    Load,
+    Material,
+    Obstacle,
+    PenaltySpec,
+    Shell,
+)
+from shellobstacle.schema import REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
+from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.surface import Surface
 
-__all__ = [
-    "SCHEMA",
-    "Config",
-    "ConfigError",
-    "PenaltySpec",
-    "load_config",
-    "parse_config",
-    "reference_text",
-    "to_toml",
-]
+__all__ = ["Config", "ConfigError", "load_config", "parse_config", "to_toml"]
 
 
 class ConfigError(ValueError):
     """A configuration problem the user can fix; the message names file, key and fix."""
-
-
-@dataclass(frozen=True)
-class Key:
-    """One configuration key: its type, default (``REQUIRED`` if none) and meaning."""
-
-    type: str  # "float", "int", "str", "bool", "float[n]", "str|float[3]", "table", "points"
-    default: Any
-    help: str
-    choices: tuple[str, ...] = ()
-
-
-REQUIRED = object()
-OPTIONAL = None
-
-SCHEMA: dict[str, dict[str, Key]] = {
-    "surface": {
-        "kind": Key("str", REQUIRED, "built-in surface or 'expression'", SURFACE_KINDS),
-        "radius": Key("float", OPTIONAL, "spherical_cap: sphere radius R"),
-        "offset": Key("float", OPTIONAL, "spherical_cap/ellipsoid_cap: downward shift of θ_3"),
-        "semi_axes": Key("float[3]", OPTIONAL, "ellipsoid_cap: semi-axes (A, B, C)"),
-        "height": Key("float", OPTIONAL, "elliptic_paraboloid: apex height"),
-        "curvatures": Key("float[2]", OPTIONAL, "elliptic_paraboloid: apex curvatures (k1, k2)"),
-        "theta": Key("str[3]", OPTIONAL, "expression: θ(y1, y2) as three SymPy strings"),
-    },
-    "domain": {
-        "kind": Key(
-            "str", REQUIRED, "shape of ω", ("disk", "ellipse", "polygon", "rectangle", "file")
-        ),
-        "h": Key("float", OPTIONAL, "target mesh size (gmsh); the h obtained is reported"),
-        "radius": Key("float", 0.5, "disk: radius"),
-        "center": Key("float[2]", (0.0, 0.0), "disk/ellipse: centre"),
-        "semi_axes": Key("float[2]", OPTIONAL, "ellipse: semi-axes"),
-        "vertices": Key("points", OPTIONAL, "polygon: list of [y1, y2] vertices"),
-        "corners": Key("points", OPTIONAL, "rectangle: [[y1_min, y2_min], [y1_max, y2_max]]"),
-        "path": Key(
-            "str", OPTIONAL, "file: a gmsh .msh file of triangles (relative to the config)"
-        ),
-        "refinements": Key("int", 0, "uniform refinements after meshing (nested meshes)"),
-        "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
-        "central_radius": Key("float", OPTIONAL, "disk/ellipse: radius of the finer region"),
-        "gmsh_max_vertices": Key(
-            "int", 8_000, "above this, gmsh meshes coarser and the mesh is refined (0: never)"
-        ),
-    },
-    "material": {
-        "epsilon": Key("float", REQUIRED, "half-thickness ε > 0"),
-        "lambda": Key("float", REQUIRED, "Lamé constant λ ≥ 0"),
-        "mu": Key("float", REQUIRED, "Lamé constant μ > 0"),
-    },
-    "load": {
-        "p": Key("str|float[3]", REQUIRED, "contravariant force density p^i(y1, y2, r)"),
-        "parameters": Key("table", {}, "named numbers the load may use (sweepable)"),
-    },
-    "obstacle": {
-        "q": Key("float[3]", (0.0, 0.0, 1.0), "normal of the plane; H = {x·q ≥ 0}"),
-    },
-    "penalty": {
-        "kappa": Key("float", OPTIONAL, "penalty parameter κ > 0"),
-        "exponent": Key("float", OPTIONAL, "κ = h^exponent (the paper's coupling)"),
-        "continuation": Key("bool", True, "reach κ through a ladder of larger κ (warm starts)"),
-    },
-    "discretization": {
-        "degree": Key("int", 1, "Lagrange degree of all components (1 or 2)"),
-        "transverse": Key("str", "clamped", "boundary condition of ζ_3", TRANSVERSE),
-        "penalty_quadrature": Key(
-            "str", "gauss", "where the penalty is integrated", PENALTY_QUADRATURES
-        ),
-        "quadrature_degree": Key("int", OPTIONAL, "quadrature degree (default 2·degree + 2)"),
-    },
-    "solver": {
-        "method": Key(
-            "str",
-            "newton",
-            "newton: penalized problem by Newton; brezis-sibony: the paper's iteration (38); "
-            "active-set: the exact nodal variational inequality (κ = 0, no [penalty])",
-            ("newton", "brezis-sibony", "active-set"),
-        ),
-        "linear_solver": Key(
-            "str",
-            "direct",
-            "MUMPS, or inexact Newton with flexible CG and a field split (GAMG on ζ_α): "
-            "about 70 % of the memory",
-            ("direct", "iterative"),
-        ),
-        "factorization": Key(
-            "str",
-            "cholesky",
-            "direct solver: Cholesky (symmetric positive definite; half the memory of LU), or LU",
-            ("cholesky", "lu"),
-        ),
-        "contact_zone": Key(
-            "bool",
-            True,
-            "direct solver: condense each Newton step onto the contact zone (K factorized once "
-            "per zone, kept across κ); false: one factorization per κ reused by CG",
-        ),
-        "rtol": Key("float", 1e-10, "relative residual tolerance"),
-        "stol": Key("float", 1e-12, "relative Newton-correction tolerance"),
-        "max_iterations": Key("int", 100, "Newton (or active-set) iterations per κ"),
-        "xi": Key("float", OPTIONAL, "brezis-sibony: Ξ of (38); default: from a λ_max estimate"),
-        "mass": Key("str", "consistent", "brezis-sibony: mass matrix", ("consistent", "lumped")),
-        "start": Key("str", "linearized", "brezis-sibony: ψ_0", ("zero", "linearized")),
-        "bs_max_iterations": Key("int", 200000, "brezis-sibony: iteration cap"),
-        "bs_rtol": Key("float", 1e-9, "brezis-sibony: relative L² increment tolerance"),
-    },
-    "output": {
-        "paraview": Key("bool", True, "write VTX (.bp) files for ParaView"),
-        "figures": Key("bool", True, "write PNG figures"),
-    },
-}
-
-REQUIRED_SECTIONS = ("surface", "domain", "material", "load")
-
-
-@dataclass(frozen=True)
-class PenaltySpec:
-    """``κ`` given directly or as ``h^exponent``, and whether to continue from larger κ."""
-
-    kappa: float | None = None
-    exponent: float | None = None
-    continuation: bool = True
-
-    def target(self, h: float) -> float:
-        """The κ to solve for on a mesh of size ``h``."""
-        return self.kappa if self.kappa is not None else h ** float(self.exponent)  # type: ignore[arg-type]
-
-    def ladder(self, h: float) -> list[float]:
-        """The continuation path ending at :meth:`target` (just the target if disabled)."""
-        target = self.target(h)
-        if not self.continuation:
-            return [target]
-        if self.exponent is not None:
-            qs = [0.5 * k for k in range(1, int(2 * self.exponent) + 1) if 0.5 * k < self.exponent]
-            path = [h**qq for qq in qs]
-        else:
-            path = [10.0**-k for k in range(0, 40) if 10.0**-k > target]
-        return [k for k in path if k > 0] + [target]
 
 
 @dataclass(frozen=True)
@@ -183,7 +43,7 @@ class Config:
     shell: Shell
     domain: DomainSpec
     discretization: Discretization
-    penalty: PenaltySpec
+    penalty: PenaltySpec | None  # None for the exact solver (solver.method = "active-set")
     solver: NewtonOptions
     method: str
     output: Mapping[str, bool]
@@ -354,6 +214,7 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
 
     p = r.get("penalty", {})
     sv = r["solver"]
+    penalty = None
     if sv["method"] == "active-set":
         if "kappa" in p or "exponent" in p:
             warnings.warn(
@@ -361,31 +222,19 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
                 "penalty.kappa / penalty.exponent are ignored",
                 stacklevel=2,
             )
-            p = {k: v for k, v in p.items() if k not in ("kappa", "exponent")}
-        if disc.degree != 1 or disc.penalty_quadrature != "vertex":
+        if disc.degree != 1:
             raise ConfigError(
                 f"{source}: solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1: "
-                "set discretization.degree = 1 and discretization.penalty_quadrature = 'vertex'"
+                "set discretization.degree = 1"
             )
-        p = {**p, "kappa": 1.0}  # unused by the exact solver; keeps PenalizedProblem's forms
+        # the exact solver's constraint is the nodal one, whatever the penalty would use
+        disc = dataclasses.replace(disc, penalty_quadrature="vertex")
+        r["discretization"]["penalty_quadrature"] = "vertex"
+        r["penalty"] = {}
+    else:
+        penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
     if sv.get("xi") is not None and not sv["xi"] > 0:
         raise ConfigError(f"{source}: solver.xi must be > 0, got {sv['xi']}")
-    if "kappa" in p and "exponent" in p:
-        raise ConfigError(f"{source}: give either penalty.kappa or penalty.exponent, not both")
-    if "kappa" not in p and "exponent" not in p:
-        raise ConfigError(
-            f"{source}: [penalty] needs 'kappa' (a number) or 'exponent' (κ = h^exponent)"
-        )
-    if "kappa" in p and not p["kappa"] > 0:
-        raise ConfigError(f"{source}: penalty.kappa must be > 0, got {p['kappa']}")
-    if "exponent" in p and not 0 < p["exponent"] <= 20:
-        raise ConfigError(
-            f"{source}: penalty.exponent must be in (0, 20] (κ = h^20 is already far below "
-            f"what double precision resolves), got {p['exponent']}"
-        )
-    if "kappa" in p and p["kappa"] < 1e-100:
-        raise ConfigError(f"{source}: penalty.kappa = {p['kappa']} is too small (at least 1e-100)")
-    penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
 
     for key in ("rtol", "stol", "bs_rtol"):
         if sv[key] < 0:
@@ -456,26 +305,3 @@ def to_toml(resolved: Mapping[str, Mapping[str, Any]]) -> str:
         parts += [f"{k} = {_toml_value(v)}" for k, v in keys.items()]
         parts.append("")
     return "\n".join(parts)
-
-
-def reference_text() -> str:
-    """The configuration reference (Markdown), generated from :data:`SCHEMA`."""
-    lines = ["# Configuration reference", ""]
-    for section, keys in SCHEMA.items():
-        req = " (required section)" if section in REQUIRED_SECTIONS else ""
-        lines += [
-            f"## [{section}]{req}",
-            "",
-            "| key | type | default | meaning |",
-            "|---|---|---|---|",
-        ]
-        for name, k in keys.items():
-            default = (
-                "required"
-                if k.default is REQUIRED
-                else ("—" if k.default is None else repr(k.default))
-            )
-            meaning = k.help + (f" (one of {', '.join(k.choices)})" if k.choices else "")
-            lines.append(f"| `{name}` | {k.type} | {default} | {meaning} |")
-        lines.append("")
-    return "\n".join(lines)

@@ -1,7 +1,8 @@
-"""The physical data of a shell obstacle problem: surface, material, load, obstacle (MODEL.md §2–3).
+"""The data of a shell obstacle problem (MODEL.md §2–5): the physical shell (surface,
+material, load, obstacle) and the numerical choices (discretization, penalty).
 
-These small frozen dataclasses are the Python API that mirrors the config file;
-they know nothing about meshes or finite elements.
+These small frozen dataclasses are the Python API that mirrors the config file; they
+validate at construction with the config's messages and know nothing about meshes.
 """
 
 from __future__ import annotations
@@ -18,7 +19,16 @@ import sympy as sp
 from shellobstacle.expressions import is_safe_name, parse, y1, y2
 from shellobstacle.surface import Surface
 
-__all__ = ["Load", "Material", "Obstacle", "Shell"]
+__all__ = [
+    "PENALTY_QUADRATURES",
+    "TRANSVERSE",
+    "Discretization",
+    "Load",
+    "Material",
+    "Obstacle",
+    "PenaltySpec",
+    "Shell",
+]
 
 
 @dataclass(frozen=True)
@@ -119,3 +129,94 @@ class Shell:
     def load_expressions(self) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
         """``p^{i,ε}`` as SymPy expressions (see :meth:`Load.expressions`)."""
         return self.load.expressions(self.material)
+
+
+TRANSVERSE = ("clamped", "free")
+PENALTY_QUADRATURES = ("gauss", "vertex")
+
+
+@dataclass(frozen=True)
+class Discretization:
+    """Finite-element choices (MODEL.md §5).
+
+    Attributes:
+        degree: Lagrange degree of all three components (1 or 2).
+        transverse: ``"clamped"`` (ζ_3 = 0 on γ, the paper's numerics) or ``"free"`` (ζ_3 ∈ L²).
+        penalty_quadrature: ``"gauss"`` (the paper's) or ``"vertex"`` (nodal, mass-lumped; P1).
+        quadrature_degree: for the membrane and load integrals (default ``2 * degree + 2``).
+    """
+
+    degree: int = 1
+    transverse: str = "clamped"
+    penalty_quadrature: str = "gauss"
+    quadrature_degree: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.degree not in (1, 2):
+            raise ValueError(f"discretization.degree must be 1 or 2, got {self.degree}")
+        if self.transverse not in TRANSVERSE:
+            raise ValueError(
+                f"discretization.transverse must be one of {TRANSVERSE}, got {self.transverse!r}"
+            )
+        if self.penalty_quadrature not in PENALTY_QUADRATURES:
+            raise ValueError(
+                "discretization.penalty_quadrature must be one of "
+                f"{PENALTY_QUADRATURES}, got {self.penalty_quadrature!r}"
+            )
+        if self.penalty_quadrature == "vertex" and self.degree != 1:
+            raise ValueError(
+                "discretization.penalty_quadrature = 'vertex' is the nodal constraint of P1; "
+                "use degree = 1, or penalty_quadrature = 'gauss' with degree = 2"
+            )
+        if self.quadrature_degree is not None and not 1 <= self.quadrature_degree <= 20:
+            raise ValueError(
+                f"discretization.quadrature_degree must be in 1..20, got {self.quadrature_degree}"
+            )
+
+    @property
+    def qdegree(self) -> int:
+        """Quadrature degree actually used for the membrane and load integrals."""
+        return self.quadrature_degree or 2 * self.degree + 2
+
+
+@dataclass(frozen=True)
+class PenaltySpec:
+    """``κ`` given directly or as ``h^exponent`` (the paper's coupling), and whether to reach
+    it through a ladder of larger κ (warm starts, MODEL.md §4)."""
+
+    kappa: float | None = None
+    exponent: float | None = None
+    continuation: bool = True
+
+    def __post_init__(self) -> None:
+        if self.kappa is not None and self.exponent is not None:
+            raise ValueError("give either penalty.kappa or penalty.exponent, not both")
+        if self.kappa is None and self.exponent is None:
+            raise ValueError("[penalty] needs 'kappa' (a number) or 'exponent' (κ = h^exponent)")
+        if self.kappa is not None:
+            if not self.kappa > 0:
+                raise ValueError(f"penalty.kappa must be > 0, got {self.kappa}")
+            if self.kappa < 1e-100:
+                raise ValueError(f"penalty.kappa = {self.kappa} is too small (at least 1e-100)")
+        if self.exponent is not None and not 0 < self.exponent <= 20:
+            raise ValueError(
+                "penalty.exponent must be in (0, 20] (κ = h^20 is already far below what "
+                f"double precision resolves), got {self.exponent}"
+            )
+
+    def target(self, h: float) -> float:
+        """The κ to solve for on a mesh of size ``h``."""
+        return self.kappa if self.kappa is not None else h ** float(self.exponent)  # type: ignore[arg-type]
+
+    def ladder(self, h: float) -> list[float]:
+        """The continuation path ending at :meth:`target` (just the target if disabled):
+        ``h^0.5, h^1, …`` below the exponent, or the powers of ten above ``kappa``."""
+        target = self.target(h)
+        if not self.continuation:
+            return [target]
+        if self.exponent is not None:
+            qs = [0.5 * k for k in range(1, int(2 * self.exponent) + 1) if 0.5 * k < self.exponent]
+            path = [h**qq for qq in qs]
+        else:
+            path = [10.0**-k for k in range(0, 40) if 10.0**-k > target]
+        return [k for k in path if k > 0] + [target]

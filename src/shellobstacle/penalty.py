@@ -19,15 +19,16 @@ operations at the quadrature points (:mod:`shellobstacle.solvers.newton`).
 
 from __future__ import annotations
 
+from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
+from petsc4py import PETSc
+
 import basix
 import basix.ufl
 import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 import ufl
-from petsc4py import PETSc
 
-from shellobstacle import compat  # noqa: F401
 from shellobstacle.problem import PenalizedProblem
 
 __all__ = ["QuadraturePenalty", "gap_scale", "penalty_hessian", "penalty_rule"]

@@ -1,32 +1,39 @@
-"""One solve of the penalized obstacle problem: mesh → checks → compile → continuation in κ.
+"""One solve of the obstacle problem: mesh → checks → compile → the solver asked for.
 
-This is what ``shellobstacle solve`` runs, and the Python API's entry point.
+This is what ``shellobstacle solve`` runs, and the Python API's entry point: Newton's
+continuation in κ (the default), the paper's Brezis–Sibony iteration at the target κ, or the
+exact nodal variational inequality (κ = 0, :func:`exact_solution`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
+
 import dolfinx
 
-from shellobstacle import compat  # noqa: F401
 from shellobstacle.checks import Check, check_assumptions, require
-from shellobstacle.config import Config, ConfigError, PenaltySpec
-from shellobstacle.domains import DomainSpec, create_mesh, mesh_size
-from shellobstacle.model import Shell
-from shellobstacle.problem import Discretization, PenalizedProblem
-from shellobstacle.solvers.newton import ConvergenceError, NewtonOptions, NewtonResult, NewtonSolver
+from shellobstacle.config import Config, ConfigError
+from shellobstacle.domains import DomainSpec
+from shellobstacle.measures import mesh_size
+from shellobstacle.meshing import create_mesh
+from shellobstacle.model import Discretization, PenaltySpec, Shell
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.base import ConvergenceError
+from shellobstacle.solvers.continuation import KappaStep, continuation
+from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
 __all__ = [
     "METHODS",
-    "KappaStep",
     "MethodStep",
     "SolveResult",
-    "continuation",
+    "exact_solution",
     "make_mesh",
     "solve",
     "solve_config",
@@ -35,46 +42,6 @@ __all__ = [
 METHODS = ("newton", "brezis-sibony", "active-set")
 
 Progress = Callable[[str], Any]
-
-
-@dataclass
-class KappaStep:
-    """One κ of a continuation: its Newton statistics and time."""
-
-    kappa: float
-    newton: NewtonResult
-    seconds: float
-
-    @property
-    def iterations(self) -> int:
-        """Newton steps at this κ."""
-        return self.newton.iterations
-
-    @property
-    def converged(self) -> bool:
-        """Whether Newton converged at this κ."""
-        return self.newton.converged
-
-    @property
-    def residual_norms(self) -> list[float]:
-        """Residual norms of the Newton iterates."""
-        return self.newton.residual_norms
-
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-friendly record."""
-        r = self.newton
-        return {
-            "kappa": self.kappa,
-            "converged": r.converged,
-            "iterations": r.iterations,
-            "reason": r.reason,
-            "relative_residual": r.relative_residual,
-            "round_off_limited": r.round_off_limited,
-            "line_search_evaluations": r.line_search_evaluations,
-            "linear_iterations": r.linear_iterations,
-            "step_lengths": r.step_lengths,
-            "seconds": self.seconds,
-        }
 
 
 @dataclass
@@ -134,50 +101,10 @@ def make_mesh(domain: DomainSpec) -> dolfinx.mesh.Mesh:
         raise ConfigError(f"[domain]: {err}") from None
 
 
-def continuation(
-    problem: PenalizedProblem,
-    solver: NewtonSolver,
-    kappas: list[float],
-    progress: Progress | None = None,
-    predictor: bool = True,
-    newton_progress: Callable[[int, float], Any] | None = None,
-) -> list[KappaStep]:
-    """Solve for each κ in turn, warm-starting from the previous solution.
-
-    With ``predictor`` the warm start is the Euler prediction along κ
-    (:meth:`NewtonSolver.predict`) rather than the previous solution itself.
-    ``newton_progress(it, relative_residual)`` is called after every Newton iteration; if it
-    has a method ``finished(result)``, that is called with each κ's :class:`NewtonResult`.
-
-    Raises:
-        ConvergenceError: from the first κ that fails (earlier steps are in ``err.steps``).
-    """
-    steps: list[KappaStep] = []
-    for k, kappa in enumerate(kappas):
-        t0 = time.perf_counter()
-        if predictor and k > 0:
-            solver.predict(kappa)
-        problem.set_kappa(kappa)
-        try:
-            result = solver.solve(newton_progress)
-        except ConvergenceError as err:
-            err.steps = steps  # type: ignore[attr-defined]
-            raise
-        if hasattr(newton_progress, "finished"):
-            newton_progress.finished(result)
-        steps.append(KappaStep(kappa, result, time.perf_counter() - t0))
-        if progress is not None:
-            progress(
-                f"κ {k + 1}/{len(kappas)} = {kappa:.3e}: {result.iterations} Newton steps, "
-                f"relative residual {result.relative_residual:.1e}"
-            )
-    return steps
-
-
 def solve(
     shell: Shell,
     domain: DomainSpec | dolfinx.mesh.Mesh,
-    penalty: PenaltySpec,
+    penalty: PenaltySpec | None,
     discretization: Discretization | None = None,
     options: NewtonOptions | None = None,
     force: bool = False,
@@ -186,25 +113,30 @@ def solve(
     method_options: Any = None,
     newton_progress: Callable[[int, float], Any] | None = None,
 ) -> SolveResult:
-    """Solve P_{M,κ}^{ε,h} for the shell on a domain (or a ready mesh).
+    """Solve the obstacle problem for the shell on a domain (or a ready mesh).
 
     Args:
         shell: surface, material, load and obstacle.
         domain: a :class:`DomainSpec` to mesh, or a DOLFINx mesh.
-        penalty: κ (or ``h^exponent``) and whether to continue from larger κ.
+        penalty: κ (or ``h^exponent``) and whether to continue from larger κ; None (unused)
+            for ``method = "active-set"``.
         discretization: element degree, boundary condition of ζ_3, penalty quadrature.
         options: Newton tolerances and linear solver.
         force: proceed (with a warning) when the theory's assumptions fail.
         progress: called with one-line progress messages.
         method: ``"newton"`` (continuation in κ), ``"brezis-sibony"`` (the iteration (38) at
-            the target κ) or ``"active-set"`` (the exact nodal VI, κ unused).
+            the target κ) or ``"active-set"`` (the exact nodal VI, κ = 0).
         method_options: ``BrezisSibonyOptions`` or ``ActiveSetOptions`` for those methods.
         newton_progress: called as ``(iteration, relative residual)`` after every Newton
-            iteration (see :func:`continuation`).
+            iteration (see :func:`~shellobstacle.solvers.continuation.continuation`).
 
     Raises:
         AssumptionError: the data violate MODEL.md §3 (unless ``force``).
     """
+    if method not in METHODS:
+        raise ConfigError(f"solver.method must be one of {METHODS}, got {method!r}")
+    if penalty is None and method != "active-set":
+        raise ConfigError(f"solver.method = {method!r} needs a penalty (kappa or exponent)")
     say = progress or (lambda _msg: None)
     timings: dict[str, float] = {}
     t = time.perf_counter()
@@ -229,33 +161,44 @@ def solve(
         require(checks)
 
     t = time.perf_counter()
-    kappas = penalty.ladder(h)
-    problem = PenalizedProblem(shell, mesh, discretization, kappa=kappas[0])
-    solver = NewtonSolver(problem, options)
+    kappas = penalty.ladder(h) if penalty is not None else [0.0]
+    problem = PenalizedProblem(shell, mesh, discretization, kappa=kappas[0] or 1.0)
     timings["compile"] = time.perf_counter() - t
-    say(f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ")
-
-    t = time.perf_counter()
     result = SolveResult(problem, h, kappas[-1], [], checks, timings, method=method)
+    t = time.perf_counter()
     if method == "newton":
-        try:
-            result.steps = continuation(
-                problem, solver, kappas, progress, newton_progress=newton_progress
-            )
-        except ConvergenceError as err:
-            result.steps = err.steps  # type: ignore[attr-defined]
-            result.steps.append(KappaStep(float(problem.kappa.value), err.result, float("nan")))
-            result.converged, result.error = False, str(err)
-        for key, value in solver.timings.items():
-            timings[f"solve.{key}"] = value
+        say(f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ")
+        _newton(result, kappas, options, say, newton_progress)
     elif method == "brezis-sibony":
+        say(f"h = {h:.4g}, {problem.num_dofs} dofs; Brezis–Sibony at κ = {kappas[-1]:.3e}")
         _brezis_sibony(result, method_options, say)
-    elif method == "active-set":
-        _active_set(result, method_options, say)
     else:
-        raise ConfigError(f"solver.method must be one of {METHODS}, got {method!r}")
+        say(f"h = {h:.4g}, {problem.num_dofs} dofs; the exact nodal problem (κ = 0)")
+        _active_set(result, method_options, say)
     timings["solve"] = time.perf_counter() - t
     return result
+
+
+def _newton(
+    result: SolveResult,
+    kappas: list[float],
+    options: NewtonOptions | None,
+    say: Progress,
+    newton_progress: Callable[[int, float], Any] | None,
+) -> None:
+    """The continuation in κ; non-convergence is reported in ``result``, not raised."""
+    problem = result.problem
+    t = time.perf_counter()
+    solver = NewtonSolver(problem, options)
+    result.timings["setup"] = time.perf_counter() - t
+    try:
+        result.steps = continuation(problem, solver, kappas, say, newton_progress=newton_progress)
+    except ConvergenceError as err:
+        result.steps = err.steps  # type: ignore[attr-defined]
+        result.steps.append(KappaStep(float(problem.kappa.value), err.result, float("nan")))
+        result.converged, result.error = False, str(err)
+    for key, value in solver.timings.items():
+        result.timings[f"solve.{key}"] = value
 
 
 def _brezis_sibony(result: SolveResult, options: Any, say: Progress) -> None:
@@ -362,3 +305,39 @@ def solve_config(
         method_options=method_options,
         newton_progress=newton_progress,
     )
+
+
+def exact_solution(
+    shell: Shell,
+    mesh: dolfinx.mesh.Mesh,
+    discretization: Discretization | None = None,
+    options: Any = None,
+) -> tuple[dolfinx.fem.Function, Any]:
+    """The exact solution ``ζ^h`` of the discrete variational inequality (κ = 0) on ``mesh``,
+    with the constraint ``g ≥ 0`` at the vertices and P1 elements (MODEL.md §3, §5).
+
+    Args:
+        shell: surface, material, load and obstacle.
+        mesh: the mesh of ω.
+        discretization: its ``transverse`` and ``quadrature_degree`` are used; the degree is
+            1 and the constraint nodal whatever it says.
+        options: ``ActiveSetOptions`` of the solver.
+
+    Returns:
+        ``(zeta, result)``: a Function in the P1 vector space of ``mesh`` and the
+        :class:`~shellobstacle.solvers.active_set.ActiveSetResult` (KKT measures, the
+        multiplier and the contact pressure).
+
+    Raises:
+        ConvergenceError: the active set did not settle or the KKT conditions do not hold.
+    """
+    from shellobstacle.solvers.active_set import ActiveSetSolver
+
+    disc = dataclasses.replace(
+        discretization or Discretization(), penalty_quadrature="vertex", degree=1
+    )
+    problem = PenalizedProblem(shell, mesh, disc)
+    result = ActiveSetSolver(problem, options).solve()
+    zeta = dolfinx.fem.Function(problem.V, name="zeta_exact")
+    zeta.x.array[:] = problem.zeta.x.array
+    return zeta, result

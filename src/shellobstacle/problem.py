@@ -6,69 +6,22 @@ parameters are ``dolfinx.fem.Constant``s, so a sweep over them reuses it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
+
+from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
+from petsc4py import PETSc
 
 import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 import sympy as sp
 import ufl
-from petsc4py import PETSc
 
-from shellobstacle import compat  # noqa: F401  (MPI/PETSc import order)
 from shellobstacle.expressions import to_ufl, y1, y2
 from shellobstacle.membrane import elastic_product, gap, strain
-from shellobstacle.model import Shell
+from shellobstacle.model import Discretization, Shell
 
-__all__ = ["Discretization", "PenalizedProblem"]
-
-TRANSVERSE = ("clamped", "free")
-PENALTY_QUADRATURES = ("gauss", "vertex")
-
-
-@dataclass(frozen=True)
-class Discretization:
-    """Finite-element choices (MODEL.md §5).
-
-    Attributes:
-        degree: Lagrange degree of all three components (1 or 2).
-        transverse: ``"clamped"`` (ζ_3 = 0 on γ, the paper's numerics) or ``"free"`` (ζ_3 ∈ L²).
-        penalty_quadrature: ``"gauss"`` (the paper's) or ``"vertex"`` (nodal, mass-lumped; P1).
-        quadrature_degree: for the membrane and load integrals (default ``2 * degree + 2``).
-    """
-
-    degree: int = 1
-    transverse: str = "clamped"
-    penalty_quadrature: str = "gauss"
-    quadrature_degree: int | None = None
-
-    def __post_init__(self) -> None:
-        if self.degree not in (1, 2):
-            raise ValueError(f"discretization.degree must be 1 or 2, got {self.degree}")
-        if self.transverse not in TRANSVERSE:
-            raise ValueError(
-                f"discretization.transverse must be one of {TRANSVERSE}, got {self.transverse!r}"
-            )
-        if self.penalty_quadrature not in PENALTY_QUADRATURES:
-            raise ValueError(
-                "discretization.penalty_quadrature must be one of "
-                f"{PENALTY_QUADRATURES}, got {self.penalty_quadrature!r}"
-            )
-        if self.penalty_quadrature == "vertex" and self.degree != 1:
-            raise ValueError(
-                "discretization.penalty_quadrature = 'vertex' is the nodal constraint of P1; "
-                "use degree = 1, or penalty_quadrature = 'gauss' with degree = 2"
-            )
-        if self.quadrature_degree is not None and not 1 <= self.quadrature_degree <= 20:
-            raise ValueError(
-                f"discretization.quadrature_degree must be in 1..20, got {self.quadrature_degree}"
-            )
-
-    @property
-    def qdegree(self) -> int:
-        """Quadrature degree actually used for the membrane and load integrals."""
-        return self.quadrature_degree or 2 * self.degree + 2
+__all__ = ["PenalizedProblem"]
 
 
 class PenalizedProblem:
@@ -151,6 +104,7 @@ class PenalizedProblem:
             "penalty_residual": dolfinx.fem.form(ufl.derivative(penalty, zeta, v)),
         }
         self.bcs = self._boundary_conditions()
+        self._K: PETSc.Mat | None = None
 
     def strain_of(self, eta: Any) -> list[list[Any]]:
         """``γ_αβ(η)`` of a UFL vector (covariant components)."""
@@ -190,6 +144,15 @@ class PenalizedProblem:
         if name not in self.parameters:
             raise KeyError(f"no load parameter {name!r}; the load has {sorted(self.parameters)}")
         self.parameters[name].value = value
+
+    def stiffness(self) -> PETSc.Mat:
+        """The membrane stiffness ``K`` (the constant Hessian of the membrane energy, Dirichlet
+        rows and columns identity), assembled at the first call and shared by every solver of
+        this problem: read it, never change it."""
+        if self._K is None:
+            self._K = dolfinx.fem.petsc.assemble_matrix(self.forms["stiffness"], bcs=self.bcs)
+            self._K.assemble()
+        return self._K
 
     def load_vector(self, b: PETSc.Vec | None = None) -> PETSc.Vec:
         """The load vector ``(p√a, v)`` with zero Dirichlet rows, assembled into ``b`` (its

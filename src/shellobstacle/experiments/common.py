@@ -9,18 +9,20 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-import dolfinx
-import numpy as np
-import ufl
 from mpi4py import MPI
 
-from shellobstacle import compat  # noqa: F401
-from shellobstacle.results import atomic_write
+import dolfinx
+import numpy as np
+
+from shellobstacle.io.folders import atomic_write
+
+Say = Callable[[str], Any]
+NewtonProgress = Callable[[int, float], Any] | None
 
 __all__ = [
-    "DifferenceNorms",
     "LazyReference",
-    "exact_solution",
+    "NewtonProgress",
+    "Say",
     "fit_rate",
     "newton_finished",
     "reference_of",
@@ -52,34 +54,6 @@ def newton_finished(newton_progress: Any, result: Any) -> None:
     """Tell a ``newton_progress`` callback with a ``finished`` method that a solve ended."""
     if hasattr(newton_progress, "finished"):
         newton_progress.finished(result)
-
-
-class DifferenceNorms:
-    """``‖u − v‖`` in V_M (H¹×H¹×L²), full H¹ and L² for Functions of one space, compiled once."""
-
-    def __init__(self, V: dolfinx.fem.FunctionSpace, quadrature_degree: int | None = None) -> None:
-        self.e = dolfinx.fem.Function(V)
-        mesh = V.mesh
-        md = {} if quadrature_degree is None else {"quadrature_degree": quadrature_degree}
-        dx = ufl.Measure("dx", domain=mesh, metadata=md)
-        e = self.e
-        values = [e[i] * e[i] for i in range(3)]
-        grads = [ufl.inner(ufl.grad(e[i]), ufl.grad(e[i])) for i in range(3)]
-        self.forms = {
-            "l2": dolfinx.fem.form(sum(values) * dx),
-            "h1": dolfinx.fem.form((sum(values) + sum(grads)) * dx),
-            "vm": dolfinx.fem.form((sum(values) + grads[0] + grads[1]) * dx),
-        }
-        self.comm = mesh.comm
-
-    def __call__(self, u: dolfinx.fem.Function, v: dolfinx.fem.Function | None = None) -> dict:
-        """The three norms of ``u − v`` (of ``u`` if ``v`` is None)."""
-        self.e.x.array[:] = u.x.array if v is None else u.x.array - v.x.array
-        out = {}
-        for name, form in self.forms.items():
-            local = dolfinx.fem.assemble_scalar(form)
-            out[name] = float(np.sqrt(max(self.comm.allreduce(local, op=MPI.SUM), 0.0)))
-        return out
 
 
 def transfer(
@@ -122,26 +96,6 @@ def fit_rate(x: Sequence[float], y: Sequence[float]) -> float:
     if keep.sum() < 2:
         return float("nan")
     return float(np.polyfit(np.log(x[keep]), np.log(y[keep]), 1)[0])
-
-
-def exact_solution(shell: Any, mesh: dolfinx.mesh.Mesh, discretization: Any) -> tuple[Any, Any]:
-    """The exact discrete VI solution ζ^h (nodal constraint, P1) on ``mesh``.
-
-    Returns:
-        ``(zeta, result)``: a Function in the P1 vector space of ``mesh`` and the
-        :class:`~shellobstacle.solvers.active_set.ActiveSetResult` (KKT quality).
-    """
-    import dataclasses
-
-    from shellobstacle.problem import PenalizedProblem
-    from shellobstacle.solvers.active_set import ActiveSetSolver
-
-    disc = dataclasses.replace(discretization, penalty_quadrature="vertex", degree=1)
-    problem = PenalizedProblem(shell, mesh, disc)
-    result = ActiveSetSolver(problem).solve()
-    zeta = dolfinx.fem.Function(problem.V, name="zeta_exact")
-    zeta.x.array[:] = problem.zeta.x.array
-    return zeta, result
 
 
 def finish_figure(

@@ -9,18 +9,24 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mpi4py import MPI
+
 import dolfinx
 import numpy as np
 
-from shellobstacle import compat  # noqa: F401
-from shellobstacle.checkpoint import Checkpoint
-from shellobstacle.config import PenaltySpec
-from shellobstacle.domains import mesh_size
-from shellobstacle.experiments.common import finish_figure, write_csv
-from shellobstacle.model import Shell
-from shellobstacle.pipeline import continuation
-from shellobstacle.postprocess import CrossSection, Postprocessor
-from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.config import Config
+from shellobstacle.domains import DomainSpec
+from shellobstacle.experiments.common import NewtonProgress, Say, finish_figure, write_csv
+from shellobstacle.experiments.markdown import table
+from shellobstacle.io.checkpoint import Checkpoint
+from shellobstacle.measures import mesh_size
+from shellobstacle.model import Discretization, Load, PenaltySpec, Shell
+from shellobstacle.pipeline import make_mesh
+from shellobstacle.post.contact import Postprocessor
+from shellobstacle.post.plotting import plot_cross_section
+from shellobstacle.post.sections import CrossSection
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
 __all__ = ["PAPER_BATCH3_LOAD", "LoadStudy", "load_study", "plot_contact_area", "write_load_study"]
@@ -165,3 +171,79 @@ def plot_contact_area(study: LoadStudy, path: Path) -> Path:
         f"Batch 3: contact area vs {study.parameter} (h = {study.h:.4g}, κ = {study.kappa:.2e})",
         loglog=False,
     )
+
+
+def run_load(
+    cfg: Config,
+    folder: Path,
+    domain: DomainSpec,
+    values: Sequence[float],
+    exponent: float,
+    say: Say,
+    parameter: str = "ell",
+    checkpoint: Checkpoint | None = None,
+    newton_progress: NewtonProgress = None,
+) -> str:
+    """Batch 3 (load sweep); returns the report section.
+
+    With ``checkpoint`` every value is recorded and recorded values are not solved again.
+    """
+    s = load_study(
+        cfg.shell,
+        make_mesh(domain),
+        cfg.discretization,
+        PenaltySpec(exponent=exponent),
+        values,
+        parameter,
+        cfg.solver,
+        say,
+        (checkpoint or Checkpoint(None)).scope("batch3"),
+        newton_progress,
+    )
+    write_load_study(s, folder)
+    png_area = folder / "batch3_contact_area.png"
+    png_sections = folder / "batch3_cross_sections.png"
+    plot_cross_section(
+        s.sections,
+        cfg.shell.obstacle.q,
+        png_sections,
+        title=f"Batch 3: cross-sections y2 = 0 for {parameter} = "
+        + ", ".join(f"{v:g}" for v in values),
+    )
+    if MPI.COMM_WORLD.rank == 0:
+        plot_contact_area(s, png_area)
+    verdict = "grows" if s.area_increases() else "does NOT grow monotonically"
+    return "\n".join(
+        [
+            "## Batch 3: the contact area as the load grows",
+            "",
+            f"g_ℓ = −(2ε/25)(−5y1² − 5y2² + (1 + 0.05ℓ)·0.295) on |y| < 0.06; h = {s.h:.4g} "
+            f"(refined near the centre), κ = h^{exponent:g} = {s.kappa:.3e}, {s.dofs} dofs. "
+            f"The contact area {verdict} with ℓ. Areas are measured on the nodes (lumped "
+            "masses of the vertices "
+            "with g ≤ 0).",
+            "",
+            table(
+                s.rows,
+                (
+                    "ell",
+                    "contact_area",
+                    "contact_area_projected",
+                    "max_violation",
+                    "zeta3_min",
+                    "newton",
+                ),
+            ),
+            "",
+            f"![cross-sections]({png_sections.name})",
+            "",
+            f"![contact area]({png_area.name})",
+            "",
+        ]
+    )
+
+
+def batch3_config(cfg: Config) -> Config:
+    """The paper's configuration with the ℓ-dependent load of batch 3."""
+    shell = dataclasses.replace(cfg.shell, load=Load(("0", "0", PAPER_BATCH3_LOAD), {"ell": 0.0}))
+    return dataclasses.replace(cfg, shell=shell)

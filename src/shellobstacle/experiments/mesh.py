@@ -9,25 +9,33 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from mpi4py import MPI
+
 import dolfinx
 import numpy as np
 
-from shellobstacle import compat  # noqa: F401
-from shellobstacle.checkpoint import Checkpoint
-from shellobstacle.config import PenaltySpec
-from shellobstacle.domains import mesh_size, refine_uniformly
+from shellobstacle.config import Config
+from shellobstacle.domains import DomainSpec
 from shellobstacle.experiments.common import (
-    DifferenceNorms,
     LazyReference,
+    NewtonProgress,
+    Say,
     finish_figure,
     fit_rate,
     reference_of,
     transfer,
     write_csv,
 )
-from shellobstacle.model import Shell
-from shellobstacle.pipeline import continuation
-from shellobstacle.problem import Discretization, PenalizedProblem
+from shellobstacle.experiments.exact import exact_reference
+from shellobstacle.experiments.markdown import table
+from shellobstacle.io.checkpoint import Checkpoint
+from shellobstacle.measures import mesh_size
+from shellobstacle.model import Discretization, PenaltySpec, Shell
+from shellobstacle.pipeline import make_mesh
+from shellobstacle.post.norms import DifferenceNorms
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.refinement import refine_uniformly
+from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
 __all__ = [
@@ -254,3 +262,79 @@ def plot_mesh_study(study: MeshStudy, path: Path, tol: float = 2e-6) -> Path:
         "difference",
         f"Batch 2: κ = h^{study.q:g}, nested meshes (fitted rate {study.rate():.2f})",
     )
+
+
+def run_mesh(
+    cfg: Config,
+    folder: Path,
+    base: DomainSpec,
+    refinements: int,
+    q_values: Sequence[float],
+    say: Say,
+    tol: float = 2e-6,
+    batch4: list[dict[str, Any]] | None = None,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: NewtonProgress = None,
+) -> str:
+    """Batch 2 on nested meshes for each q; returns the report section.
+
+    With a ``batch4`` list, every level's solution is also compared with the exact nodal VI
+    solution on the finest mesh, and the rows are appended to it. With ``checkpoint`` every
+    (q, level) is recorded and recorded ones are not solved again.
+    """
+    cp = (checkpoint or Checkpoint(None)).scope("batch2")
+    text = [
+        "## Batch 2: h → 0 with κ = h^q (Theorem 8.1)",
+        "",
+        f"Nested meshes (uniform refinement of a disk mesh, {refinements} times); the coarse "
+        "solution is interpolated exactly into the fine space. Theorem 8.1 bounds the error by "
+        "C h (1 + 1/√κ) = O(h^{1 − q/2}).",
+        "",
+    ]
+    levels = mesh_levels(
+        cfg.shell, make_mesh(base), refinements, cfg.discretization, cfg.solver, say, cp
+    )
+    reference = None
+    if batch4 is not None:
+        where = f"the finest mesh (h = {levels[-1].h:.4g})"
+        make = exact_reference(cfg, levels[-1].mesh, cfg.discretization, say, where)
+        reference = LazyReference(make)
+    summary = []
+    for q in q_values:
+        s = mesh_study(
+            levels,
+            q,
+            tol,
+            say,
+            reference,
+            checkpoint=cp,
+            newton_progress=newton_progress,
+        )
+        if batch4 is not None:
+            batch4.extend(s.reference_rows)
+        write_mesh_study(s, folder)
+        png = folder / f"batch2_q{q:g}.png"
+        if MPI.COMM_WORLD.rank == 0:
+            plot_mesh_study(s, png, tol)
+        summary.append(
+            {
+                "q": q,
+                "fitted rate": s.rate(),
+                "theory 1 − q/2": 1 - q / 2,
+                "stops at h": s.stop_h if s.stop_h else "not reached",
+                "Newton (per mesh)": "/".join(map(str, s.newton)),
+                "seconds": s.seconds,
+            }
+        )
+        text += [
+            f"### q = {q:g}",
+            "",
+            table(s.rows, ("h_1", "h_2", "error_VM", "error_H1")),
+            "",
+            f"![batch 2, q = {q:g}]({png.name})",
+            "",
+        ]
+    for level in levels:  # the sweep is complete: no later step starts from these
+        cp.drop_vector(level.saved)
+    text += ["### Summary", "", table(summary, list(summary[0])), ""]
+    return "\n".join(text)

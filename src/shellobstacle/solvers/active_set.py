@@ -10,13 +10,9 @@ with ``K`` the (linear, ``κ``-independent) membrane stiffness matrix and ``f`` 
 load vector, both carrying the problem's homogeneous Dirichlet conditions. It is
 the limit ``κ → 0`` of the penalized problem with ``penalty_quadrature = "vertex"``.
 
-**Nodal rotation.** Each constraint involves only the three unknowns of its
-vertex. An orthogonal change of variables ``η_i = Q_i u_i`` per vertex (a
-Householder reflection whose column ``k_i`` is ``c(x_i)/|c(x_i)|``; it leaves fixed
-Dirichlet components alone) turns it into a lower bound on one rotated unknown,
-``u_{i,k_i} ≥ ψ_i = −θ(x_i)·q / |c(x_i)|``. With the block-diagonal ``Q`` (a PETSc
-matrix, block size 3), ``K' = QᵀKQ`` and ``f' = Qᵀf`` the problem is a
-bound-constrained QP.
+**Bounds.** The rotations of :mod:`~shellobstacle.solvers.nodal` turn each vertex's
+constraint into a lower bound on one rotated unknown, ``u_b ≥ ψ_b``: with ``K' = QᵀKQ`` and
+``f' = Qᵀf`` the problem is a bound-constrained QP.
 
 **Solver.** Two phases, every step one sparse direct solve (MUMPS) with the
 sparsity of ``K'`` (its symbolic factorization is reused):
@@ -48,65 +44,20 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py)
-
-# isort: split
-import dolfinx
-import dolfinx.fem.petsc
-import dolfinx.la
-import numpy as np
-import ufl
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from shellobstacle.membrane import elastic_product
+import dolfinx
+import dolfinx.fem.petsc
+import numpy as np
+
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.base import ConvergenceError, direct_solver
 from shellobstacle.solvers.line_search import piecewise_linear_root
-from shellobstacle.solvers.newton import ConvergenceError
-from shellobstacle.solvers.options import unique_prefix
+from shellobstacle.solvers.nodal import NodalConstraint
+from shellobstacle.solvers.options import ActiveSetOptions
 
-__all__ = ["ActiveSetOptions", "ActiveSetResult", "ActiveSetSolver", "nodal_rotations"]
-
-
-@dataclass(frozen=True)
-class ActiveSetOptions:
-    """Path-following schedule, limits and acceptance tolerance of :class:`ActiveSetSolver`.
-
-    Attributes:
-        max_iterations: give up (and raise) after this many linear solves in total.
-        gamma_initial: first Moreau–Yosida parameter ``γ`` (penalty ``γ K'_bb`` per constraint).
-        gamma_factor: ``γ`` is multiplied by this between path-following stages.
-        gamma_max: largest ``γ``; beyond it the solver gives up.
-        max_stage_iterations: semismooth Newton steps allowed for one ``γ``.
-        max_pdas_iterations: primal–dual active-set steps per attempt before ``γ`` grows.
-        kkt_rtol: the answer is accepted only if the relative KKT measures
-            (:attr:`ActiveSetResult.relative_kkt`) are all at most this.
-        warm_start: start from the current ``problem.zeta`` (first trying active-set steps
-            from it) instead of from zero.
-    """
-
-    max_iterations: int = 200
-    gamma_initial: float = 1e-4
-    gamma_factor: float = 100.0
-    gamma_max: float = 1e16
-    max_stage_iterations: int = 50
-    max_pdas_iterations: int = 6
-    kkt_rtol: float = 1e-10
-    warm_start: bool = True
-
-    def __post_init__(self) -> None:
-        if self.max_iterations < 1:
-            raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
-        if self.max_stage_iterations < 1 or self.max_pdas_iterations < 1:
-            raise ValueError("max_stage_iterations and max_pdas_iterations must be >= 1")
-        if not 0 < self.gamma_initial <= self.gamma_max:
-            raise ValueError(
-                f"need 0 < gamma_initial <= gamma_max, got {self.gamma_initial}, {self.gamma_max}"
-            )
-        if not self.gamma_factor > 1:
-            raise ValueError(f"gamma_factor must be > 1, got {self.gamma_factor}")
-        if not self.kkt_rtol > 0:
-            raise ValueError(f"kkt_rtol must be > 0, got {self.kkt_rtol}")
+__all__ = ["ActiveSetResult", "ActiveSetSolver"]
 
 
 @dataclass
@@ -161,47 +112,6 @@ class ActiveSetResult:
         }
 
 
-def nodal_rotations(
-    c: np.ndarray, free: np.ndarray, rel_tol: float = 1e-12
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Orthogonal 3×3 matrices ``Q_i`` whose column ``k_i`` is the free part of ``c_i``, normalized.
-
-    ``Q_i`` is a Householder reflection (with column ``k_i`` negated where needed) acting only
-    on the free (non-Dirichlet) components of vertex ``i``: ``Q_i e_j = e_j`` for every fixed
-    component ``j``, so fixed unknowns stay fixed in the rotated basis, and
-    ``c_i · (Q_i u) = |c_i^F| u_{k_i}`` (``c_i^F`` the free part of ``c_i``).
-
-    Args:
-        c: ``c_j(x_i) = a^j(x_i)·q``, shape ``(n, 3)``.
-        free: which components of each vertex are free, shape ``(n, 3)``, bool.
-        rel_tol: a vertex carries no constraint when ``|c_i^F| ≤ rel_tol · max_i |c_i|``.
-
-    Returns:
-        ``(Q, k, cn)``: ``Q`` of shape ``(n, 3, 3)``, ``k`` the index of the constrained rotated
-        component (``-1`` where the vertex carries no constraint), and ``cn = |c_i^F|``.
-    """
-    n = c.shape[0]
-    cf = np.where(free, c, 0.0)
-    cn = np.linalg.norm(cf, axis=1)
-    cmax = float(np.max(np.linalg.norm(c, axis=1), initial=0.0))
-    constrained = cn > rel_tol * cmax if cmax > 0 else np.zeros(n, dtype=bool)
-    Q = np.tile(np.eye(3), (n, 1, 1))
-    k = np.full(n, -1, dtype=np.int64)
-    idx = np.flatnonzero(constrained)
-    if idx.size:
-        m = np.arange(idx.size)
-        nv = cf[idx] / cn[idx, None]
-        kk = np.argmax(np.abs(nv) * free[idx], axis=1)
-        s = np.where(nv[m, kk] >= 0, 1.0, -1.0)
-        v = s[:, None] * nv  # n' = s n has n'_k = |n_k| > 0 ...
-        v[m, kk] += 1.0  # ... so v = e_k + n' has |v|² = 2 + 2|n_k| ≥ 2 (no cancellation)
-        H = np.eye(3)[None] - 2.0 * v[:, :, None] * v[:, None, :] / np.sum(v * v, 1)[:, None, None]
-        H[m, :, kk] *= -s[:, None]  # H e_k = −n' = −s n, so the flipped column is n
-        Q[idx] = H
-        k[idx] = kk
-    return Q, k, cn
-
-
 class ActiveSetSolver:
     """Exact solver of the discrete obstacle problem (κ = 0) of one P1 :class:`PenalizedProblem`.
 
@@ -229,58 +139,15 @@ class ActiveSetSolver:
         self.options = options or ActiveSetOptions()
         self.timings: dict[str, float] = {"setup": 0.0, "assemble": 0.0, "solve": 0.0, "kkt": 0.0}
         t0 = time.perf_counter()
-        V = problem.V
         self.comm: MPI.Comm = problem.mesh.comm
-        im = V.dofmap.index_map
-        self.bs = bs = V.dofmap.index_map_bs
-        self.n = n = im.size_local
-
-        # elastic stiffness K (Dirichlet rows and columns → identity)
-        mat, G = problem.shell.material, problem.G
-        du, v = ufl.TrialFunction(V), ufl.TestFunction(V)
-        gam_u, gam_v = problem.strain_of(du), problem.strain_of(v)
-        a = mat.epsilon * elastic_product(G, mat.lam, mat.mu, gam_u, gam_v) * G.sqrt_a * problem.dx
-        self.a_form = dolfinx.fem.form(a)
-        self.K = dolfinx.fem.petsc.assemble_matrix(self.a_form, bcs=problem.bcs)
-        self.K.assemble()
-
-        # vertex data: θ·q, c_j = a^j·q, free components
-        points = V.tabulate_dof_coordinates()[:n]
-        geo = problem.shell.surface.geometry_numpy(points)
-        q = problem.q
-        theta_q = sum(np.asarray(geo.theta[j], float) * q[j] for j in range(3))
-        self.theta_q = np.broadcast_to(theta_q, (n,)).copy()
-        self.c = np.column_stack([np.broadcast_to(np.asarray(cj, float), (n,)) for cj in geo.c(q)])
-        free = np.ones(n * bs, dtype=bool)
-        for bc in problem.bcs:
-            dofs, first_ghost = bc.dof_indices()
-            free[dofs[:first_ghost]] = False
-        self.free = free.reshape(n, bs)
-        self.Qn, self.k, self.cn = nodal_rotations(self.c, self.free)
-        self.nodes = np.flatnonzero(self.k >= 0)  # constrained vertices (local)
-        bad = np.flatnonzero((self.k < 0) & (self.theta_q < 0))
-        if self.comm.allreduce(int(bad.size), op=MPI.SUM):
-            raise ValueError(
-                "a vertex whose displacement is fixed lies below the plane (θ·q < 0): "
-                "the obstacle problem has no admissible displacement"
-            )
-        self.gap_scale = self._max(np.abs(self.theta_q))
-        self.iB = bs * self.nodes + self.k[self.nodes]  # constrained rotated unknowns (local)
-        self.psi = -self.theta_q[self.nodes] / self.cn[self.nodes]  # u_b ≥ ψ_b
-
-        # block-diagonal Q (global block rows r0 … r0 + n − 1) and K' = Qᵀ K Q
-        r0 = im.local_range[0]
-        cols = (bs * (r0 + np.arange(n)))[:, None, None] + np.arange(bs)[None, None, :]
-        indices = np.broadcast_to(cols, (n, bs, bs)).reshape(-1).astype(PETSc.IntType)
-        indptr = np.arange(0, n * bs * bs + 1, bs, dtype=PETSc.IntType)
-        self.Q = PETSc.Mat().createAIJ(
-            ((n * bs, PETSc.DETERMINE), (n * bs, PETSc.DETERMINE)),
-            bsize=bs,
-            csr=(indptr, indices, self.Qn.reshape(-1).astype(PETSc.ScalarType)),
-            comm=self.comm,
-        )
-        self.Q.assemble()
-        self.Kr = self.K.ptap(self.Q)
+        self.bs = problem.V.dofmap.index_map_bs
+        self.n = problem.V.dofmap.index_map.size_local
+        self.K = problem.stiffness()
+        self.nodal = nodal = NodalConstraint(problem)
+        self.free, self.nodes, self.iB, self.psi = nodal.free, nodal.nodes, nodal.iB, nodal.psi
+        self.gap_scale = self._max(np.abs(nodal.theta_q))
+        self.Q = nodal.Q
+        self.Kr = self.K.ptap(self.Q)  # K' = Qᵀ K Q
         self.row0 = self.Kr.getOwnershipRange()[0]
         self.diag = self.Kr.getDiagonal()
         self.d = self.diag.array_r[self.iB].copy()  # K'_bb > 0
@@ -288,29 +155,9 @@ class ActiveSetSolver:
         # work matrix (K' modified per step, same sparsity) and the direct solver
         self.W = self.Kr.duplicate(copy=True)
         self.W.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
-        self.ksp = PETSc.KSP().create(self.comm)
-        self.ksp.setOptionsPrefix(unique_prefix("as"))
-        self.ksp.setOperators(self.W)
-        self.ksp.setType("preonly")
-        pc = self.ksp.getPC()
-        pc.setType("lu")
-        pc.setFactorSolverType("mumps")
-        self.ksp.setFromOptions()
+        self.ksp = direct_solver(self.W, "lu", "as")
         self.u, self.fr = self.Kr.createVecs()
         self.f, self.r, self.du, self.tmp = (self.fr.duplicate() for _ in range(4))
-
-        # the multiplier lives on P1 (collapsed first component: dof j ↔ vertex parent[j] // 3)
-        P1, parent = V.sub(0).collapse()
-        self.P1 = P1
-        self._node_of = np.asarray(parent).reshape(-1) // bs
-        self._n1 = P1.dofmap.index_map.size_local
-        self.multiplier = dolfinx.fem.Function(P1, name="multiplier")
-        self.contact_pressure = dolfinx.fem.Function(P1, name="contact_pressure")
-        phi = ufl.TestFunction(P1)
-        mass = dolfinx.fem.assemble_vector(dolfinx.fem.form(phi * G.sqrt_a * problem.dx_penalty))
-        mass.scatter_reverse(dolfinx.la.InsertMode.add)
-        mass.scatter_forward()
-        self.mass = mass.array.copy()  # lumped ∫ φ_j √a dy of the local P1 dofs
         self.timings["setup"] = time.perf_counter() - t0
 
     # -- global reductions --------------------------------------------------------------------
@@ -332,7 +179,7 @@ class ActiveSetSolver:
         self.ksp.solve(rhs, x)
         self.timings["solve"] += time.perf_counter() - t
         if self.ksp.getConvergedReason() < 0:
-            raise RuntimeError(
+            raise ConvergenceError(
                 f"linear solve failed (PETSc reason {self.ksp.getConvergedReason()})"
             )
 
@@ -501,7 +348,7 @@ class ActiveSetSolver:
                     reason = f"active set settled after path following to gamma = {gamma:.1e}"
                 previous = predicted
                 gamma *= opts.gamma_factor
-        except RuntimeError as err:  # failed linear solve
+        except ConvergenceError as err:  # failed linear solve
             converged, reason = False, str(err)
         u_reg.destroy()
 
@@ -530,20 +377,19 @@ class ActiveSetSolver:
 
     def _kkt(self) -> ActiveSetResult:
         """Multiplier, active set and KKT measures of the current ``u`` (``ζ = Qu`` in place)."""
-        n, bs, nodes = self.n, self.bs, self.nodes
+        n, nodes = self.n, self.nodes
         uB = self.u.array_r[self.iB]
         self.Kr.mult(self.u, self.r)
         self.r.axpy(-1.0, self.fr)
         on_bound = uB <= self.psi  # PDAS puts the active unknowns exactly on the bound
         lam = np.zeros(n)
-        lam[nodes[on_bound]] = self.r.array_r[self.iB[on_bound]] / self.cn[nodes[on_bound]]
+        lam[nodes[on_bound]] = self.r.array_r[self.iB[on_bound]] / self.nodal.cn[nodes[on_bound]]
 
         # gap and stationarity in the original unknowns: g = θ·q + c·ζ, K ζ − f − Bᵀλ
-        eta = self.problem.zeta.x.array[: n * bs].reshape(n, bs)
-        g = self.theta_q + np.sum(self.c * eta, axis=1)
+        g = self.nodal.gap(self.problem.zeta.x.array)
         self.K.mult(self.problem.zeta.x.petsc_vec, self.tmp)
         self.tmp.axpy(-1.0, self.f)
-        self.tmp.array[:] -= (np.where(self.free, self.c, 0.0) * lam[:, None]).reshape(-1)
+        self.tmp.array[:] -= self.nodal.constraint_force(lam)
         load = self.f.norm()
         stationarity = self.tmp.norm() / (load if load > 0 else 1.0)
         force = self._max(np.abs(lam)) or self.f.norm(PETSc.NormType.NORM_INFINITY)
@@ -554,16 +400,7 @@ class ActiveSetSolver:
             "stationarity": stationarity,
         }
         scales = {"gap": self.gap_scale, "force": force, "load": load}
-
-        # λ and λ / ∫ φ √a as P1 Functions
-        lam_local = np.zeros(int(self._node_of.max(initial=-1)) + 1)
-        lam_local[:n] = lam
-        self.multiplier.x.array[: self._n1] = lam_local[self._node_of[: self._n1]]
-        self.multiplier.x.scatter_forward()
-        m = self.mass
-        self.contact_pressure.x.array[:] = np.divide(
-            self.multiplier.x.array, m, out=np.zeros_like(m), where=m > 0
-        )
+        self.nodal.set_multiplier(lam)
         return ActiveSetResult(
             converged=False,
             iterations=0,
@@ -571,6 +408,6 @@ class ActiveSetSolver:
             reason="",
             kkt=kkt,
             scales=scales,
-            multiplier=self.multiplier,
-            contact_pressure=self.contact_pressure,
+            multiplier=self.nodal.multiplier,
+            contact_pressure=self.nodal.contact_pressure,
         )

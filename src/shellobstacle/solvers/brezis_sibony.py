@@ -17,7 +17,7 @@ from the stiffness matrix ``K`` and the penalty's point matrix ``M``
 round-off (tested) for a fraction of the cost: a product with ``K``, one with the point
 matrix and one with its stored transpose. The mass matrix is factorized once by Cholesky
 (PETSc's own serially, MUMPS under MPI). On the reproduction's 1,152-dof mesh a step takes
-125 instead of 723 µs (docs/performance.md, fifteenth session).
+125 instead of 723 µs (docs/performance.md).
 
 **Step and contraction.** ``R`` is piecewise linear: at every penalty quadrature point
 ``min(g, 0)`` is a piecewise-linear function of the affine gap ``g(ψ)``, so
@@ -53,87 +53,23 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py / slepc4py)
+from mpi4py import MPI  # noqa: F401  (before PETSc: the MPI runtime it links to)
+from petsc4py import PETSc
 
-# isort: split
 import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 import ufl
-from petsc4py import PETSc
-from slepc4py import SLEPc
 
-from shellobstacle.membrane import elastic_product
-from shellobstacle.penalty import QuadraturePenalty
+from shellobstacle.penalty import QuadraturePenalty, penalty_hessian
 from shellobstacle.problem import PenalizedProblem
-from shellobstacle.solvers.options import unique_prefix
+from shellobstacle.solvers.base import direct_solver
+from shellobstacle.solvers.options import BrezisSibonyOptions
+from shellobstacle.solvers.spectrum import extreme_eigenvalue
 
-__all__ = ["BrezisSibonyOptions", "BrezisSibonyResult", "BrezisSibonySolver"]
-
-MASSES = ("consistent", "lumped")
-STARTS = ("zero", "linearized", "current")
+__all__ = ["BrezisSibonyResult", "BrezisSibonySolver"]
 
 Progress = Callable[[int, float], Any]
-
-
-@dataclass(frozen=True)
-class BrezisSibonyOptions:
-    """Step, mass matrix, start and stopping rules of :class:`BrezisSibonySolver`.
-
-    Attributes:
-        xi: ``Ξ`` of (38), the step being ``τ = Ξ h⁴``; ``None`` chooses
-            ``τ = 2 / (λ_max (1 + safety))`` from the estimated spectrum.
-        safety: ``s`` in the automatic step (``τ λ_max = 2 / (1 + s) < 2``).
-        mass: ``"consistent"`` (the paper's mass matrix) or ``"lumped"`` (row sums, P1 only).
-        start: ``"zero"``, ``"linearized"`` (the unconstrained solution ``K ψ_0 = L``: one linear
-            solve with the elastic matrix and the load) or ``"current"`` (``problem.zeta``).
-        rtol: stop when ``‖ψ_{k+1} − ψ_k‖_{L²} ≤ rtol ‖ψ_k‖_{L²}`` (0 disables). The error
-            left is up to ``ρ/(1 − ρ)`` times the last increment, and ``1/(1 − ρ)`` is
-            10³–10⁴ on the paper's meshes: hence the small default.
-        rtol_residual: stop when ``‖R(ψ)‖ ≤ rtol_residual ‖R(0)‖`` (Euclidean norms of the
-            residual vector, as in Newton; 0 disables). Either criterion ends the iteration.
-        max_iterations: stop (with ``converged=False``, no exception) after this many steps.
-        progress_every: call ``progress(k, ‖ψ_k − ψ_{k−1}‖_{L²})`` every this many steps.
-        history_stride: record every this many increments in ``result.increments``.
-        tail: the number of final steps over which ``contraction_factor_tail`` is measured.
-        estimate_spectrum: estimate ``λ_min``, ``λ_max`` also when ``xi`` is given (for the
-            reported bound); always done when ``xi`` is ``None``.
-        eigen_tol: relative tolerance of the SLEPc eigensolves.
-        eigen_max_iterations: iteration cap of the SLEPc eigensolves.
-        divergence_factor: give up when an increment exceeds this times the first one.
-    """
-
-    xi: float | None = None
-    safety: float = 0.1
-    mass: str = "consistent"
-    start: str = "linearized"
-    rtol: float = 1e-12
-    rtol_residual: float = 1e-10
-    max_iterations: int = 200_000
-    progress_every: int = 1000
-    history_stride: int = 1
-    tail: int = 100
-    estimate_spectrum: bool = True
-    eigen_tol: float = 1e-8
-    eigen_max_iterations: int = 1000
-    divergence_factor: float = 1e8
-
-    def __post_init__(self) -> None:
-        if self.mass not in MASSES:
-            raise ValueError(f"mass must be one of {MASSES}, got {self.mass!r}")
-        if self.start not in STARTS:
-            raise ValueError(f"start must be one of {STARTS}, got {self.start!r}")
-        if self.xi is not None and not self.xi > 0:
-            raise ValueError(f"xi must be > 0 (or None for the automatic step), got {self.xi}")
-        if not self.safety > 0:
-            raise ValueError(f"safety must be > 0, got {self.safety}")
-        if self.rtol < 0 or self.rtol_residual < 0:
-            raise ValueError("rtol and rtol_residual must be >= 0")
-        for name in ("progress_every", "history_stride", "tail"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        if self.max_iterations < 0:
-            raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")
 
 
 @dataclass
@@ -225,23 +161,8 @@ class BrezisSibonySolver:
             raise ValueError(
                 "mass = 'lumped' needs P1 (the row sums of the P2 mass matrix vanish at vertices)"
             )
-        self._prefix = unique_prefix("bs")
-
-        # forms: mass and the safe bound K + P_all (every penalty point active)
         u, v = ufl.TrialFunction(V), ufl.TestFunction(V)
         dx_mass = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 2 * degree})
-        mat, G = problem.shell.material, problem.G
-        elastic = (
-            mat.epsilon
-            * elastic_product(G, mat.lam, mat.mu, problem.strain_of(u), problem.strain_of(v))
-            * G.sqrt_a
-            * problem.dx
-        )
-        c_u = sum(problem.c[j] * u[j] for j in range(3))
-        c_v = sum(problem.c[j] * v[j] for j in range(3))
-        weight = (mat.epsilon / problem.kappa) / problem.c_norm
-        penalty_all = weight * c_u * c_v * problem.dx_penalty
-        self._safe_form = dolfinx.fem.form(elastic + penalty_all)
 
         # the mass matrix (identity rows/columns at Dirichlet dofs) or its row sums
         bcs = problem.bcs
@@ -269,12 +190,14 @@ class BrezisSibonySolver:
         else:
             # PETSc's own Cholesky serially, nested dissection: a solve at 1,152 dofs takes
             # 52 µs, against 73 µs in the natural order and 106 µs with MUMPS
-            self.ksp = self._direct(self.M, "mass_", "cholesky", serial_ordering="nd")
+            if self.comm.size == 1:
+                self.ksp = direct_solver(self.M, "cholesky", "bs_mass", "petsc", ordering="nd")
+            else:
+                self.ksp = direct_solver(self.M, "cholesky", "bs_mass")
 
         # the residual's operators (as NewtonSolver's): K (Dirichlet rows identity), the
         # penalty at its points, the load vector L (Dirichlet rows 0; assembled per solve)
-        self.K = dolfinx.fem.petsc.assemble_matrix(problem.forms["stiffness"], bcs=bcs)
-        self.K.assemble()
+        self.K = problem.stiffness()
         self.penalty = QuadraturePenalty(problem)
         self.penalty.store_transpose()
         self.L = dolfinx.fem.petsc.create_vector(V)
@@ -294,35 +217,6 @@ class BrezisSibonySolver:
         w.scale(-1.0)
         w.shift(1.0)
         return w
-
-    def _direct(
-        self,
-        A: PETSc.Mat,
-        name: str,
-        factorization: str = "lu",
-        serial_ordering: str | None = None,
-    ) -> PETSc.KSP:
-        """A direct solver for ``A`` (``"lu"`` or ``"cholesky"``), factorized at the first
-        solve: MUMPS, or on one process with ``serial_ordering`` PETSc's own factorization in
-        that ordering (cheaper calls for tiny matrices)."""
-        ksp = PETSc.KSP().create(self.comm)
-        ksp.setOperators(A)
-        ksp.setOptionsPrefix(self._prefix + name)
-        ksp.setType("preonly")
-        pc = ksp.getPC()
-        pc.setType(factorization)
-        if serial_ordering is not None and self.comm.size == 1:
-            pc.setFactorSolverType("petsc")
-            pc.setFactorOrdering(serial_ordering)
-        else:
-            pc.setFactorSolverType("mumps")
-        ksp.setFromOptions()
-        return ksp
-
-    def _assemble_matrix(self, form: dolfinx.fem.Form) -> PETSc.Mat:
-        A = dolfinx.fem.petsc.assemble_matrix(form, bcs=self.problem.bcs, diag=1.0)
-        A.assemble()
-        return A
 
     def _residual(self) -> None:
         """``R ← R(problem.zeta) = Kψ − L + (1/κ) Mᵀ min(g, 0)``, zero at Dirichlet dofs."""
@@ -356,43 +250,6 @@ class BrezisSibonySolver:
         self.M.mult(x, self.Md)
         return math.sqrt(max(x.dot(self.Md), 0.0))
 
-    def _extreme_eigenvalue(self, A: PETSc.Mat, B: PETSc.Mat, largest: bool) -> float:
-        """Largest or smallest eigenvalue of the SPD pencil ``A v = λ B v`` (SLEPc, GHEP)."""
-        opts = self.options
-        eps = SLEPc.EPS().create(self.comm)
-        eps.setOperators(A, B)
-        eps.setProblemType(SLEPc.EPS.ProblemType.GHEP)
-        eps.setType(SLEPc.EPS.Type.KRYLOVSCHUR)
-        eps.setDimensions(nev=1)
-        eps.setTolerances(opts.eigen_tol, opts.eigen_max_iterations)
-        st = eps.getST()
-        if largest:
-            eps.setWhichEigenpairs(SLEPc.EPS.Which.LARGEST_REAL)
-            st.setType(SLEPc.ST.Type.SHIFT)  # applies B⁻¹ A
-        else:
-            st.setType(SLEPc.ST.Type.SINVERT)  # applies (A − 0·B)⁻¹ B
-            eps.setTarget(0.0)
-            eps.setWhichEigenpairs(SLEPc.EPS.Which.TARGET_MAGNITUDE)
-        ksp = st.getKSP()
-        ksp.setType("preonly")
-        ksp.getPC().setType("lu")
-        ksp.getPC().setFactorSolverType("mumps")
-        eps.setOptionsPrefix(self._prefix + ("eig_max_" if largest else "eig_min_"))
-        eps.setFromOptions()
-        eps.solve()
-        nconv = eps.getConverged()
-        if nconv < 1:
-            its = eps.getIterationNumber()
-            eps.destroy()
-            which = "largest" if largest else "smallest"
-            raise RuntimeError(
-                f"SLEPc did not converge to the {which} eigenvalue in {its} iterations; raise "
-                "eigen_max_iterations or give xi explicitly"
-            )
-        values = [eps.getEigenvalue(i).real for i in range(nconv)]
-        eps.destroy()
-        return float(max(values) if largest else min(values))
-
     def spectrum(self) -> tuple[float, float]:
         """``(λ_min, λ_max)``: smallest of ``K v = λ M v``, largest of ``(K + P_all) v = λ M v``.
 
@@ -404,11 +261,17 @@ class BrezisSibonySolver:
         t0 = time.perf_counter()
         B = self.M.createSubMatrix(self._free_is, self._free_is)
         K_ff = self.K.createSubMatrix(self._free_is, self._free_is)
-        lam_min = self._extreme_eigenvalue(K_ff, B, largest=False)
+        opts = self.options
+        lam_min = extreme_eigenvalue(K_ff, B, False, opts.eigen_tol, opts.eigen_max_iterations)
         K_ff.destroy()
-        S = self._assemble_matrix(self._safe_form)
+        # K + P_all: the penalty's Jacobian with every point active
+        pen = self.penalty
+        P_all = penalty_hessian(pen.M, pen.D, np.arange(pen.D.size), kappa)
+        S = self.K.duplicate(copy=True)
+        S.axpy(1.0, P_all, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        P_all.destroy()
         S_ff = S.createSubMatrix(self._free_is, self._free_is)
-        lam_max = self._extreme_eigenvalue(S_ff, B, largest=True)
+        lam_max = extreme_eigenvalue(S_ff, B, True, opts.eigen_tol, opts.eigen_max_iterations)
         for A in (S, S_ff, B):
             A.destroy()
         self._spectrum_cache[kappa] = (lam_min, lam_max)
@@ -422,7 +285,7 @@ class BrezisSibonySolver:
         if self.options.start == "zero":
             zeta.x.array[:] = 0.0
         elif self.options.start == "linearized":
-            ksp = self._direct(self.K, "linearized_")
+            ksp = direct_solver(self.K, "lu", "bs_linearized")
             ksp.solve(self.L, zeta.x.petsc_vec)
             reason = ksp.getConvergedReason()
             ksp.destroy()

@@ -1,6 +1,6 @@
 """A cheap approximate solve with the membrane stiffness: Galerkin on a coarse background grid.
 
-The contact zone (:mod:`shellobstacle.solvers.contact_zone`) must be known before its
+The contact zone (:mod:`shellobstacle.solvers.zone`) must be known before its
 factorization; before any contact it is where the first Newton step ``δ = K⁻¹ r`` would
 penetrate the obstacle. That set needs only an approximation of ``δ``: the Galerkin
 projection onto the piecewise-linear functions of a uniform triangle grid over the bounding
@@ -20,14 +20,14 @@ from __future__ import annotations
 
 import math
 
-import dolfinx
-import dolfinx.fem.petsc
-import numpy as np
 from mpi4py import MPI
 from petsc4py import PETSc
 
-from shellobstacle import compat  # noqa: F401
-from shellobstacle.solvers.options import unique_prefix
+import dolfinx
+import dolfinx.fem.petsc
+import numpy as np
+
+from shellobstacle.solvers.base import direct_solver, factorize
 
 __all__ = ["CoarseSpace"]
 
@@ -110,18 +110,9 @@ class CoarseSpace:
             comm=K.getComm(),
         )
         self.Kc = K.ptap(self.P)
-        # PᵀKP is symmetric positive definite whenever it is nonsingular (K is): Cholesky,
-        # 0.36–0.40 s for the seed at 329k dofs against 0.41–0.62 s with LU (measured,
-        # docs/performance.md, tenth session), the same seed to the last bit serially
-        self.Kc.setOption(PETSc.Mat.Option.SPD, True)
-        self.ksp = PETSc.KSP().create(K.getComm())
-        self.ksp.setOptionsPrefix(unique_prefix("coarse"))
-        self.ksp.setOperators(self.Kc)
-        self.ksp.setType("preonly")
-        self.ksp.getPC().setType("cholesky")
-        self.ksp.getPC().setFactorSolverType("mumps")
-        self.ksp.setFromOptions()
-        self.ksp.setUp()
+        # PᵀKP is symmetric positive definite whenever it is nonsingular (K is): Cholesky
+        self.ksp = direct_solver(self.Kc, "cholesky", "coarse")
+        factorize(self.ksp, "the coarse grid's stiffness")
         self._rc = self.Kc.createVecRight()
         self._yc = self.Kc.createVecRight()
 

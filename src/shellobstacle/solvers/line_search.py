@@ -1,6 +1,6 @@
 """Exact line search for convex piecewise-quadratic energies (MODEL.md §4).
 
-Along a descent direction δ the restriction ``φ(t) = J(u + tδ)`` of such an energy is
+Along a descent direction δ the restriction ``φ(t) = J_κ(u + tδ)`` of such an energy is
 convex and piecewise quadratic, so ``φ'`` is monotone and piecewise linear; its root on
 ``[0, 1]`` is the exact minimizer. Regula falsi in its Illinois variant finds it: once no
 kink is left inside the bracket the secant lands exactly on the root.
@@ -10,7 +10,9 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-__all__ = ["piecewise_linear_root"]
+import numpy as np
+
+__all__ = ["exact_step", "piecewise_linear_root"]
 
 
 def piecewise_linear_root(
@@ -60,3 +62,30 @@ def piecewise_linear_root(
         if hi - lo <= interval_rtol * hi:
             break
     return t, evaluations
+
+
+def exact_step(
+    g: np.ndarray,
+    Md: np.ndarray,
+    Bd: np.ndarray,
+    curvature: float,
+    slope0: float,
+    noise: float,
+    kappa: float,
+    total: Callable[[float], float],
+) -> tuple[float, int]:
+    """The step length of a penalized energy along δ: the root in ``[0, 1]`` of
+
+    ``φ'(t) = φ'_el(0) + t δᵀKδ + (1/κ) (Mδ)·min(g + t Bδ, 0)``
+
+    with the gaps ``g``, ``Mδ`` and ``Bδ`` at the points that can be active on ``[0, 1]``,
+    ``curvature = δᵀKδ`` and ``slope0 = φ'(0)``; ``|φ'| ≤ noise`` counts as zero. ``total``
+    sums a point sum over the ranks (or returns it, for points every rank holds).
+    """
+    elastic0 = slope0 - total(float(np.dot(Md, np.minimum(g, 0.0)))) / kappa
+
+    def slope(t: float) -> float:
+        local = float(np.dot(Md, np.minimum(g + t * Bd, 0.0)))
+        return elastic0 + t * curvature + total(local) / kappa
+
+    return piecewise_linear_root(slope, slope0, max(1e-10 * abs(slope0), noise))

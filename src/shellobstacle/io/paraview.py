@@ -26,9 +26,8 @@ import shutil
 from collections.abc import Sequence
 from pathlib import Path
 
-from shellobstacle import compat  # noqa: F401  (must precede dolfinx / petsc4py)
+from mpi4py import MPI
 
-# isort: split
 import basix.ufl
 import dolfinx
 import dolfinx.cpp
@@ -37,9 +36,8 @@ import dolfinx.io
 import dolfinx.mesh
 import numpy as np
 import ufl
-from mpi4py import MPI
 
-from shellobstacle.postprocess import Postprocessor
+from shellobstacle.post.contact import Postprocessor
 from shellobstacle.problem import PenalizedProblem
 
 __all__ = ["SurfaceMesh", "surface_mesh", "write_paraview"]
@@ -195,7 +193,7 @@ def write_paraview(
 
     Args:
         problem: The solved problem.
-        post: Its :class:`~shellobstacle.postprocess.Postprocessor`.
+        post: Its :class:`~shellobstacle.post.contact.Postprocessor`.
         folder: Output folder (created if needed).
         extra: More scalar P1 fields (e.g. the contact pressure of the exact solver), written
             with the gap and the contact indicator.

@@ -32,11 +32,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-import dolfinx
-import numpy as np
 from mpi4py import MPI
 
-from shellobstacle.results import ResultsError, _jsonable, write_json
+import dolfinx
+import numpy as np
+
+from shellobstacle.io.folders import ResultsError, _jsonable, write_json
 
 __all__ = [
     "MESH_DIFFERS",

@@ -1,7 +1,7 @@
 """Matplotlib figures (Agg backend, PNG): cross-sections of the deformed shell (MODEL.md §7).
 
 Only rank 0 draws: pass the same data on every rank (as
-:func:`~shellobstacle.postprocess.cross_section` returns it) and call from all ranks.
+:func:`~shellobstacle.post.sections.cross_section` returns it) and call from all ranks.
 """
 
 from __future__ import annotations
@@ -14,11 +14,12 @@ import matplotlib
 
 matplotlib.use("Agg")
 
-import matplotlib.pyplot as plt
-import numpy as np
 from mpi4py import MPI
 
-from shellobstacle.postprocess import CrossSection, horizontal_direction
+import matplotlib.pyplot as plt
+import numpy as np
+
+from shellobstacle.post.sections import CrossSection, horizontal_direction
 
 __all__ = ["plot_cross_section"]
 

@@ -10,7 +10,7 @@ from typing import Any
 from mpi4py import MPI
 
 from shellobstacle.checks import format_checks
-from shellobstacle.results import versions, write_json
+from shellobstacle.io.folders import versions, write_json
 
 __all__ = ["write_solution"]
 
@@ -27,9 +27,9 @@ def write_solution(
     Returns:
         The summary dictionary.
     """
-    from shellobstacle.output import write_paraview
-    from shellobstacle.plotting import plot_cross_section
-    from shellobstacle.postprocess import Postprocessor
+    from shellobstacle.io.paraview import write_paraview
+    from shellobstacle.post.contact import Postprocessor
+    from shellobstacle.post.plotting import plot_cross_section
 
     problem = result.problem
     t = time.perf_counter()

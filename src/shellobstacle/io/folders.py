@@ -102,17 +102,14 @@ def _jsonable(obj: Any) -> Any:
 
 def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
     """Package, library, interpreter and machine versions for a results record, and the
-    process settings that change timings (malloc's policy, :mod:`shellobstacle.memory`; the
-    DGEMMT under MUMPS, :mod:`shellobstacle.blas`; the heap's helper thread,
-    :mod:`shellobstacle.prefault`)."""
+    process tuning that changes timings (:mod:`shellobstacle.tuning`)."""
+    from petsc4py import PETSc
+
     import dolfinx
     import numpy
     import sympy
-    from petsc4py import PETSc
 
-    from shellobstacle.blas import gemmt_policy
-    from shellobstacle.memory import malloc_policy
-    from shellobstacle.prefault import prefault_policy
+    from shellobstacle import tuning
 
     petsc = ".".join(map(str, PETSc.Sys.getVersion()))
     return {
@@ -125,8 +122,6 @@ def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
         "mpi_ranks": comm.size,
         "machine": f"{platform.machine()} {platform.system()} {socket.gethostname()}",
         "cpus": os.cpu_count(),
-        "malloc": malloc_policy(),
-        "gemmt": gemmt_policy(),
-        "prefault": prefault_policy(),
+        "tuning": tuning.policies(),
         "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
     }

@@ -1,0 +1,37 @@
+"""``shellobstacle`` (and ``python -m shellobstacle``): the command line with its tuning.
+
+The entry point checks the DOLFINx wheel's environment (:mod:`.compat`), applies the opt-in
+process tuning (:mod:`.tuning`, ``SHELLOBSTACLE_TUNING``) before MPI's solvers, PETSc and
+NumPy are loaded, then runs :func:`shellobstacle.cli.main`, which itself changes nothing in
+the process (tests and scripts call it directly).
+"""
+
+from __future__ import annotations
+
+import sys
+
+__all__ = ["main"]
+
+
+def main() -> int:
+    """Bootstrap, tune, run the command line; returns its exit code."""
+    from shellobstacle.compat import bootstrap
+
+    bootstrap()
+    from mpi4py import MPI
+
+    from shellobstacle import tuning
+
+    try:
+        tuning.apply(MPI.COMM_WORLD.size)
+    except ValueError as err:
+        if MPI.COMM_WORLD.rank == 0:
+            print(f"shellobstacle: error: {err}", file=sys.stderr)
+        return 2
+    from shellobstacle.cli import main as cli_main
+
+    return cli_main()
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,261 @@
+"""What each command of the command line does (:mod:`shellobstacle.cli` parses)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from mpi4py import MPI
+
+from shellobstacle.reporter import Reporter
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+
+def check(args: argparse.Namespace) -> int:
+    from shellobstacle.checks import check_assumptions, format_checks
+    from shellobstacle.config import load_config
+    from shellobstacle.pipeline import make_mesh
+
+    cfg = load_config(args.config, args.set)
+    mesh = make_mesh(cfg.domain)
+    checks = check_assumptions(cfg.shell, mesh)
+    if MPI.COMM_WORLD.rank == 0:
+        print(
+            f"{cfg.shell.surface.description}; q = {cfg.shell.obstacle.q}; "
+            f"ε = {cfg.shell.material.epsilon}"
+        )
+        print(format_checks(checks))
+        failed = [c.name for c in checks if not c.passed]
+        if failed:
+            print(
+                f"shellobstacle: error: assumptions fail: {', '.join(failed)} (see the table)",
+                file=sys.stderr,
+            )
+    return EXIT_OK if all(c.passed for c in checks) else EXIT_USAGE
+
+
+def solve(args: argparse.Namespace) -> int:
+    from shellobstacle.config import load_config
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        cfg = load_config(args.config, args.set)
+    report = Reporter(args.quiet, args.verbose)
+    for w in caught:
+        report(f"warning: {w.message}")
+    default = f"{Path(args.config).stem}-results"
+    return run_and_write(
+        cfg,
+        args.output,
+        default,
+        args.overwrite,
+        args.force,
+        report,
+        [str(w.message) for w in caught],
+    )
+
+
+def run_and_write(
+    cfg: Any,
+    output: str | None,
+    default: str,
+    overwrite: bool,
+    force: bool,
+    report: Reporter,
+    config_warnings: Sequence[str] = (),
+) -> int:
+    """Solve a config and write its result folder; returns the exit code."""
+    from shellobstacle.config import to_toml
+    from shellobstacle.io.folders import atomic_write, prepare_folder
+    from shellobstacle.io.summary import write_solution
+    from shellobstacle.pipeline import solve_config
+
+    folder = prepare_folder(output, default, overwrite)
+    report.attach(folder / "log.txt")
+    report(f"results go to {folder}/")
+    atomic_write(folder / "config.toml", to_toml(cfg.resolved))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        result = solve_config(cfg, force=force, progress=report, newton_progress=report.newton)
+    seen = [*config_warnings, *(str(w.message) for w in caught)]
+    summary = write_solution(result, cfg, folder, report, seen)
+    if not result.converged:
+        report(f"FAILED: {result.error}")
+        report(f"the last iterate and the residual history are in {folder}/")
+        return EXIT_FAILED
+    report(
+        f"done: κ = {summary['kappa']:.3e}, contact area {summary['contact_area']:.5g} "
+        f"(projected {summary['contact_area_projected']:.5g}), min ζ_3 = {summary['zeta3_min']:.5g}"
+    )
+    return EXIT_OK
+
+
+def reproduce(args: argparse.Namespace) -> int:
+    """The paper's section 10 (batches 1–4 and the solver comparison) with report.md."""
+    from shellobstacle.config import load_config
+    from shellobstacle.experiments.reproduce import PAPER_CONFIG, reproduce
+    from shellobstacle.io.folders import prepare_folder
+
+    mode = "full" if args.full else "fast"
+    meta = {
+        "command": "reproduce",
+        "mode": mode,
+        "config": _compared_config(load_config(PAPER_CONFIG)),
+    }
+    folder = prepare_folder(args.output, "paper-results", args.overwrite, resume=args.resume)
+    args.folder = folder
+    report = Reporter(args.quiet, args.verbose)
+    checkpoint = _open_checkpoint(folder, meta, args, report)
+    report.attach(folder / "log.txt", append=args.resume)
+    report(f"results go to {folder}/ (mode {mode}{', resumed' if args.resume else ''})")
+    reproduce(folder, mode, report, checkpoint, report.newton)
+    _finish(checkpoint, report)
+    return EXIT_OK
+
+
+def _compared_config(cfg: Any) -> dict[str, Any]:
+    """The resolved configuration without the sections that do not change any number."""
+    return {k: v for k, v in cfg.resolved.items() if k != "output"}
+
+
+def _open_checkpoint(
+    folder: Path, meta: dict[str, Any], args: argparse.Namespace, report: Reporter
+) -> Any:
+    """Start recording the steps in ``folder/steps`` (or check them for ``--resume``)."""
+    from shellobstacle.io.checkpoint import open_checkpoint
+    from shellobstacle.io.folders import versions
+
+    ranks = MPI.COMM_WORLD.size
+    info = {"argv": args.argv, "ranks": ranks, "versions": versions()}
+    checkpoint = open_checkpoint(folder, {**meta, **info}, args.resume)
+    old = checkpoint.recorded_meta
+    if old is not None:
+        started = " ".join(old.get("argv", []))
+        report(f"resuming the interrupted run in {folder}/ (started as: {started})")
+        if old.get("ranks") != ranks:
+            report(
+                f"note: the interrupted run used {old.get('ranks')} MPI rank(s), this one "
+                f"{ranks}: recorded and new steps agree to solver tolerance, not bitwise"
+            )
+    return checkpoint
+
+
+def _finish(checkpoint: Any, report: Reporter) -> None:
+    """Drop the saved vectors (only an unfinished sweep needs them) and say what was reused."""
+    checkpoint.finish()
+    loaded = checkpoint.stats["loaded"]
+    if loaded:
+        report(
+            f"resumed: {loaded} finished step(s) taken from {checkpoint.dir}/, "
+            f"{checkpoint.stats['saved']} computed now"
+        )
+
+
+def _floats(text: str, what: str) -> list[float]:
+    from shellobstacle.config import ConfigError
+
+    try:
+        return [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise ConfigError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+
+
+def _experiment_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The options of ``args.batch`` that change its numbers (compared on ``--resume``)."""
+    if args.batch == "penalty":
+        return {
+            "--start": args.start,
+            "--step": args.step,
+            "--q-max": args.q_max,
+            "--tol": args.tol,
+            "--quadratures": [v.strip() for v in args.quadratures.split(",")],
+        }
+    if args.batch == "mesh":
+        return {
+            "--q": _floats(args.q, "--q"),
+            "--refinements": args.refinements,
+            "--tol": args.tol,
+        }
+    if args.batch == "solvers":
+        return {"--sizes": _floats(args.sizes, "--sizes"), "--exponent": args.exponent}
+    return {"--parameter": args.parameter, "--values": _floats(args.values, "--values")}
+
+
+def experiment(args: argparse.Namespace) -> int:
+    """One batch on a user's config."""
+    from shellobstacle.config import ConfigError, load_config, to_toml
+    from shellobstacle.experiments import load, mesh, solvers
+    from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
+    from shellobstacle.io.folders import atomic_write, prepare_folder
+
+    cfg = load_config(args.config, args.set)
+    if args.batch == "load" and cfg.penalty.exponent is None:
+        raise ConfigError("experiment load needs penalty.exponent (κ = h^exponent)")
+    options = _experiment_options(args)
+    meta = {
+        "command": "experiment",
+        "batch": args.batch,
+        "options": options,
+        "config": _compared_config(cfg),
+    }
+    default = f"{Path(args.config).stem}-{args.batch}"
+    folder = prepare_folder(args.output, default, args.overwrite, resume=args.resume)
+    args.folder = folder
+    report = Reporter(args.quiet, args.verbose)
+    checkpoint = _open_checkpoint(folder, meta, args, report)
+    report.attach(folder / "log.txt", append=args.resume)
+    atomic_write(folder / "config.toml", to_toml(cfg.resolved))
+    kw: dict[str, Any] = {"checkpoint": checkpoint, "newton_progress": report.newton}
+    if args.batch == "penalty":
+        opts = PenaltyStudyOptions(args.start, args.step, args.tol, args.q_max)
+        quadratures = options["--quadratures"]
+        text = run_penalty(cfg, folder, [cfg.domain], report, opts, quadratures, **kw)
+    elif args.batch == "mesh":
+        text = mesh.run_mesh(
+            cfg, folder, cfg.domain, args.refinements, options["--q"], report, args.tol, **kw
+        )
+    elif args.batch == "solvers":
+        sizes = [dataclasses.replace(cfg.domain, h=v) for v in options["--sizes"]]
+        text = solvers.run_solvers(cfg, folder, sizes, args.exponent, report, **kw)
+    else:
+        text = load.run_load(
+            cfg,
+            folder,
+            cfg.domain,
+            options["--values"],
+            cfg.penalty.exponent,
+            report,
+            args.parameter,
+            **kw,
+        )
+    loaded = checkpoint.stats["loaded"]
+    if loaded:
+        text += (
+            f"\n\nResumed: {loaded} finished step(s) were taken from the records of an "
+            "interrupted run (`steps/`), not recomputed; their `seconds` are those of that run.\n"
+        )
+    atomic_write(folder / "report.md", f"# Experiment {args.batch}: {args.config}\n\n{text}")
+    report(f"report written: {folder / 'report.md'}")
+    _finish(checkpoint, report)
+    return EXIT_OK
+
+
+def doctor(args: argparse.Namespace) -> int:
+    """The environment, versions and active tuning; exit 1 when a problem was found."""
+    from shellobstacle.compat import bootstrap
+    from shellobstacle.doctor import report
+
+    lines, problems = report(bootstrap())
+    if MPI.COMM_WORLD.rank == 0:
+        print("\n".join(lines))
+        for problem in problems:
+            print(f"problem: {problem}")
+        if not problems:
+            print("no problems found")
+    return EXIT_FAILED if problems else EXIT_OK

@@ -1,0 +1,94 @@
+"""``shellobstacle doctor``: the environment, the versions, and what tuning is active and why.
+
+It also names known problems of an environment, with their fix: a forced OpenBLAS kernel
+family that crashed NumPy's BLAS, MUMPS' selected inverse entries out of reach (the contact
+zone's condensation then falls back to one factorization per κ), no C compiler for the
+tuning's helpers.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import platform
+from collections.abc import Mapping
+
+__all__ = ["CRASHING_CORETYPES", "coretype_warning", "numpy_blas_config", "report"]
+
+#: OPENBLAS_CORETYPE values (lower case) with which NumPy's OpenBLAS 0.3.34 (NumPy
+#: 2.5.2–2.5.5) died of a segmentation fault in a 500 × 500 matrix product on an AVX-512
+#: machine (``benchmarks/numpy_coretype.py`` checks a machine)
+CRASHING_CORETYPES = ("haswell", "zen")
+CRASHING_OPENBLAS = "OpenBLAS 0.3.34"
+
+
+def numpy_blas_config() -> str:
+    """The configuration string of NumPy's BLAS (``"OpenBLAS 0.3.34.237.2 ..."``), or ``""``."""
+    import numpy
+
+    with contextlib.suppress(Exception):  # (show_config's layout is NumPy's, not ours)
+        blas = numpy.show_config(mode="dicts")["Build Dependencies"]["blas"]
+        return str(blas.get("openblas configuration", ""))
+    return ""
+
+
+def coretype_warning(
+    environ: Mapping[str, str] = os.environ, config: str | None = None
+) -> str | None:
+    """What to tell the user when ``OPENBLAS_CORETYPE`` forces kernels that crashed NumPy's
+    OpenBLAS (``config``: its configuration string, NumPy's by default); None otherwise."""
+    coretype = environ.get("OPENBLAS_CORETYPE", "").strip()
+    if coretype.lower() not in CRASHING_CORETYPES:
+        return None
+    config = numpy_blas_config() if config is None else config
+    if not config.startswith(CRASHING_OPENBLAS):
+        return None
+    return (
+        f"OPENBLAS_CORETYPE={coretype} forces kernels with which NumPy's BLAS "
+        f"({config.split('  ')[0]}) crashed with a segmentation fault in a plain matrix product "
+        "on an AVX-512 machine: unset OPENBLAS_CORETYPE, or install numpy<=2.5.1 (OpenBLAS "
+        "0.3.33). benchmarks/numpy_coretype.py tells whether this machine is affected."
+    )
+
+
+def _memory_gib() -> float | None:
+    with contextlib.suppress(OSError, ValueError, IndexError), open("/proc/meminfo") as f:
+        return int(f.readline().split()[1]) / 2**20
+    return None
+
+
+def report(installed: str) -> tuple[list[str], list[str]]:
+    """``(lines, problems)``: what the doctor prints, and the problems found with their fix.
+
+    ``installed``: how DOLFINx is installed (:func:`shellobstacle.compat.bootstrap`).
+    """
+    from mpi4py import MPI
+
+    from shellobstacle import tuning
+    from shellobstacle.io.folders import versions
+    from shellobstacle.solvers.mumps import selected_inverse_available
+    from shellobstacle.tuning.build import cache_dir, compiler
+
+    v = versions()
+    memory = _memory_gib()
+    lines = [
+        f"shellobstacle {v['shellobstacle']} on Python {v['python']} ({platform.platform()})",
+        f"machine: {v['machine']}, {v['cpus']} CPUs"
+        + (f", {memory:.1f} GiB" if memory is not None else ""),
+        f"DOLFINx {v['dolfinx']} ({installed}), PETSc {v['petsc']}, NumPy {v['numpy']}, "
+        f"SymPy {v['sympy']}",
+        f"MPI: {MPI.Get_library_version().splitlines()[0].strip()}, {v['mpi_ranks']} rank(s)",
+        f"NumPy's BLAS: {numpy_blas_config().split('  ')[0] or 'not an OpenBLAS'}",
+        f"C compiler (tuning helpers): {compiler() or 'none'}; cache {cache_dir()}",
+        f"tuning ({tuning.ENV}={os.environ.get(tuning.ENV, 'on')}):",
+        *(f"  {name}: {policy}" for name, policy in v["tuning"].items()),
+    ]
+    problems = []
+    if (warning := coretype_warning()) is not None:
+        problems.append(warning)
+    if (reason := selected_inverse_available()) is not None:
+        problems.append(
+            f"MUMPS' selected inverse entries are out of reach ({reason}): the direct solver "
+            "falls back to one factorization per κ (solver.contact_zone has no effect)"
+        )
+    return lines, problems

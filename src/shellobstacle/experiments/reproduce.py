@@ -1,0 +1,167 @@
+"""``shellobstacle reproduce``: every batch of the paper's section 10 and ``report.md``."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from shellobstacle.config import load_config
+from shellobstacle.domains import DomainSpec
+from shellobstacle.experiments.exact import write_batch4
+from shellobstacle.experiments.load import batch3_config, run_load
+from shellobstacle.experiments.mesh import run_mesh
+from shellobstacle.experiments.penalty import run_penalty
+from shellobstacle.experiments.solvers import run_solvers
+from shellobstacle.io.checkpoint import Checkpoint
+from shellobstacle.io.folders import atomic_write, versions
+
+__all__ = ["PAPER_CONFIG", "SIZES", "Sizes", "reproduce"]
+
+Say = Callable[[str], Any]
+NewtonProgress = Callable[[int, float], Any] | None
+PAPER_CONFIG = Path(__file__).parents[1] / "configs" / "paper.toml"
+#: gmsh targets ≈ h / 1.34 give largest cell diameters h ≈ 0.0312, 0.0156, 0.0078, 0.0039
+GMSH_TARGET = {0.0312: 0.0233, 0.0156: 0.0116, 0.0078: 0.0058, 0.0039: 0.0029}
+
+
+@dataclass(frozen=True)
+class Sizes:
+    """Mesh sizes and sweeps of one reproduce mode."""
+
+    batch1_h: tuple[float, ...]
+    batch2_base_h: float
+    batch2_refinements: int
+    batch2_q: tuple[float, ...]
+    batch3_h: float
+    batch3_central_h: float
+    batch3_ell: tuple[float, ...]
+    batch3_exponent: float
+    solver_h: tuple[float, ...]
+
+
+SIZES = {
+    "fast": Sizes(
+        batch1_h=(0.0312, 0.0156),
+        batch2_base_h=0.0312 * 3,
+        batch2_refinements=3,
+        batch2_q=(0.4, 0.5, 0.6, 0.7, 1.0, 1.3),
+        batch3_h=0.05,
+        batch3_central_h=0.004,
+        batch3_ell=(0, 10, 20, 40, 80),
+        batch3_exponent=1.5,
+        solver_h=(0.1, 0.07),
+    ),
+    "full": Sizes(
+        batch1_h=(0.0312, 0.0078, 0.0039),
+        batch2_base_h=0.0312,
+        batch2_refinements=4,
+        batch2_q=(0.4, 0.5, 0.6, 0.7, 1.0, 1.3),
+        batch3_h=0.03,
+        batch3_central_h=0.002,
+        batch3_ell=(0, 5, 10, 20, 30, 40, 60, 80),
+        batch3_exponent=1.5,
+        solver_h=(0.1, 0.07, 0.05),
+    ),
+}
+
+
+def _resumed_note(cp: Checkpoint) -> list[str]:
+    """A paragraph saying that steps came from the records of an interrupted run, if any."""
+    if not cp.stats["loaded"]:
+        return []
+    return [
+        f"Resumed: {cp.stats['loaded']} finished step(s) were taken from the records of an "
+        "interrupted run (`steps/`), not recomputed; the times above are this invocation's, "
+        "the `seconds` in the tables include the recorded steps' times.",
+        "",
+    ]
+
+
+def reproduce(
+    folder: Path,
+    mode: str,
+    say: Say,
+    checkpoint: Checkpoint | None = None,
+    newton_progress: NewtonProgress = None,
+) -> Path:
+    """All batches of the paper's section 10 with ``report.md``; returns the report path.
+
+    With ``checkpoint`` every step of every batch is recorded as it finishes, and recorded
+    steps (of an interrupted run) are not solved again.
+    """
+    sizes = SIZES[mode]
+    cp = checkpoint or Checkpoint(None)
+    kw: dict[str, Any] = {"checkpoint": cp, "newton_progress": newton_progress}
+    cfg = load_config(PAPER_CONFIG)
+    t0 = time.perf_counter()
+    sections, times = [], {}
+
+    def disk(h: float, **kw: Any) -> DomainSpec:
+        return DomainSpec("disk", h=GMSH_TARGET.get(h, h / 1.34), radius=0.5, **kw)
+
+    penalty_rows: list[dict[str, Any]] = []
+    mesh_rows: list[dict[str, Any]] = []
+    t = time.perf_counter()
+    batch1_meshes = [disk(h) for h in sizes.batch1_h]
+    sections.append(run_penalty(cfg, folder, batch1_meshes, say, batch4=penalty_rows, **kw))
+    times["batch 1"] = time.perf_counter() - t
+    t = time.perf_counter()
+    base = disk(sizes.batch2_base_h)
+    sections.append(
+        run_mesh(
+            cfg,
+            folder,
+            base,
+            sizes.batch2_refinements,
+            sizes.batch2_q,
+            say,
+            batch4=mesh_rows,
+            **kw,
+        )
+    )
+    times["batch 2"] = time.perf_counter() - t
+    t = time.perf_counter()
+    sections.append(
+        run_load(
+            batch3_config(cfg),
+            folder,
+            disk(sizes.batch3_h, central_h=sizes.batch3_central_h, central_radius=0.1),
+            sizes.batch3_ell,
+            sizes.batch3_exponent,
+            say,
+            **kw,
+        )
+    )
+    times["batch 3"] = time.perf_counter() - t
+    sections.append(write_batch4(folder, penalty_rows, mesh_rows))
+    t = time.perf_counter()
+    sections.append(run_solvers(cfg, folder, [disk(h) for h in sizes.solver_h], 1.5, say, **kw))
+    times["solvers"] = time.perf_counter() - t
+    total = time.perf_counter() - t0
+    v = versions()
+    tuned = "; ".join(f"{k}: {p}" for k, p in v["tuning"].items())
+    head = [
+        "# Meixner & Piersanti (2024), section 10, reproduced",
+        "",
+        f"Mode `{mode}`; total {total:.0f} s ("
+        + ", ".join(f"{k} {s:.0f} s" for k, s in times.items())
+        + ").",
+        "",
+        f"Machine: {v['machine']}, {v['cpus']} CPUs, {v['mpi_ranks']} MPI rank(s); process "
+        f"tuning: {tuned}. shellobstacle {v['shellobstacle']}, DOLFINx {v['dolfinx']}, PETSc "
+        f"{v['petsc']}, Python {v['python']}; {v['date']}.",
+        "",
+        *_resumed_note(cp),
+        f"Problem: {cfg.shell.surface.description}; ω = disk of radius 0.5; ε = 0.001, λ = 0.4, "
+        "μ = 0.012; q = (0, 0, 1); load (0, 0, g) with the paper's discontinuous g; P1 for all "
+        "components, ζ_3 clamped; each penalized problem solved by Newton's method with an exact "
+        "line search, warm-started along κ. h is the largest cell diameter.",
+        "",
+    ]
+    path = folder / "report.md"
+    atomic_write(path, "\n".join(head + sections))
+    say(f"report written: {path}")
+    return path

@@ -1,0 +1,2 @@
+"""After a solve: norms (:mod:`.norms`), contact (:mod:`.contact`), cross-sections
+(:mod:`.sections`) and figures (:mod:`.plotting`)."""

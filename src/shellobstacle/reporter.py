@@ -1,0 +1,88 @@
+"""Progress of a command: lines on rank 0's terminal (a live status line there), and a log file."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from mpi4py import MPI
+
+__all__ = ["NewtonEcho", "Reporter"]
+
+
+class Reporter:
+    """Progress lines on rank 0 (stderr), also appended to a log file once one is known.
+
+    ``quiet`` prints nothing (the log file still gets every line); ``verbose`` adds a line per
+    Newton iteration (:meth:`newton`, passed as ``newton_progress`` to the solvers).
+    """
+
+    def __init__(self, quiet: bool = False, verbose: bool = False) -> None:
+        self.quiet = quiet
+        self.verbose = verbose
+        self.start = time.perf_counter()
+        self.log: Path | None = None
+        self.lines: list[str] = []
+        self._status: Any = None
+        if not quiet and MPI.COMM_WORLD.rank == 0 and sys.stderr.isatty():
+            # on a terminal: a live status line (spinner, elapsed time, current step) below the
+            # log lines; in files, pipes and CI only the plain lines are written
+            from rich.console import Console
+
+            self._console = Console(stderr=True)
+            self._status = self._console.status("starting", spinner="dots")
+            self._status.start()
+
+    def __del__(self) -> None:
+        if self._status is not None:
+            self._status.stop()
+
+    def __call__(self, msg: str) -> None:
+        line = f"[{time.perf_counter() - self.start:7.1f}s] {msg}"
+        self.lines.append(line)
+        if MPI.COMM_WORLD.rank != 0:
+            return
+        if self._status is not None:
+            self._console.print(line, highlight=False, markup=False)
+            self._status.update(f"{time.perf_counter() - self.start:.0f} s — {msg}")
+        elif not self.quiet:
+            print(line, file=sys.stderr, flush=True)
+        if self.log is not None:
+            with self.log.open("a") as f:
+                f.write(line + "\n")
+
+    def attach(self, path: Path, append: bool = False) -> None:
+        """Start logging to ``path`` (the lines so far are written first).
+
+        With ``append`` (a resumed run) the earlier log is kept and continued.
+        """
+        self.log = path
+        if MPI.COMM_WORLD.rank == 0:
+            text = "".join(line + "\n" for line in self.lines)
+            if append and path.exists():
+                with path.open("a") as f:
+                    f.write("--- resumed ---\n" + text)
+            else:
+                path.write_text(text)
+
+    @property
+    def newton(self) -> NewtonEcho | None:
+        """The per-iteration callback in verbose mode, else None."""
+        return NewtonEcho(self) if self.verbose else None
+
+
+class NewtonEcho:
+    """``newton_progress`` of the verbose mode: one line per Newton iteration."""
+
+    def __init__(self, say: Reporter) -> None:
+        self.say = say
+
+    def __call__(self, it: int, relres: float) -> None:
+        self.say(f"    Newton {it}: relative residual {relres:.3e}")
+
+    def finished(self, result: Any) -> None:
+        """After a solve: its step lengths (the exact line search's t) and stop reason."""
+        steps = ", ".join(f"{t:.3g}" for t in result.step_lengths) or "none"
+        self.say(f"    Newton: {result.iterations} steps, step lengths {steps}; {result.reason}")

@@ -1,0 +1,152 @@
+"""The configuration's schema: every section and key, its type, default and meaning.
+
+The single source of truth: :mod:`shellobstacle.config` validates against it and
+``shellobstacle config-reference`` prints it (:func:`reference_text`), so the documentation
+cannot drift from the loader.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+from shellobstacle.model import PENALTY_QUADRATURES, TRANSVERSE
+from shellobstacle.surface import SURFACE_KINDS
+
+__all__ = ["OPTIONAL", "REQUIRED", "REQUIRED_SECTIONS", "SCHEMA", "Key", "reference_text"]
+
+
+@dataclass(frozen=True)
+class Key:
+    """One configuration key: its type, default (``REQUIRED`` if none) and meaning."""
+
+    type: str  # "float", "int", "str", "bool", "float[n]", "str|float[3]", "table", "points"
+    default: Any
+    help: str
+    choices: tuple[str, ...] = ()
+
+
+REQUIRED = object()
+OPTIONAL = None
+
+SCHEMA: dict[str, dict[str, Key]] = {
+    "surface": {
+        "kind": Key("str", REQUIRED, "built-in surface or 'expression'", SURFACE_KINDS),
+        "radius": Key("float", OPTIONAL, "spherical_cap: sphere radius R"),
+        "offset": Key("float", OPTIONAL, "spherical_cap/ellipsoid_cap: downward shift of θ_3"),
+        "semi_axes": Key("float[3]", OPTIONAL, "ellipsoid_cap: semi-axes (A, B, C)"),
+        "height": Key("float", OPTIONAL, "elliptic_paraboloid: apex height"),
+        "curvatures": Key("float[2]", OPTIONAL, "elliptic_paraboloid: apex curvatures (k1, k2)"),
+        "theta": Key("str[3]", OPTIONAL, "expression: θ(y1, y2) as three SymPy strings"),
+    },
+    "domain": {
+        "kind": Key(
+            "str", REQUIRED, "shape of ω", ("disk", "ellipse", "polygon", "rectangle", "file")
+        ),
+        "h": Key("float", OPTIONAL, "target mesh size (gmsh); the h obtained is reported"),
+        "radius": Key("float", 0.5, "disk: radius"),
+        "center": Key("float[2]", (0.0, 0.0), "disk/ellipse: centre"),
+        "semi_axes": Key("float[2]", OPTIONAL, "ellipse: semi-axes"),
+        "vertices": Key("points", OPTIONAL, "polygon: list of [y1, y2] vertices"),
+        "corners": Key("points", OPTIONAL, "rectangle: [[y1_min, y2_min], [y1_max, y2_max]]"),
+        "path": Key(
+            "str", OPTIONAL, "file: a gmsh .msh file of triangles (relative to the config)"
+        ),
+        "refinements": Key("int", 0, "uniform refinements after meshing (nested meshes)"),
+        "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
+        "central_radius": Key("float", OPTIONAL, "disk/ellipse: radius of the finer region"),
+        "gmsh_max_vertices": Key(
+            "int", 8_000, "above this, gmsh meshes coarser and the mesh is refined (0: never)"
+        ),
+    },
+    "material": {
+        "epsilon": Key("float", REQUIRED, "half-thickness ε > 0"),
+        "lambda": Key("float", REQUIRED, "Lamé constant λ ≥ 0"),
+        "mu": Key("float", REQUIRED, "Lamé constant μ > 0"),
+    },
+    "load": {
+        "p": Key("str|float[3]", REQUIRED, "contravariant force density p^i(y1, y2, r)"),
+        "parameters": Key("table", {}, "named numbers the load may use (sweepable)"),
+    },
+    "obstacle": {
+        "q": Key("float[3]", (0.0, 0.0, 1.0), "normal of the plane; H = {x·q ≥ 0}"),
+    },
+    "penalty": {
+        "kappa": Key("float", OPTIONAL, "penalty parameter κ > 0"),
+        "exponent": Key("float", OPTIONAL, "κ = h^exponent (the paper's coupling)"),
+        "continuation": Key("bool", True, "reach κ through a ladder of larger κ (warm starts)"),
+    },
+    "discretization": {
+        "degree": Key("int", 1, "Lagrange degree of all components (1 or 2)"),
+        "transverse": Key("str", "clamped", "boundary condition of ζ_3", TRANSVERSE),
+        "penalty_quadrature": Key(
+            "str", "gauss", "where the penalty is integrated", PENALTY_QUADRATURES
+        ),
+        "quadrature_degree": Key("int", OPTIONAL, "quadrature degree (default 2·degree + 2)"),
+    },
+    "solver": {
+        "method": Key(
+            "str",
+            "newton",
+            "newton: penalized problem by Newton; brezis-sibony: the paper's iteration (38); "
+            "active-set: the exact nodal variational inequality (κ = 0, no [penalty])",
+            ("newton", "brezis-sibony", "active-set"),
+        ),
+        "linear_solver": Key(
+            "str",
+            "direct",
+            "MUMPS, or inexact Newton with flexible CG and a field split (GAMG on ζ_α): "
+            "about 70 % of the memory",
+            ("direct", "iterative"),
+        ),
+        "factorization": Key(
+            "str",
+            "cholesky",
+            "direct solver: Cholesky (symmetric positive definite; half the memory of LU), or LU",
+            ("cholesky", "lu"),
+        ),
+        "contact_zone": Key(
+            "bool",
+            True,
+            "direct solver: condense each Newton step onto the contact zone (K factorized once "
+            "per zone, kept across κ); false: one factorization per κ reused by CG",
+        ),
+        "rtol": Key("float", 1e-10, "relative residual tolerance"),
+        "stol": Key("float", 1e-12, "relative Newton-correction tolerance"),
+        "max_iterations": Key("int", 100, "Newton (or active-set) iterations per κ"),
+        "xi": Key("float", OPTIONAL, "brezis-sibony: Ξ of (38); default: from a λ_max estimate"),
+        "mass": Key("str", "consistent", "brezis-sibony: mass matrix", ("consistent", "lumped")),
+        "start": Key("str", "linearized", "brezis-sibony: ψ_0", ("zero", "linearized")),
+        "bs_max_iterations": Key("int", 200000, "brezis-sibony: iteration cap"),
+        "bs_rtol": Key("float", 1e-9, "brezis-sibony: relative L² increment tolerance"),
+    },
+    "output": {
+        "paraview": Key("bool", True, "write VTX (.bp) files for ParaView"),
+        "figures": Key("bool", True, "write PNG figures"),
+    },
+}
+
+REQUIRED_SECTIONS = ("surface", "domain", "material", "load")
+
+
+def reference_text() -> str:
+    """The configuration reference (Markdown), generated from :data:`SCHEMA`."""
+    lines = ["# Configuration reference", ""]
+    for section, keys in SCHEMA.items():
+        req = " (required section)" if section in REQUIRED_SECTIONS else ""
+        lines += [
+            f"## [{section}]{req}",
+            "",
+            "| key | type | default | meaning |",
+            "|---|---|---|---|",
+        ]
+        for name, k in keys.items():
+            default = (
+                "required"
+                if k.default is REQUIRED
+                else ("—" if k.default is None else repr(k.default))
+            )
+            meaning = k.help + (f" (one of {', '.join(k.choices)})" if k.choices else "")
+            lines.append(f"| `{name}` | {k.type} | {default} | {meaning} |")
+        lines.append("")
+    return "\n".join(lines)

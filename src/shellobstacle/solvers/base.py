@@ -1,0 +1,138 @@
+"""What every solver shares: one failure type, PETSc options prefixes, direct solvers.
+
+Every sparse direct solve of the package (Newton's Jacobian, the contact zone's ``K_II`` and
+Schur complement, the coarse seed, the active-set matrix, Brezis–Sibony's mass matrix and
+start) is made by :func:`direct_solver` and factorized by :func:`factorize`, so options never
+leak between solvers and a MUMPS failure reads the same everywhere.
+"""
+
+from __future__ import annotations
+
+import itertools
+import weakref
+from typing import Any
+
+from mpi4py import MPI  # noqa: F401  (before PETSc: the MPI runtime PETSc links to)
+from petsc4py import PETSc
+
+__all__ = [
+    "ConvergenceError",
+    "direct_solver",
+    "factorize",
+    "set_mumps_controls",
+    "set_options",
+    "unique_prefix",
+]
+
+
+class ConvergenceError(RuntimeError):
+    """A solver did not reach its answer: no convergence, a failed factorization or solve.
+
+    ``result`` holds what the solver did (its result object with the history, or None when
+    it failed before iterating); a solver that iterates leaves its last iterate in place.
+    """
+
+    def __init__(self, message: str, result: Any = None) -> None:
+        super().__init__(message)
+        self.result = result
+
+
+_NUMBERS = itertools.count()
+
+
+def unique_prefix(kind: str) -> str:
+    """``shellobstacle_<kind><n>_`` with ``n`` never used before in this process.
+
+    A prefix made from ``id()`` can come back once its object is freed, and with it whatever
+    options an earlier solver put in PETSc's global options database.
+    """
+    return f"shellobstacle_{kind}{next(_NUMBERS)}_"
+
+
+def _forget(names: list[str]) -> None:
+    options = PETSc.Options()
+    for name in names:
+        options.delValue(name)
+
+
+def set_options(owner: object, prefix: str, values: dict[str, Any]) -> None:
+    """Put ``values`` under ``prefix`` in the options database until ``owner`` is freed."""
+    options = PETSc.Options()
+    for key, value in values.items():
+        options[prefix + key] = value
+    weakref.finalize(owner, _forget, [prefix + key for key in values])
+
+
+def set_mumps_controls(pc: PETSc.PC, icntl: dict[int, int] | None) -> None:
+    """Set MUMPS controls (``ICNTL``) on the factor matrix ``pc`` is about to make."""
+    if icntl:
+        pc.setFactorSetUpSolverType()
+        F = pc.getFactorMatrix()
+        for key, value in icntl.items():
+            F.setMumpsIcntl(key, value)
+
+
+def direct_solver(
+    A: PETSc.Mat,
+    factorization: str = "lu",
+    kind: str = "direct",
+    package: str = "mumps",
+    ordering: str | None = None,
+    icntl: dict[int, int] | None = None,
+) -> PETSc.KSP:
+    """A KSP that solves with a factorization of ``A``, made at its first set-up or solve.
+
+    Args:
+        A: the matrix (parallel or sequential). With ``"cholesky"`` it is marked symmetric
+            positive definite, which MUMPS' LDLᵀ then uses.
+        factorization: ``"lu"`` or ``"cholesky"``.
+        kind: names the options prefix (:func:`unique_prefix`).
+        package: ``"mumps"``, or ``"petsc"`` (PETSc's own, serial only: cheaper calls for
+            tiny matrices) in the given ``ordering`` (e.g. ``"nd"``).
+        icntl: MUMPS controls, e.g. ``{7: 2}`` for its ordering.
+    """
+    ksp = PETSc.KSP().create(A.getComm())
+    ksp.setOptionsPrefix(unique_prefix(kind))
+    ksp.setOperators(A)
+    ksp.setType("preonly")
+    pc = ksp.getPC()
+    if factorization == "cholesky":
+        A.setOption(PETSc.Mat.Option.SPD, True)
+    pc.setType(factorization)
+    pc.setFactorSolverType(package)
+    if ordering is not None:
+        pc.setFactorOrdering(ordering)
+    set_mumps_controls(pc, icntl)
+    ksp.setFromOptions()
+    return ksp
+
+
+def factorize(ksp: PETSc.KSP, what: str, attempts: int = 3) -> None:
+    """``ksp.setUp()`` for a MUMPS factorization of ``what``, made to succeed or raise.
+
+    MUMPS sizes its working space by the analysis' estimate plus ICNTL(14) percent, and the
+    estimate can be short for a distributed dense front (the zone's Schur complement on 2
+    ranks). On INFOG(1) = −8 or −9 the analysis and factorization are made again with
+    ICNTL(14) doubled, up to ``attempts`` times (setting it on the existing factor does not
+    take); any other failure raises.
+
+    Raises:
+        ConvergenceError: naming ``what`` and MUMPS' INFOG(1), INFOG(2).
+    """
+    pc = ksp.getPC()
+    for attempt in range(attempts + 1):
+        ksp.setUp()
+        if pc.getFailedReason() == 0:
+            return
+        F = pc.getFactorMatrix()
+        info, icntl = F.getMumpsInfog(1), {key: F.getMumpsIcntl(key) for key in (7, 14)}
+        if info not in (-8, -9) or attempt == attempts:
+            raise ConvergenceError(
+                f"MUMPS could not factorize {what}: INFOG(1) = {info}, INFOG(2) = "
+                f"{F.getMumpsInfog(2)} with ICNTL(14) = {icntl[14]} (MUMPS manual, section 8)"
+            )
+        icntl[14] = max(2 * icntl[14], 20)
+        A, P = pc.getOperators()
+        pc.reset()
+        ksp.setOperators(A, P)
+        set_mumps_controls(pc, icntl)

@@ -1,0 +1,133 @@
+"""The continuation in κ: each κ warm-started from the previous solution (MODEL.md §4).
+
+A plain Newton from ζ = 0 directly at a small κ can take many damped steps; from the solution
+at a larger κ it takes a few. :func:`continuation` solves a ladder of κ on one compiled
+problem (κ is a ``dolfinx.fem.Constant``: nothing is recompiled), and :func:`predict` moves
+the warm start along the solution path first when the linear strategy keeps a factorization
+that makes it cheap (:class:`~shellobstacle.solvers.linear.direct.DirectStrategy`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
+from petsc4py import PETSc
+
+import numpy as np
+
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.base import ConvergenceError
+from shellobstacle.solvers.newton import NewtonResult, NewtonSolver
+
+__all__ = ["KappaStep", "continuation", "predict"]
+
+
+@dataclass
+class KappaStep:
+    """One κ of a continuation: its Newton statistics and time."""
+
+    kappa: float
+    newton: NewtonResult
+    seconds: float
+
+    @property
+    def iterations(self) -> int:
+        """Newton steps at this κ."""
+        return self.newton.iterations
+
+    @property
+    def converged(self) -> bool:
+        """Whether Newton converged at this κ."""
+        return self.newton.converged
+
+    @property
+    def residual_norms(self) -> list[float]:
+        """Residual norms of the Newton iterates."""
+        return self.newton.residual_norms
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly record."""
+        r = self.newton
+        return {
+            "kappa": self.kappa,
+            "converged": r.converged,
+            "iterations": r.iterations,
+            "reason": r.reason,
+            "relative_residual": r.relative_residual,
+            "round_off_limited": r.round_off_limited,
+            "line_search_evaluations": r.line_search_evaluations,
+            "linear_iterations": r.linear_iterations,
+            "step_lengths": r.step_lengths,
+            "seconds": self.seconds,
+        }
+
+
+def predict(solver: NewtonSolver, kappa_new: float) -> bool:
+    """Euler predictor along κ: ``ζ ← ζ + (κ_new − κ) dζ/dκ`` with ``J dζ/dκ = −∂R/∂κ``.
+
+    ``∂R/∂κ = −(1/κ²) Mᵀ min(g, 0)``, and ``J`` is the linear strategy's kept factorization
+    of the last solve (one back-substitution, or a few preconditioned CG iterations). Returns
+    False, and changes nothing, when the strategy keeps none.
+    """
+    if not solver.linear.predicts:
+        return False
+    t0 = time.perf_counter()
+    system = solver.system
+    kappa = system.kappa
+    b = system.R.duplicate()
+    b.set(0.0)
+    system.penalty.add_residual(np.minimum(system.g, 0.0), kappa * kappa, b)  # −∂R/∂κ
+    ok = solver.linear.tangent(b)
+    b.destroy()
+    if ok:
+        system.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
+        zeta = solver.problem.zeta
+        with system.dz.localForm() as dz_loc:
+            zeta.x.array[:] += (kappa_new - kappa) * dz_loc.array_r
+        zeta.x.scatter_forward()
+    solver.timings["predict"] = solver.timings.get("predict", 0.0) + time.perf_counter() - t0
+    return ok
+
+
+def continuation(
+    problem: PenalizedProblem,
+    solver: NewtonSolver,
+    kappas: list[float],
+    progress: Callable[[str], Any] | None = None,
+    predictor: bool = True,
+    newton_progress: Callable[[int, float], Any] | None = None,
+) -> list[KappaStep]:
+    """Solve for each κ in turn, warm-starting from the previous solution.
+
+    With ``predictor`` the warm start is the Euler prediction along κ (:func:`predict`, where
+    the strategy supports it). ``newton_progress(it, relative_residual)`` is called after
+    every Newton iteration; if it has a method ``finished(result)``, that is called with each
+    κ's :class:`NewtonResult`.
+
+    Raises:
+        ConvergenceError: from the first κ that fails (earlier steps are in ``err.steps``).
+    """
+    steps: list[KappaStep] = []
+    for k, kappa in enumerate(kappas):
+        t0 = time.perf_counter()
+        if predictor and k > 0:
+            predict(solver, kappa)
+        problem.set_kappa(kappa)
+        try:
+            result = solver.solve(newton_progress)
+        except ConvergenceError as err:
+            err.steps = steps  # type: ignore[attr-defined]
+            raise
+        if hasattr(newton_progress, "finished"):
+            newton_progress.finished(result)
+        steps.append(KappaStep(kappa, result, time.perf_counter() - t0))
+        if progress is not None:
+            progress(
+                f"κ {k + 1}/{len(kappas)} = {kappa:.3e}: {result.iterations} Newton steps, "
+                f"relative residual {result.relative_residual:.1e}"
+            )
+    return steps

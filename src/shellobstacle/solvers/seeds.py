@@ -1,0 +1,40 @@
+"""The first active set of a solve that starts without contact, from a coarse-grid step.
+
+From an iterate without contact the Jacobian is ``K``: the Newton step overshoots into the
+obstacle, the line search cuts it short, and the active set then grows over many damped
+steps. The direct and the iterative solvers instead take their first step to the minimizer of
+the model whose active points are those that a cheap approximation of that step penetrates
+(the seed): ``ζ + δ̃``, ``δ̃`` the Galerkin approximation of ``K⁻¹(−R(ζ))`` on a coarse
+background grid (:class:`~shellobstacle.solvers.coarse_space.CoarseSpace`). The exact line
+search guards the seeded step, and one that does not descend is replaced by the usual Newton
+step. Measured on the paper's problem at the continuation's first κ = h^0.5: 8–9 Newton steps
+instead of 10–11 at 10⁵ dofs, 9–11 instead of 13–15 at 1.9 M.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from shellobstacle.solvers.coarse_space import CoarseSpace
+from shellobstacle.solvers.system import PenalizedSystem
+
+__all__ = ["coarse_penetration"]
+
+
+def coarse_penetration(system: PenalizedSystem, timings: dict[str, float]) -> np.ndarray:
+    """The owned points that ``ζ + δ̃`` penetrates, ``δ̃`` the coarse-grid approximation of
+    the Newton step ``K⁻¹(−R(ζ))`` at an iterate without contact (overwrites ``system.dz``).
+    """
+    t0 = time.perf_counter()
+    problem = system.problem
+    coarse = CoarseSpace(problem.V, system.K, problem.bcs)
+    r = system.R.copy()
+    r.scale(-1.0)
+    coarse.solve(r, system.dz)
+    hint = system.g + system.penalty.apply_B(system.dz) < 0
+    r.destroy()
+    coarse.destroy()
+    timings["coarse"] = timings.get("coarse", 0.0) + time.perf_counter() - t0
+    return hint

@@ -1,0 +1,181 @@
+"""Which dofs form the contact zone, and when it is rebuilt.
+
+The zone holds every active point. When an active point leaves it, the zone is rebuilt
+around the active points, the penetration of the last full Newton step and the old zone,
+then dilated by rings of the stiffness graph until its dofs have doubled (room for the
+contact region to move). A zone above ``max_fraction`` of the dofs is not worth condensing:
+the whole Jacobian is then factorized instead. The zone depends on the mesh, not on κ: it is
+kept across the continuation, and saved with a sweep's records so that a resumed run
+repeats the uninterrupted one.
+"""
+
+from __future__ import annotations
+
+import time
+
+from mpi4py import MPI
+from petsc4py import PETSc
+
+import numpy as np
+
+from shellobstacle.penalty import QuadraturePenalty
+from shellobstacle.solvers.base import direct_solver, factorize
+from shellobstacle.solvers.zone.condensation import Condensation
+from shellobstacle.solvers.zone.graph import csr, dilate, dofs_of, inside, union
+from shellobstacle.solvers.zone.reduced import ZoneProblem
+
+__all__ = ["ContactZone"]
+
+
+class ContactZone:
+    """The zone of one problem: its dofs ``Z``, its condensation and its own problem.
+
+    Args:
+        K: the membrane stiffness.
+        penalty: the problem's penalty (its point matrix decides which dofs a point couples).
+        max_fraction: a zone with more dofs than this fraction is not condensed.
+        factorization: MUMPS ``"lu"`` or ``"cholesky"`` of ``K_II`` and ``S``.
+        timings: phase seconds (``"zone"``, ``"factorize"``, ``"condense"``) are added here.
+    """
+
+    def __init__(
+        self,
+        K: PETSc.Mat,
+        penalty: QuadraturePenalty,
+        max_fraction: float,
+        factorization: str,
+        timings: dict[str, float],
+    ) -> None:
+        if not 0.0 < max_fraction <= 1.0:
+            raise ValueError(f"zone_max_fraction must be in (0, 1], got {max_fraction}")
+        self.K, self.penalty, self.max_fraction = K, penalty, max_fraction
+        self.factorization, self.timings = factorization, timings
+        self.comm: MPI.Comm = K.getComm().tompi4py()
+        self.n = K.getSize()[0]
+        self.r0, self.r1 = K.getOwnershipRange()
+        self.points: np.ndarray | None = None  # owned points inside the zone (None: no zone)
+        self.Z: np.ndarray | None = None  # the zone's dofs (global, sorted, on all ranks)
+        self.whole = False  # the zone is too large: factorize the whole Jacobian
+        self.builds = 0  # zones built (each a factorization of K_II)
+        self.cond: Condensation | None = None
+        self.problem: ZoneProblem | None = None
+        self.whole_ksp: PETSc.KSP | None = None
+        self.f: PETSc.Vec | None = None  # the load of the coming Newton steps
+
+    @property
+    def sizes(self) -> dict[str, int]:
+        """Dofs of the zone, of its interface Γ and of the coupled dofs I'."""
+        if self.cond is not None:
+            return self.cond.sizes
+        return {} if self.Z is None else {"zone_dofs": int(self.Z.size)}
+
+    @property
+    def usable(self) -> bool:
+        """A nonempty zone that is condensed (not "factorize the whole Jacobian")."""
+        return not self.whole and self.Z is not None and self.Z.size > 0
+
+    def covers(self, active: np.ndarray) -> bool:
+        """Whether the current zone holds all active points (collective)."""
+        ok = self.whole or (self.points is not None and not np.any(active & ~self.points))
+        return bool(self.comm.allreduce(ok, op=MPI.LAND))
+
+    def prepare(self, active: np.ndarray, hint: np.ndarray | None) -> bool:
+        """Make the zone hold the active points; returns True if a zone was built.
+
+        ``hint``: more points the zone should hold (the penetration of the last full step).
+        """
+        if self.covers(active):
+            return False
+        t0, factorize0 = time.perf_counter(), self.timings["factorize"]
+        base = active.copy()
+        if hint is not None:
+            base |= hint
+        if self.points is not None:
+            base |= self.points
+        pattern = csr(self.penalty.M)
+        Z = dofs_of(self.comm, base, pattern)
+        if Z.size:
+            Z = dilate(self.K, Z, 2 * Z.size)
+        self.set_zone(Z, pattern)
+        spent = time.perf_counter() - t0 - (self.timings["factorize"] - factorize0)
+        self.timings["zone"] += spent
+        return True
+
+    def set_zone(self, Z: np.ndarray, pattern: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+        """Make ``Z`` (sorted global dofs, the same on all ranks) the zone (collective).
+
+        Factorizes ``K_II`` and computes ``T``; a zone above ``max_fraction`` of the dofs
+        means "factorize the whole Jacobian" instead. ``pattern``: the point matrix's, if the
+        caller has it.
+        """
+        self.destroy()
+        self.whole = Z.size > self.max_fraction * self.n
+        self.Z = Z
+        if self.whole:
+            self.points = None
+            return
+        self.points = inside(self.n, Z, pattern or csr(self.penalty.M))
+        self.cond = Condensation(self.K, Z, self.factorization, self.timings)
+        if Z.size:
+            self.problem = ZoneProblem(self.cond, self.penalty, self.points, self.timings)
+        self.builds += 1
+
+    def owned_zone(self) -> np.ndarray:
+        """Local positions of the zone's owned dofs (empty without a zone)."""
+        if self.Z is None:
+            return np.zeros(0, dtype=np.int64)
+        lo, hi = np.searchsorted(self.Z, [self.r0, self.r1])
+        return self.Z[lo:hi] - self.r0
+
+    def set_owned_zone(self, owned: np.ndarray) -> None:
+        """Make the union over the ranks of these owned dofs (local positions) the zone."""
+        self.set_zone(union(self.comm, owned + self.r0))
+
+    def destroy(self) -> None:
+        """Free the zone's matrices and factorizations."""
+        if self.problem is not None:
+            self.problem.destroy()
+            self.problem = None
+        if self.cond is not None:
+            self.cond.destroy()
+            self.cond = None
+        if self.whole_ksp is not None:
+            self.whole_ksp.destroy()
+            self.whole_ksp = None
+
+    # -- the load and exact solves ------------------------------------------------------------
+    def set_load(self, f: PETSc.Vec) -> None:
+        """The load vector of the coming Newton steps (``K_II⁻¹ f_I`` is kept if unchanged)."""
+        if self.f is not None:
+            same = np.array_equal(self.f.array_r, f.array_r)
+            if self.comm.allreduce(same, op=MPI.LAND):
+                return
+            self.f.destroy()
+        self.f = f.copy()
+        if self.cond is not None:
+            self.cond.uf_valid = False
+
+    def forget_factorization(self) -> None:
+        """Do not reuse the kept factorization of ``S`` for later Jacobians (a new solve)."""
+        if self.cond is not None:
+            self.cond.factor_state = None
+
+    def set_up(self, J: PETSc.Mat) -> None:
+        """Factorize for the Jacobian ``J``: ``S`` of the zone, or ``J`` itself (whole)."""
+        t0 = time.perf_counter()
+        if self.whole:
+            if self.whole_ksp is None:
+                self.whole_ksp = direct_solver(J, "lu", "zone")
+            self.whole_ksp.setOperators(J)
+            factorize(self.whole_ksp, "the Jacobian")
+            self.timings["factorize"] += time.perf_counter() - t0
+            return
+        self.cond.set_up(J)
+        self.timings["condense"] += time.perf_counter() - t0
+
+    def newton_step(self, x: PETSc.Vec, zeta: PETSc.Vec, y: PETSc.Vec) -> None:
+        """``y ← J⁻¹ x`` for a Newton right-hand side ``x = −R(ζ)`` (after :meth:`set_up`)."""
+        if self.whole:
+            self.whole_ksp.solve(x, y)
+        else:
+            self.cond.newton_step(x, zeta, self.f, y)

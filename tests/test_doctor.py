@@ -1,0 +1,76 @@
+"""``shellobstacle doctor``: the environment, the active tuning and known problems."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+from mpi4py import MPI
+
+import pytest
+
+from shellobstacle.doctor import coretype_warning, numpy_blas_config
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fresh processes, serially")
+
+CRASHED = "OpenBLAS 0.3.34.237.2  USE64BITINT DYNAMIC_ARCH NO_AFFINITY Haswell MAX_THREADS=64"
+FINE = "OpenBLAS 0.3.33.112.0  USE64BITINT DYNAMIC_ARCH NO_AFFINITY Haswell MAX_THREADS=64"
+
+
+def doctor(**environ: str) -> subprocess.CompletedProcess:
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_CORETYPE",)} | environ
+    return subprocess.run(
+        [sys.executable, "-m", "shellobstacle", "doctor"],
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+@pytest.mark.parametrize("value", ["on", "off"])
+def test_the_doctor_shows_versions_and_the_tuning_in_force(value: str) -> None:
+    out = doctor(SHELLOBSTACLE_TUNING=value)
+    assert out.returncode in (0, 1), out.stderr
+    text = out.stdout
+    assert "DOLFINx 0.11" in text and "PETSc" in text and "MPI:" in text
+    assert f"tuning (SHELLOBSTACLE_TUNING={value}):" in text
+    knobs = [line.strip() for line in text.splitlines() if line.startswith("  ")]
+    assert [k.split(":")[0] for k in knobs] == ["heap", "gemmt", "threads"]
+    if value == "off":
+        assert all(k.endswith("off (SHELLOBSTACLE_TUNING=off)") for k in knobs)
+    problems = [line for line in text.splitlines() if line.startswith("problem: ")]
+    assert (out.returncode == 1) == bool(problems)
+    assert ("no problems found" in text) == (not problems)
+
+
+def test_a_crashing_forced_kernel_is_a_problem_exactly_when_numpy_is_affected() -> None:
+    out = doctor(OPENBLAS_CORETYPE="Haswell", SHELLOBSTACLE_TUNING="off")
+    affected = numpy_blas_config().startswith("OpenBLAS 0.3.34")
+    assert ("problem: OPENBLAS_CORETYPE=Haswell" in out.stdout) == affected
+    if affected:
+        assert out.returncode == 1
+
+
+@pytest.mark.parametrize("coretype", ["Haswell", "zen", " ZEN "])
+def test_forced_kernels_that_crashed_are_named_with_the_fix(coretype: str) -> None:
+    message = coretype_warning({"OPENBLAS_CORETYPE": coretype}, CRASHED)
+    assert message is not None
+    assert f"OPENBLAS_CORETYPE={coretype.strip()}" in message
+    assert "OpenBLAS 0.3.34.237.2)" in message
+    assert "unset OPENBLAS_CORETYPE" in message and "numpy<=2.5.1" in message
+
+
+@pytest.mark.parametrize(
+    ("environ", "config"),
+    [
+        ({}, CRASHED),
+        ({"OPENBLAS_CORETYPE": ""}, CRASHED),
+        ({"OPENBLAS_CORETYPE": "SkylakeX"}, CRASHED),
+        ({"OPENBLAS_CORETYPE": "Haswell"}, FINE),
+        ({"OPENBLAS_CORETYPE": "Haswell"}, ""),
+    ],
+)
+def test_no_warning_for_other_kernels_or_releases(environ: dict, config: str) -> None:
+    assert coretype_warning(environ, config) is None
