@@ -518,3 +518,15 @@ def test_an_iterative_solvers_options_never_reach_a_later_direct_solver() -> Non
         direct = NewtonSolver(problem, NewtonOptions(contact_zone=False))
         assert direct.linear.ksp.getOptionsPrefix() != prefix
         assert direct.linear.ksp.getPC().getType() == "cholesky"  # the default factorization
+
+
+def test_phase_timings_do_not_overlap() -> None:
+    """The solver's phase seconds are exclusive: their sum stays within the solves' time (the
+    zone's Newton steps exclude its build, condensation and line searches)."""
+    problem = PenalizedProblem(paper_shell(), square(n=32))
+    solver = NewtonSolver(problem)
+    steps = continuation(problem, solver, [1e-2, 1e-3, 1e-4])
+    assert solver.timings["zone_newton"] > 0 and solver.timings["factorize"] > 0
+    total = sum(s.newton.timings["total"] for s in steps)
+    phases = sum(v for k, v in solver.timings.items() if k not in ("setup", "predict"))
+    assert phases <= total
