@@ -63,7 +63,7 @@ import ufl
 
 from shellobstacle.penalty import QuadraturePenalty, penalty_hessian
 from shellobstacle.problem import PenalizedProblem
-from shellobstacle.solvers.base import direct_solver
+from shellobstacle.solvers.base import ConvergenceError, direct_solver
 from shellobstacle.solvers.options import BrezisSibonyOptions
 from shellobstacle.solvers.spectrum import extreme_eigenvalue
 
@@ -241,7 +241,7 @@ class BrezisSibonySolver:
         else:
             self.ksp.solve(self.R, self.d)
             if self.ksp.getConvergedReason() < 0:
-                raise RuntimeError(
+                raise ConvergenceError(
                     f"mass-matrix solve failed (PETSc reason {self.ksp.getConvergedReason()})"
                 )
 
@@ -290,7 +290,9 @@ class BrezisSibonySolver:
             reason = ksp.getConvergedReason()
             ksp.destroy()
             if reason < 0:
-                raise RuntimeError(f"linearized start: linear solve failed (PETSc reason {reason})")
+                raise ConvergenceError(
+                    f"linearized start: linear solve failed (PETSc reason {reason})"
+                )
         dolfinx.fem.petsc.set_bc(zeta.x.petsc_vec, self.problem.bcs)
         zeta.x.scatter_forward()
 
