@@ -18,6 +18,7 @@ from petsc4py import PETSc
 __all__ = [
     "ConvergenceError",
     "direct_solver",
+    "factorization_pc",
     "factorize",
     "set_mumps_controls",
     "set_options",
@@ -95,16 +96,27 @@ def direct_solver(
     ksp.setOptionsPrefix(unique_prefix(kind))
     ksp.setOperators(A)
     ksp.setType("preonly")
-    pc = ksp.getPC()
     if factorization == "cholesky":
         A.setOption(PETSc.Mat.Option.SPD, True)
+    factorization_pc(ksp.getPC(), factorization, package, ordering, icntl)
+    ksp.setFromOptions()
+    return ksp
+
+
+def factorization_pc(
+    pc: PETSc.PC,
+    factorization: str,
+    package: str = "mumps",
+    ordering: str | None = None,
+    icntl: dict[int, int] | None = None,
+) -> None:
+    """Make ``pc`` a factorization (``"lu"`` or ``"cholesky"``) by ``package``: the
+    preconditioner of :func:`direct_solver`, and of the CG that reuses a factorization."""
     pc.setType(factorization)
     pc.setFactorSolverType(package)
     if ordering is not None:
         pc.setFactorOrdering(ordering)
     set_mumps_controls(pc, icntl)
-    ksp.setFromOptions()
-    return ksp
 
 
 def factorize(ksp: PETSc.KSP, what: str, attempts: int = 3) -> None:

@@ -16,7 +16,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.solvers.base import unique_prefix
+from shellobstacle.solvers.base import factorization_pc, unique_prefix
 from shellobstacle.solvers.linear import LinearSolveError, active_changes
 from shellobstacle.solvers.system import PenalizedSystem
 
@@ -63,8 +63,7 @@ class DirectStrategy:
         self.ksp = ksp = PETSc.KSP().create(system.comm)
         ksp.setOptionsPrefix(unique_prefix("newton"))
         pc = ksp.getPC()
-        pc.setType(self.factorization)
-        pc.setFactorSolverType("mumps")
+        factorization_pc(pc, self.factorization)
         if self.reuse:
             # the factorization stays that of an earlier Jacobian until _factorize
             pc.setReusePreconditioner(True)
