@@ -73,7 +73,7 @@ def test_the_coarse_solve_is_the_galerkin_projection(ratio: float) -> None:
 @pytest.mark.mpi
 def test_the_grid_has_at_most_about_max_nodes_nodes() -> None:
     """On a fine mesh the grid stops at ``max_nodes`` nodes (H grows beyond 4h): here 30
-    grid nodes asked for on the unit square with 33² mesh nodes, where ``ratio`` 16 alone
+    grid nodes asked for on the 0.5 × 0.5 square with 33² mesh nodes, where ``ratio`` 16 alone
     would give 68; the capped space is still a Galerkin space (Pᵀ(Kδ̃ − f) = 0)."""
     problem = PenalizedProblem(paper_shell(), square(n=32))
     solver = NewtonSolver(problem)

@@ -335,7 +335,7 @@ def test_a_seeded_first_step_shortens_the_iterative_solvers_cold_start() -> None
     goes to the minimizer of the model whose active points are where a coarse-grid step
     penetrates: fewer Newton steps at the first κ (7 against 9), the same solutions.
 
-    (From a cold start at a small κ the seed can cost steps instead: 15 against 11 at
+    (From a cold start at a small κ the seed can cost steps instead: 14 against 11 at
     κ = 1e-2 on this problem with n = 32; continuations start at κ = 1 or h^0.5.)"""
     mesh = square(n=64)
     kappas = [1e-1, 1e-2, 1e-3]
@@ -423,7 +423,7 @@ def test_gauss_point_active_set_thins_out_once_kappa_passes_h_squared() -> None:
     the penetration (≈ κλ) exceeds the gap's curvature within a cell (O(h²), which P1
     displacements cannot remove), and at most 3 once κ ≪ h²: the active set moves by a
     structural amount between κ = h^1.5 and h^4, whatever the solver (docs/performance.md,
-    eighth session)."""
+    "Why Gauss points need more Newton steps at κ ≈ h²")."""
     mesh = square(n=32)
     h = mesh_size(mesh)
     problem = PenalizedProblem(paper_shell(), mesh, Discretization(penalty_quadrature="gauss"))
