@@ -138,8 +138,11 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>") -> Config:
     for section in REQUIRED_SECTIONS:
         if section not in data:
             raise ConfigError(f"{source}: missing section [{section}]")
+    koiter = isinstance(data.get("model"), dict) and data["model"].get("kind") == "koiter"
     for section, keys in SCHEMA.items():
         given = dict(data.get(section, {}))
+        if section == "discretization" and koiter:
+            given.setdefault("degree", 2)  # Koiter's ζ_3 ∈ H² needs P2
         for name in given:
             if name not in keys:
                 raise ConfigError(
@@ -190,7 +193,8 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     m = r["material"]
     material = Material(m["epsilon"], m["lambda"], m["mu"])
     load = Load(tuple(r["load"]["p"]), dict(r["load"].get("parameters", {})))
-    shell = Shell(surface, material, load, Obstacle(tuple(r["obstacle"]["q"])))
+    model = r["model"]["kind"]
+    shell = Shell(surface, material, load, Obstacle(tuple(r["obstacle"]["q"])), model)
     shell.load_expressions()  # parse now: errors name the key
 
     d = dict(r["domain"])
@@ -211,9 +215,30 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     domain = DomainSpec(**d)
 
     disc = Discretization(**r["discretization"])
+    sv = r["solver"]
+    if model == "koiter":
+        if sv["method"] == "active-set":
+            raise ConfigError(
+                f"{source}: solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1, "
+                "and Koiter's model needs P2: use solver.method = 'newton' with a small κ"
+            )
+        if sv["linear_solver"] == "iterative":
+            raise ConfigError(
+                f"{source}: solver.linear_solver = 'iterative' preconditions ζ_3 as the "
+                "membrane's L² unknown, not Koiter's bending: use linear_solver = 'direct'"
+            )
+        if disc.degree != 2:
+            raise ConfigError(
+                f"{source}: model.kind = 'koiter' needs discretization.degree = 2 (ζ_3 ∈ H² by "
+                f"C⁰ interior penalty), got {disc.degree}: remove the key or set it to 2"
+            )
+        if disc.transverse != "clamped":
+            raise ConfigError(
+                f"{source}: model.kind = 'koiter' clamps ζ_3 and ∂_ν ζ_3 on γ: remove "
+                "discretization.transverse or set it to 'clamped'"
+            )
 
     p = r.get("penalty", {})
-    sv = r["solver"]
     penalty = None
     if sv["method"] == "active-set":
         if "kappa" in p or "exponent" in p:

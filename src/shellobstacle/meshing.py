@@ -176,22 +176,28 @@ def _gmsh_arrays(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> tuple[np.n
     return x, cells
 
 
-def _gmsh_mesh(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> dolfinx.mesh.Mesh:
+def _gmsh_mesh(
+    spec: DomainSpec, comm: MPI.Comm, steps: int = 0, ghosted: bool = False
+) -> dolfinx.mesh.Mesh:
     """Build (or read) the gmsh mesh on rank 0, distribute it, refine it ``steps`` times."""
     x, cells = _gmsh_arrays(spec, comm, steps)
     domain = dolfinx.io.gmsh.ufl_mesh(_TRIANGLE, 2, dtype=np.float64)
     mesh = dolfinx.mesh.create_mesh(comm, cells, domain, x, _partitioner())
     for _ in range(steps):
-        mesh = red_refinement(mesh, spec)
+        mesh = red_refinement(mesh, spec, ghosted)
     return mesh
 
 
-def create_mesh(spec: DomainSpec, comm: MPI.Comm = MPI.COMM_WORLD) -> dolfinx.mesh.Mesh:
+def create_mesh(
+    spec: DomainSpec, comm: MPI.Comm = MPI.COMM_WORLD, ghosted: bool = False
+) -> dolfinx.mesh.Mesh:
     """Mesh the parameter domain described by ``spec`` with linear triangles.
 
     Args:
         spec: Domain and mesh description.
         comm: Communicator over which the mesh is distributed.
+        ghosted: keep one layer of facet-sharing ghost cells through the refinements too
+            (Koiter's interior-facet terms need them in parallel; the membrane does not).
 
     Returns:
         The (distributed) mesh, with ``spec.refinements`` uniform refinements applied.
@@ -208,8 +214,8 @@ def create_mesh(spec: DomainSpec, comm: MPI.Comm = MPI.COMM_WORLD) -> dolfinx.me
             cell_type=dolfinx.mesh.CellType.triangle, diagonal=dolfinx.mesh.DiagonalType.right,
         )  # fmt: skip
     else:
-        mesh = _gmsh_mesh(spec, comm, coarsening_steps(spec))
+        mesh = _gmsh_mesh(spec, comm, coarsening_steps(spec), ghosted)
     for _ in range(spec.refinements):
-        mesh = refine_uniformly(mesh)
+        mesh = refine_uniformly(mesh, ghosted)
     prepare(mesh)
     return mesh

@@ -20,6 +20,7 @@ from shellobstacle.expressions import is_safe_name, parse, y1, y2
 from shellobstacle.surface import Surface
 
 __all__ = [
+    "MODELS",
     "PENALTY_QUADRATURES",
     "TRANSVERSE",
     "Discretization",
@@ -117,14 +118,24 @@ class Obstacle:
         object.__setattr__(self, "q", tuple(float(v) for v in unit))
 
 
+MODELS = ("membrane", "koiter")
+
+
 @dataclass(frozen=True)
 class Shell:
-    """Everything physical: the middle surface, the material, the load and the obstacle."""
+    """Everything physical: the middle surface, the material, the load, the obstacle, and the
+    shell model: ``"membrane"`` (MODEL.md §2–4, elliptic surfaces) or ``"koiter"`` (§8, the
+    membrane energy plus bending; any immersed thin shell)."""
 
     surface: Surface
     material: Material
     load: Load
     obstacle: Obstacle = field(default_factory=Obstacle)
+    model: str = "membrane"
+
+    def __post_init__(self) -> None:
+        if self.model not in MODELS:
+            raise ValueError(f"model.kind must be one of {MODELS}, got {self.model!r}")
 
     def load_expressions(self) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
         """``p^{i,ε}`` as SymPy expressions (see :meth:`Load.expressions`)."""
@@ -144,12 +155,15 @@ class Discretization:
         transverse: ``"clamped"`` (ζ_3 = 0 on γ, the paper's numerics) or ``"free"`` (ζ_3 ∈ L²).
         penalty_quadrature: ``"gauss"`` (the paper's) or ``"vertex"`` (nodal, mass-lumped; P1).
         quadrature_degree: for the membrane and load integrals (default ``2 * degree + 2``).
+        interior_penalty: ``σ`` of the facet terms of Koiter's bending energy (default
+            :data:`~shellobstacle.koiter.DEFAULT_INTERIOR_PENALTY`); unused by the membrane.
     """
 
     degree: int = 1
     transverse: str = "clamped"
     penalty_quadrature: str = "gauss"
     quadrature_degree: int | None = None
+    interior_penalty: float | None = None
 
     def __post_init__(self) -> None:
         if self.degree not in (1, 2):
@@ -171,6 +185,10 @@ class Discretization:
         if self.quadrature_degree is not None and not 1 <= self.quadrature_degree <= 20:
             raise ValueError(
                 f"discretization.quadrature_degree must be in 1..20, got {self.quadrature_degree}"
+            )
+        if self.interior_penalty is not None and not self.interior_penalty > 0:
+            raise ValueError(
+                f"discretization.interior_penalty must be > 0, got {self.interior_penalty}"
             )
 
     @property

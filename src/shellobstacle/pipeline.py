@@ -93,10 +93,11 @@ class SolveResult:
         return sum(s.iterations for s in self.steps)
 
 
-def make_mesh(domain: DomainSpec) -> dolfinx.mesh.Mesh:
-    """Mesh ω; a bad domain description becomes a :class:`ConfigError` naming it."""
+def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:
+    """Mesh ω (``ghosted``: with facet-sharing ghost cells in parallel, which Koiter's facet
+    terms read); a bad domain description becomes a :class:`ConfigError` naming it."""
     try:
-        return create_mesh(domain)
+        return create_mesh(domain, ghosted=ghosted)
     except (ValueError, FileNotFoundError) as err:
         raise ConfigError(f"[domain]: {err}") from None
 
@@ -142,7 +143,7 @@ def solve(
     t = time.perf_counter()
     if isinstance(domain, DomainSpec):
         say(f"meshing {domain.kind} (target h = {domain.h})")
-        mesh = make_mesh(domain)
+        mesh = make_mesh(domain, ghosted=shell.model == "koiter")
     else:
         mesh = domain
     h = mesh_size(mesh)

@@ -6,9 +6,10 @@ parameters are ``dolfinx.fem.Constant``s, so a sweep over them reuses it.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
-from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
+from mpi4py import MPI
 from petsc4py import PETSc
 
 import dolfinx
@@ -18,6 +19,7 @@ import sympy as sp
 import ufl
 
 from shellobstacle.expressions import to_ufl, y1, y2
+from shellobstacle.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
 from shellobstacle.membrane import elastic_product, gap, strain
 from shellobstacle.model import Discretization, Shell
 
@@ -25,11 +27,13 @@ __all__ = ["PenalizedProblem"]
 
 
 class PenalizedProblem:
-    """Compiled forms of the penalized membrane problem on one mesh (MODEL.md §4–5).
+    """Compiled forms of the penalized shell problem on one mesh (MODEL.md §4–5, §8).
 
     The energy is ``J_κ(η) = (ε/2) ∫ a^{αβστ} γ_στ(η) γ_αβ(η) √a dy − ∫ p^{i,ε} η_i √a dy
     + (ε/(2κ)) ∫ ({g(η)}^-)² / |c| dy``; its derivative is the penalized equation of §4 and its
-    (generalized) Hessian the symmetric positive definite Jacobian.
+    (generalized) Hessian the symmetric positive definite Jacobian. For Koiter's model
+    (``shell.model == "koiter"``) the elastic part gains the bending energy of §8 in its C⁰
+    interior-penalty form (:func:`~shellobstacle.koiter.bending_energy`); the rest is shared.
 
     Attributes:
         zeta: the unknown ``ζ_κ^h`` (covariant components), a vector Lagrange function.
@@ -43,10 +47,15 @@ class PenalizedProblem:
         mesh: dolfinx.mesh.Mesh,
         discretization: Discretization | None = None,
         kappa: float = 1.0,
+        p: Sequence[Any] | None = None,
     ) -> None:
+        """Compile the forms; ``p``: three UFL scalars replacing the shell's load expressions
+        (e.g. Functions holding sampled or computed data)."""
         self.shell = shell
         self.mesh = mesh
         self.disc = disc = discretization or Discretization()
+        if shell.model == "koiter":
+            _require_koiter_discretization(disc, mesh)
         self.q = np.asarray(shell.obstacle.q, dtype=float)
         mat = shell.material
         self.V = dolfinx.fem.functionspace(mesh, ("Lagrange", disc.degree, (3,)))
@@ -63,7 +72,10 @@ class PenalizedProblem:
         symbols |= {sp.Symbol(k, real=True): c for k, c in self.parameters.items()}
         # a component that is identically 0 stays a Constant so that UFL keeps the load forms
         zero = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0))
-        self.p = [zero if e == 0 else to_ufl(e, symbols) for e in shell.load_expressions()]
+        if p is None:
+            self.p = [zero if e == 0 else to_ufl(e, symbols) for e in shell.load_expressions()]
+        else:
+            self.p = list(p)
 
         self.dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
         if disc.penalty_quadrature == "vertex":
@@ -83,6 +95,13 @@ class PenalizedProblem:
         sqrt_a = G.sqrt_a
 
         elastic = 0.5 * eps * elastic_product(G, lam, mu, gam, gam) * sqrt_a * self.dx
+        if shell.model == "koiter":
+            # σ is a Constant: changing it reuses the compiled forms
+            self.sigma = dolfinx.fem.Constant(
+                mesh, PETSc.ScalarType(disc.interior_penalty or DEFAULT_INTERIOR_PENALTY)
+            )
+            ds = ufl.Measure("ds", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
+            elastic += bending_energy(G, eps, lam, mu, zeta, self.dx, self.sigma, ds)
         work = sum(self.p[i] * zeta[i] for i in range(3)) * sqrt_a * self.dx
         penalty = (eps / (2 * self.kappa)) * g_minus**2 / self.c_norm * self.dx_penalty
         energy = elastic - work + penalty
@@ -105,6 +124,11 @@ class PenalizedProblem:
         }
         self.bcs = self._boundary_conditions()
         self._K: PETSc.Mat | None = None
+
+    @property
+    def model(self) -> str:
+        """``"membrane"`` or ``"koiter"`` (the shell's model)."""
+        return self.shell.model
 
     def strain_of(self, eta: Any) -> list[list[Any]]:
         """``γ_αβ(η)`` of a UFL vector (covariant components)."""
@@ -175,3 +199,24 @@ class PenalizedProblem:
         """``J(ζ)``, the penalty term and ``J_κ(ζ)`` at the current ``ζ``."""
         el, w, pen = (self.scalar(k) for k in ("elastic_energy", "work", "penalty_energy"))
         return {"energy": el - w, "penalty_energy": pen, "penalized_energy": el - w + pen}
+
+
+def _require_koiter_discretization(disc: Discretization, mesh: dolfinx.mesh.Mesh) -> None:
+    """Koiter's ζ_3 ∈ H²₀ needs P2 with interior penalties, clamped, and (in parallel) the
+    ghost cells across process boundaries that the facet integrals read."""
+    if disc.degree < 2:
+        raise ValueError(
+            "Koiter's model needs discretization.degree = 2 (ζ_3 ∈ H² by C⁰ interior penalty); "
+            "got degree = 1"
+        )
+    if disc.transverse != "clamped":
+        raise ValueError(
+            "Koiter's model clamps ζ_3 and ∂_ν ζ_3 on γ: set discretization.transverse = 'clamped'"
+        )
+    if mesh.comm.size > 1:
+        imap = mesh.topology.index_map(mesh.topology.dim)
+        if mesh.comm.allreduce(imap.num_ghosts, op=MPI.SUM) == 0:
+            raise ValueError(
+                "Koiter's facet terms need ghost cells across process boundaries: build the "
+                "mesh with shellobstacle.meshing.create_mesh(..., ghosted=True)"
+            )

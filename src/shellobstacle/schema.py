@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-from shellobstacle.model import PENALTY_QUADRATURES, TRANSVERSE
+from shellobstacle.model import MODELS, PENALTY_QUADRATURES, TRANSVERSE
 from shellobstacle.surface import SURFACE_KINDS
 
 __all__ = ["OPTIONAL", "REQUIRED", "REQUIRED_SECTIONS", "SCHEMA", "Key", "reference_text"]
@@ -68,6 +68,15 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "p": Key("str|float[3]", REQUIRED, "contravariant force density p^i(y1, y2, r)"),
         "parameters": Key("table", {}, "named numbers the load may use (sweepable)"),
     },
+    "model": {
+        "kind": Key(
+            "str",
+            "membrane",
+            "membrane: the paper's model (elliptic surfaces); koiter: membrane + bending, any "
+            "immersed thin shell (P2, C⁰ interior penalty for ζ_3)",
+            MODELS,
+        ),
+    },
     "obstacle": {
         "q": Key("float[3]", (0.0, 0.0, 1.0), "normal of the plane; H = {x·q ≥ 0}"),
     },
@@ -77,12 +86,15 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "continuation": Key("bool", True, "reach κ through a ladder of larger κ (warm starts)"),
     },
     "discretization": {
-        "degree": Key("int", 1, "Lagrange degree of all components (1 or 2)"),
+        "degree": Key("int", 1, "Lagrange degree of all components (1 or 2; Koiter: 2)"),
         "transverse": Key("str", "clamped", "boundary condition of ζ_3", TRANSVERSE),
         "penalty_quadrature": Key(
             "str", "gauss", "where the penalty is integrated", PENALTY_QUADRATURES
         ),
         "quadrature_degree": Key("int", OPTIONAL, "quadrature degree (default 2·degree + 2)"),
+        "interior_penalty": Key(
+            "float", OPTIONAL, "koiter: σ of the facet penalty of ∂_n ζ_3 (default 8)"
+        ),
     },
     "solver": {
         "method": Key(

@@ -38,11 +38,12 @@ def cross(u: Sequence[Any], v: Sequence[Any]) -> Vec:
 class Geometry:
     """Bases, fundamental forms, Christoffel symbols and curvature of θ (MODEL.md §1).
 
-    Built from ``theta`` (three scalars), ``d1[α][i] = ∂_α θ_i`` and
-    ``d2[α][β][i] = ∂_α ∂_β θ_i``; ``sqrt`` is the square root of the backend
+    Built from ``theta`` (three scalars), ``d1[α][i] = ∂_α θ_i``,
+    ``d2[α][β][i] = ∂_α ∂_β θ_i`` and, for the curvature terms of Koiter's model only,
+    ``d3[α][β][γ][i] = ∂_α ∂_β ∂_γ θ_i``; ``sqrt`` is the square root of the backend
     (``sympy.sqrt``, ``numpy.sqrt`` or ``ufl.sqrt``). Indices are 0-based:
-    ``a_cov[α]`` is ``a_α``, ``a_contra[j]`` is ``a^j``, ``gamma_christoffel[σ][α][β]``
-    is ``Γ^σ_αβ``.
+    ``a_cov[α]`` is ``a_α``, ``a_contra[j]`` is ``a^j``, ``christoffel[σ][α][β]``
+    is ``Γ^σ_αβ``, ``b_mixed[α][β]`` is ``b_α^β``.
     """
 
     def __init__(
@@ -51,9 +52,11 @@ class Geometry:
         d1: Sequence[Sequence[Any]],
         d2: Sequence[Sequence[Sequence[Any]]],
         sqrt: Callable[[Any], Any],
+        d3: Sequence[Sequence[Sequence[Sequence[Any]]]] | None = None,
     ) -> None:
         self.theta = list(theta)
         self.sqrt = sqrt
+        self._d2, self._d3 = d2, d3
         a1, a2 = list(d1[0]), list(d1[1])
         self.a_cov: list[Vec] = [a1, a2]
         normal = cross(a1, a2)
@@ -87,6 +90,64 @@ class Geometry:
         (b11, b12), (_, b22) = self.b_lower
         self.gaussian_curvature = (b11 * b22 - b12 * b12) / self.det_a
         self.mean_curvature = (self.b_mixed[0][0] + self.b_mixed[1][1]) / 2
+
+    @cached_property
+    def b_covariant_derivative(self) -> list[list[list[Any]]]:
+        """``b^τ_{β|α} = ∂_α b^τ_β + Γ^τ_ασ b^σ_β − Γ^σ_αβ b^τ_σ`` as ``[α][τ][β]`` (MODEL.md §8).
+
+        ``∂_α b^τ_β`` is taken from ``d3`` through ``∂_α a_3 = −b_α^σ a_σ`` (Weingarten) and
+        ``∂_α a^{τσ} = −a^{τμ} (∂_α a_μν) a^{νσ}``: no differentiation of the backend's
+        expressions. Needs ``d3``.
+        """
+        if self._d3 is None:
+            raise ValueError("b^τ_{β|α} needs the third derivatives of θ (Geometry(d3=...))")
+        d2, d3, A, b, C = self._d2, self._d3, self.a_upper, self.b_lower, self.christoffel
+        r = range(2)
+        # Γ_αβ,σ = ∂_α a_β · a_σ (lower Christoffel symbols)
+        low = [[[dot(d2[al][be], self.a_cov[s]) for s in r] for be in r] for al in r]
+        # ∂_γ b_βσ = ∂_γ∂_β a_σ·a_3 + ∂_β a_σ·∂_γ a_3 = d3·a_3 − b_γ^μ Γ_βσ,μ
+        db = [
+            [
+                [
+                    dot(d3[g][be][s], self.a3) - sum(self.b_mixed[g][m] * low[be][s][m] for m in r)
+                    for s in r
+                ]
+                for be in r
+            ]
+            for g in r
+        ]
+        # ∂_γ a^{τσ} = −a^{τμ} (Γ_γμ,ν + Γ_γν,μ) a^{νσ}
+        da = [
+            [
+                [
+                    -sum(A[t][m] * (low[g][m][n] + low[g][n][m]) * A[n][s] for m in r for n in r)
+                    for s in r
+                ]
+                for t in r
+            ]
+            for g in r
+        ]
+        # ∂_γ b^τ_β = ∂_γ a^{τσ} b_βσ + a^{τσ} ∂_γ b_βσ
+        dbm = [
+            [
+                [sum(da[g][t][s] * b[be][s] + A[t][s] * db[g][be][s] for s in r) for be in r]
+                for t in r
+            ]
+            for g in r
+        ]
+        bm = self.b_mixed  # b^σ_β = b_mixed[β][σ]
+        return [
+            [
+                [
+                    dbm[al][t][be]
+                    + sum(C[t][al][s] * bm[be][s] for s in r)
+                    - sum(C[s][al][be] * bm[s][t] for s in r)
+                    for be in r
+                ]
+                for t in r
+            ]
+            for al in r
+        ]
 
     def principal_curvatures(self) -> tuple[Any, Any]:
         """The eigenvalues ``H ∓ √(H² − K)`` of ``b_α^β``."""
@@ -179,9 +240,15 @@ class Surface:
         """``∂_α ∂_β θ_i`` (SymPy)."""
         return [[[sp.diff(t, ya, yb) for t in self.theta] for yb in (y1, y2)] for ya in (y1, y2)]
 
+    @cached_property
+    def d3(self) -> list[list[list[list[sp.Expr]]]]:
+        """``∂_α ∂_β ∂_γ θ_i`` (SymPy; Koiter's change of curvature needs them)."""
+        Y = (y1, y2)
+        return [[[[sp.diff(t, a, b, c) for t in self.theta] for c in Y] for b in Y] for a in Y]
+
     def geometry_sympy(self) -> Geometry:
         """Exact symbolic geometry (for tests and manufactured solutions)."""
-        return Geometry(list(self.theta), self.d1, self.d2, sp.sqrt)
+        return Geometry(list(self.theta), self.d1, self.d2, sp.sqrt, self.d3)
 
     def geometry_ufl(self, mesh: Any) -> Geometry:
         """Geometry as UFL expressions of the spatial coordinate: exact at quadrature points."""
@@ -196,7 +263,8 @@ class Surface:
         theta = [tr(t) for t in self.theta]
         d1 = [[tr(e) for e in row] for row in self.d1]
         d2 = [[[tr(e) for e in col] for col in row] for row in self.d2]
-        return Geometry(theta, d1, d2, ufl.sqrt)
+        d3 = [[[[tr(e) for e in c] for c in col] for col in row] for row in self.d3]
+        return Geometry(theta, d1, d2, ufl.sqrt, d3)
 
     def theta_numpy(self, points: np.ndarray) -> list[np.ndarray]:
         """``θ`` at ``points`` (shape ``(n, ≥2)``, columns y1, y2), three arrays of shape ``(n,)``

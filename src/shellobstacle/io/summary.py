@@ -42,6 +42,7 @@ def write_solution(
         "converged": result.converged,
         "error": result.error,
         "method": result.method,
+        "model": problem.model,
         "iterations": result.iterations,
         "iterations_last_kappa": last.iterations if last else 0,
         "dofs": problem.num_dofs,
