@@ -9,7 +9,9 @@ h^1.5 on a disk mesh, solved by Newton with the direct solver:
 Each configuration is solved ``--repeat`` times in this process after one untimed solve that
 compiles the forms (FFCx caches them on disk; both form times are recorded). The table gives
 the median wall time of the continuation (forms compiled, solver set-up included), the Newton
-steps, the dofs and the process's peak resident memory so far. One JSON line per row.
+steps, the dofs, the stiffness matrix's nonzeros, the solver's phases (seconds of the last
+run: set-up with the stiffness assembly, factorizations, ...) and the process's peak resident
+memory so far. One JSON line per row.
 
     .venv/bin/python benchmarks/koiter_cost.py --h 0.01 --repeat 3
 """
@@ -27,6 +29,7 @@ PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06)
 
 def run(model: str, degree: int, h: float, repeat: int) -> dict:
     from mpi4py import MPI
+    from petsc4py import PETSc
 
     from shellobstacle.domains import DomainSpec
     from shellobstacle.measures import mesh_size
@@ -52,13 +55,16 @@ def run(model: str, degree: int, h: float, repeat: int) -> dict:
         problem = PenalizedProblem(shell, mesh, Discretization(degree=degree))
         compiled = time.perf_counter()
         forms.append(compiled - t)
-        result = continuation(problem, NewtonSolver(problem), kappas)
+        solver = NewtonSolver(problem)
+        result = continuation(problem, solver, kappas)
         MPI.COMM_WORLD.barrier()
         if k:  # the first run compiles (or loads) the forms
             times.append(time.perf_counter() - compiled)
         steps = [s.newton.iterations for s in result]
         dofs = problem.num_dofs
-        del problem
+        phases = {k: round(v, 4) for k, v in solver.timings.items()}
+        nnz = int(problem.stiffness().getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
+        del problem, solver
     return {
         "model": model,
         "degree": degree,
@@ -68,6 +74,8 @@ def run(model: str, degree: int, h: float, repeat: int) -> dict:
         "newton_steps": steps,
         "seconds_median": statistics.median(times),
         "seconds": times,
+        "phases_last": phases,
+        "stiffness_nnz": nnz,
         "forms_seconds_first": forms[0],
         "forms_seconds_cached": statistics.median(forms[1:]),
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,

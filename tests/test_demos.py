@@ -25,6 +25,7 @@ def test_every_demo_is_tested() -> None:
         "paper_problem.py",
         "own_shell.py",
         "kappa_sweep.py",
+        "koiter_cylinder.py",
     }
 
 
@@ -50,3 +51,18 @@ def test_kappa_sweep_error_is_first_order_in_kappa(capsys: pytest.CaptureFixture
     assert len(ns["rates"]) == 3
     assert all(0.9 <= r <= 1.1 for r in ns["rates"]), ns["rates"]
     assert "observed orders in κ" in out
+
+
+def test_koiter_cylinder_thin_panel_touches_thick_one_does_not(
+    capsys: pytest.CaptureFixture[str],
+) -> None:
+    """The panel starts 0.1 above the plane: the thin one is stopped there (ζ_3 ≥ −0.1 up to
+    the penalty's penetration, contact on part of the loaded disk), the thick one, eight times
+    stiffer in bending, stays off the plane."""
+    ns, out = run("koiter_cylinder.py", capsys)
+    thin, thick = ns["thin"], ns["thick"]
+    assert 0 < thin["contact_area"] < 3.15 * 0.15**2
+    assert -0.1 - 1e-3 < thin["zeta3_min"] < -0.099
+    assert thick["contact_area"] == 0
+    assert -0.099 < thick["zeta3_min"] < 0
+    assert "ε = 0.01: contact area" in out

@@ -129,6 +129,20 @@ def test_central_refinement():
     assert domain_area(mesh) == pytest.approx(math.pi / 4, rel=1e-2)
 
 
+def test_edge_grading():
+    """Cells within edge_width of γ have about edge_h; the interior keeps h."""
+    h, edge_h, width = 0.08, 0.01, 0.04
+    mesh = create_mesh(DomainSpec("disk", h, radius=0.5, edge_h=edge_h, edge_width=width))
+    tdim = mesh.topology.dim
+    owned = np.arange(mesh.topology.index_map(tdim).size_local, dtype=np.int32)
+    dofs = mesh.geometry.dofmaps[0][owned]
+    to_edge = 0.5 - np.linalg.norm(mesh.geometry.x[dofs, :2].mean(axis=1), axis=1)
+    band = mesh.h(tdim, owned[to_edge < width]).max(initial=0.0)
+    assert COMM.allreduce(float(band), op=MPI.MAX) <= 2.0 * edge_h
+    assert mesh_size(mesh) > 4 * edge_h
+    assert domain_area(mesh) == pytest.approx(math.pi / 4, rel=1e-3)
+
+
 @pytest.mark.parametrize(
     ("spec", "message"),
     [
@@ -145,6 +159,8 @@ def test_central_refinement():
         (DomainSpec("rectangle", 0.1), "rectangle needs corners"),
         (DomainSpec("file"), "needs path"),
         (DomainSpec("disk", 0.1, central_h=0.01), "must be given together"),
+        (DomainSpec("disk", 0.1, edge_h=0.01), "edge_h and edge_width must be given together"),
+        (DomainSpec("disk", 0.1, edge_h=0.2, edge_width=0.1), "need 0 < edge_h <= h"),
         (DomainSpec("disk", 0.1, refinements=-1), "refinements must be >= 0"),
     ],
 )

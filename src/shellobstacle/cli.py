@@ -118,13 +118,15 @@ def _parser() -> argparse.ArgumentParser:
         "  shellobstacle experiment penalty examples/paper.toml --set domain.h=0.02\n"
         "  shellobstacle experiment mesh examples/paper.toml --q 0.5,1.0 --refinements 2\n"
         "  shellobstacle experiment load my.toml --parameter ell --values 0,10,20\n"
+        "  shellobstacle experiment koiter-limit examples/paper.toml --epsilons 1e-1,1e-2,1e-3\n"
         "  shellobstacle experiment penalty my.toml -o b1 --resume   # after an interruption",
     )
     e.add_argument(
         "batch",
-        choices=("penalty", "mesh", "load", "solvers"),
+        choices=("penalty", "mesh", "load", "solvers", "koiter-limit"),
         help="penalty: κ = h^q → 0 on a fixed mesh; mesh: nested meshes with κ = h^q; "
-        "load: sweep a load parameter; solvers: Newton vs Brezis–Sibony on --sizes",
+        "load: sweep a load parameter; solvers: Newton vs Brezis–Sibony on --sizes; "
+        "koiter-limit: Koiter's model against the membrane model as ε → 0",
     )
     common(e)
     output(e, resume=True, default="CONFIG-BATCH")
@@ -139,6 +141,22 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--values", default="0,10,20,40,80", help="load: its values")
     e.add_argument("--sizes", default="0.1,0.07", help="solvers: gmsh target sizes of ω")
     e.add_argument("--exponent", type=float, default=1.5, help="solvers: κ = h^exponent")
+    e.add_argument(
+        "--epsilons", default="1e-1,3.16e-2,1e-2,3.16e-3,1e-3", help="koiter-limit: Koiter's ε"
+    )
+    e.add_argument(
+        "--edge-h",
+        type=float,
+        default=None,
+        help="koiter-limit: mesh size along γ (default: domain.edge_h, else h/4)",
+    )
+    e.add_argument(
+        "--edge-width",
+        type=float,
+        default=None,
+        help="koiter-limit: width of the band meshed at --edge-h (default: domain.edge_width, "
+        "else 3√(smallest ε))",
+    )
 
     sub.add_parser(
         "doctor",

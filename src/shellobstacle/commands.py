@@ -184,13 +184,19 @@ def _experiment_options(args: argparse.Namespace) -> dict[str, Any]:
         }
     if args.batch == "solvers":
         return {"--sizes": _floats(args.sizes, "--sizes"), "--exponent": args.exponent}
+    if args.batch == "koiter-limit":
+        return {
+            "--epsilons": _floats(args.epsilons, "--epsilons"),
+            "--edge-h": args.edge_h,
+            "--edge-width": args.edge_width,
+        }
     return {"--parameter": args.parameter, "--values": _floats(args.values, "--values")}
 
 
 def experiment(args: argparse.Namespace) -> int:
     """One batch on a user's config."""
     from shellobstacle.config import ConfigError, load_config, to_toml
-    from shellobstacle.experiments import load, mesh, solvers
+    from shellobstacle.experiments import koiter_limit, load, mesh, solvers
     from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
     from shellobstacle.io.folders import atomic_write, prepare_folder
 
@@ -198,6 +204,8 @@ def experiment(args: argparse.Namespace) -> int:
     if args.batch == "load" and cfg.penalty.exponent is None:
         raise ConfigError("experiment load needs penalty.exponent (κ = h^exponent)")
     options = _experiment_options(args)
+    if args.batch == "koiter-limit":
+        koiter_limit.validate(cfg, options["--epsilons"], args.edge_h, args.edge_width)
     meta = {
         "command": "experiment",
         "batch": args.batch,
@@ -223,6 +231,12 @@ def experiment(args: argparse.Namespace) -> int:
     elif args.batch == "solvers":
         sizes = [dataclasses.replace(cfg.domain, h=v) for v in options["--sizes"]]
         text = solvers.run_solvers(cfg, folder, sizes, args.exponent, report, **kw)
+    elif args.batch == "koiter-limit":
+        domain = koiter_limit.graded_domain(
+            cfg.domain, options["--epsilons"], args.edge_h, args.edge_width
+        )
+        epsilons = options["--epsilons"]
+        text = koiter_limit.run_koiter_limit(cfg, folder, domain, epsilons, report, **kw)
     else:
         text = load.run_load(
             cfg,

@@ -33,6 +33,9 @@ class DomainSpec:
         refinements: Number of uniform refinements applied after generation.
         central_h: Disk/ellipse only: mesh size inside ``|y - center| < central_radius``.
         central_radius: Radius of the centrally refined zone (needed with ``central_h``).
+        edge_h: Disk, ellipse, polygon: mesh size along the boundary, growing to ``h`` beyond
+            ``edge_width`` (to resolve a boundary layer).
+        edge_width: Width of the band along the boundary meshed at ``edge_h``.
         gmsh_max_vertices: Disk, ellipse and polygon: when the mesh would have more vertices
             than this, gmsh meshes with a size ``2^k`` times larger and the distributed mesh
             is refined uniformly ``k`` times (new boundary vertices moved onto the curved
@@ -50,6 +53,8 @@ class DomainSpec:
     refinements: int = 0
     central_h: float | None = None
     central_radius: float | None = None
+    edge_h: float | None = None
+    edge_width: float | None = None
     gmsh_max_vertices: int = 8_000
 
 
@@ -135,21 +140,42 @@ def validate(spec: DomainSpec) -> None:
                 f"need 0 < central_h <= h and central_radius > 0, got central_h="
                 f"{spec.central_h}, central_radius={spec.central_radius}"
             )
+    if spec.edge_h is not None or spec.edge_width is not None:
+        if spec.kind not in ("disk", "ellipse", "polygon"):
+            raise ValueError("edge_h/edge_width are only supported for disk, ellipse and polygon")
+        if spec.edge_h is None or spec.edge_width is None:
+            raise ValueError("edge_h and edge_width must be given together")
+        if not 0 < spec.edge_h <= spec.h or not spec.edge_width > 0:
+            raise ValueError(
+                f"need 0 < edge_h <= h and edge_width > 0, got edge_h={spec.edge_h}, "
+                f"edge_width={spec.edge_width}"
+            )
 
 
-def _estimated_vertices(spec: DomainSpec, h: float, central_h: float | None) -> float:
-    """Vertices of a mesh of ``spec`` with sizes ``h`` (and ``central_h``): area / (√3/2 h²)."""
+def _area_perimeter(spec: DomainSpec) -> tuple[float, float]:
+    """Area and perimeter of a disk, ellipse (Ramanujan's perimeter) or polygon."""
     if spec.kind == "disk":
-        area = math.pi * spec.radius**2
-    elif spec.kind == "ellipse":
-        area = math.pi * spec.semi_axes[0] * spec.semi_axes[1]
-    else:
-        v = np.asarray(spec.vertices, dtype=float)
-        area = 0.5 * abs(float(np.dot(v[:, 0], np.roll(v[:, 1], -1) - np.roll(v[:, 1], 1))))
-    count = area / (math.sqrt(3.0) / 2.0 * h * h)
-    if central_h is not None:
+        return math.pi * spec.radius**2, 2 * math.pi * spec.radius
+    if spec.kind == "ellipse":
+        a, b = spec.semi_axes
+        return math.pi * a * b, math.pi * (3 * (a + b) - math.sqrt((3 * a + b) * (a + 3 * b)))
+    v = np.asarray(spec.vertices, dtype=float)
+    area = 0.5 * abs(float(np.dot(v[:, 0], np.roll(v[:, 1], -1) - np.roll(v[:, 1], 1))))
+    return area, float(np.linalg.norm(np.roll(v, -1, axis=0) - v, axis=1).sum())
+
+
+def _estimated_vertices(spec: DomainSpec, grow: float = 1.0) -> float:
+    """Vertices of a mesh of ``spec`` with every size times ``grow``: area / (√3/2 h²)."""
+    area, perimeter = _area_perimeter(spec)
+    density = 1.0 / (math.sqrt(3.0) / 2.0)
+    h = spec.h * grow
+    count = area * density / h**2
+    if spec.central_h is not None:
         zone = min(area, math.pi * spec.central_radius**2)
-        count += zone / (math.sqrt(3.0) / 2.0) * (1.0 / central_h**2 - 1.0 / h**2)
+        count += zone * density * (1.0 / (spec.central_h * grow) ** 2 - 1.0 / h**2)
+    if spec.edge_h is not None:
+        band = min(area, perimeter * (spec.edge_width + 2.0 * (spec.h - spec.edge_h)))
+        count += band * density * (1.0 / (spec.edge_h * grow) ** 2 - 1.0 / h**2)
     return count
 
 
@@ -158,12 +184,7 @@ def coarsening_steps(spec: DomainSpec) -> int:
     if spec.kind not in ("disk", "ellipse", "polygon") or spec.gmsh_max_vertices <= 0:
         return 0
     steps = 0
-    while (
-        _estimated_vertices(
-            spec, spec.h * 2.0**steps, spec.central_h and spec.central_h * 2.0**steps
-        )
-        > spec.gmsh_max_vertices
-    ):
+    while _estimated_vertices(spec, 2.0**steps) > spec.gmsh_max_vertices:
         steps += 1
     # the coarse mesh must still resolve the domain (a few cells across)
     while steps and spec.h * 2.0**steps > _diameter(spec) / 8:

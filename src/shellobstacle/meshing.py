@@ -75,8 +75,9 @@ def _build_model(model, spec: DomainSpec) -> None:
     curves = [tag for _, tag in model.getBoundary([(2, surface)], oriented=False)]
     model.addPhysicalGroup(2, [surface], _DOMAIN_TAG, name="domain")
     model.addPhysicalGroup(1, curves, _BOUNDARY_TAG, name="boundary")
+    fields = []
+    field = model.mesh.field
     if spec.central_h is not None:
-        field = model.mesh.field
         ball = field.add("Ball")
         for key, value in {
             "XCenter": cx,
@@ -88,7 +89,27 @@ def _build_model(model, spec: DomainSpec) -> None:
             "VOut": spec.h,
         }.items():
             field.setNumber(ball, key, value)
-        field.setAsBackgroundMesh(ball)
+        fields.append(ball)
+    if spec.edge_h is not None:
+        distance = field.add("Distance")
+        field.setNumbers(distance, "CurvesList", curves)
+        field.setNumber(distance, "Sampling", 200)
+        threshold = field.add("Threshold")
+        for key, value in {
+            "InField": distance,
+            "SizeMin": spec.edge_h,
+            "SizeMax": spec.h,
+            "DistMin": spec.edge_width,
+            "DistMax": spec.edge_width + 4.0 * (spec.h - spec.edge_h),  # slope ~ 1/4
+        }.items():
+            field.setNumber(threshold, key, value)
+        fields.append(threshold)
+    if len(fields) == 1:
+        field.setAsBackgroundMesh(fields[0])
+    elif fields:
+        smallest = field.add("Min")
+        field.setNumbers(smallest, "FieldsList", fields)
+        field.setAsBackgroundMesh(smallest)
     model.mesh.generate(2)
 
 
@@ -97,8 +118,9 @@ def _gmsh_options(spec: DomainSpec) -> dict[str, float]:
     options = {"Mesh.Algorithm": 6, "Mesh.ElementOrder": 1, "Mesh.RecombineAll": 0}
     if spec.kind == "file":
         return options
-    options |= {"Mesh.MeshSizeMin": spec.central_h or spec.h, "Mesh.MeshSizeMax": spec.h}
-    if spec.central_h is not None:
+    finest = min(v for v in (spec.h, spec.central_h, spec.edge_h) if v is not None)
+    options |= {"Mesh.MeshSizeMin": finest, "Mesh.MeshSizeMax": spec.h}
+    if spec.central_h is not None or spec.edge_h is not None:
         options |= {
             "Mesh.MeshSizeFromPoints": 0,
             "Mesh.MeshSizeFromCurvature": 0,
@@ -156,7 +178,10 @@ def _gmsh_arrays(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> tuple[np.n
         if steps:
             grow = 2.0**steps
             coarse = dataclasses.replace(
-                spec, h=spec.h * grow, central_h=spec.central_h and spec.central_h * grow
+                spec,
+                h=spec.h * grow,
+                central_h=spec.central_h and spec.central_h * grow,
+                edge_h=spec.edge_h and spec.edge_h * grow,
             )
         with _gmsh_model("shellobstacle-domain", _gmsh_options(coarse)) as model:
             try:

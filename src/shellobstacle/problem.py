@@ -100,8 +100,12 @@ class PenalizedProblem:
             self.sigma = dolfinx.fem.Constant(
                 mesh, PETSc.ScalarType(disc.interior_penalty or DEFAULT_INTERIOR_PENALTY)
             )
+            # s multiplies the bending energy (set_bending_scale): a Constant, as σ
+            self.bending_scale = dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
             ds = ufl.Measure("ds", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
-            elastic += bending_energy(G, eps, lam, mu, zeta, self.dx, self.sigma, ds)
+            elastic += self.bending_scale * bending_energy(
+                G, eps, lam, mu, zeta, self.dx, self.sigma, ds
+            )
         work = sum(self.p[i] * zeta[i] for i in range(3)) * sqrt_a * self.dx
         penalty = (eps / (2 * self.kappa)) * g_minus**2 / self.c_norm * self.dx_penalty
         energy = elastic - work + penalty
@@ -163,6 +167,21 @@ class PenalizedProblem:
             raise ValueError(f"the penalty parameter kappa must be > 0, got {kappa}")
         self.kappa.value = kappa
 
+    def set_bending_scale(self, s: float) -> None:
+        """Multiply Koiter's bending energy by ``s`` (1: the shell's own). When the load and
+        the penalty are proportional to ε, as the paper's, J_κ/ε depends on ε only through
+        the bending's ε²/3, so ``s = (ε'/ε)²`` gives Koiter's solution at thickness ε'
+        without compiling the forms again. The stiffness is assembled again at its next use:
+        solvers built before the change keep the old one."""
+        if self.model != "koiter":
+            raise ValueError("only Koiter's model has a bending energy to scale")
+        if not s > 0:
+            raise ValueError(f"the bending scale must be > 0, got {s}")
+        self.bending_scale.value = s
+        if self._K is not None:
+            self._K.destroy()
+            self._K = None
+
     def set_parameter(self, name: str, value: float) -> None:
         """Change a load parameter without recompiling."""
         if name not in self.parameters:
@@ -170,9 +189,9 @@ class PenalizedProblem:
         self.parameters[name].value = value
 
     def stiffness(self) -> PETSc.Mat:
-        """The membrane stiffness ``K`` (the constant Hessian of the membrane energy, Dirichlet
-        rows and columns identity), assembled at the first call and shared by every solver of
-        this problem: read it, never change it."""
+        """The stiffness ``K`` (the constant Hessian of the elastic energy: membrane, plus
+        bending for Koiter's model; Dirichlet rows and columns identity), assembled at the
+        first call and shared by every solver of this problem: read it, never change it."""
         if self._K is None:
             self._K = dolfinx.fem.petsc.assemble_matrix(self.forms["stiffness"], bcs=self.bcs)
             self._K.assemble()

@@ -55,6 +55,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "refinements": Key("int", 0, "uniform refinements after meshing (nested meshes)"),
         "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
         "central_radius": Key("float", OPTIONAL, "disk/ellipse: radius of the finer region"),
+        "edge_h": Key("float", OPTIONAL, "disk/ellipse/polygon: finer mesh size along γ"),
+        "edge_width": Key("float", OPTIONAL, "disk/ellipse/polygon: width of the finer band"),
         "gmsh_max_vertices": Key(
             "int", 8_000, "above this, gmsh meshes coarser and the mesh is refined (0: never)"
         ),

@@ -11,6 +11,7 @@ from typing import Any
 from shellobstacle.config import load_config
 from shellobstacle.domains import DomainSpec
 from shellobstacle.experiments.exact import write_batch4
+from shellobstacle.experiments.koiter_limit import run_koiter_limit
 from shellobstacle.experiments.load import batch3_config, run_load
 from shellobstacle.experiments.mesh import run_mesh
 from shellobstacle.experiments.penalty import run_penalty
@@ -40,6 +41,9 @@ class Sizes:
     batch3_ell: tuple[float, ...]
     batch3_exponent: float
     solver_h: tuple[float, ...]
+    #: Koiter's limit: ε values, mesh sizes (largest, centre r < 0.1, within edge_width of γ)
+    koiter_epsilons: tuple[float, ...]
+    koiter_h: tuple[float, float, float, float]
 
 
 SIZES = {
@@ -53,6 +57,8 @@ SIZES = {
         batch3_ell=(0, 10, 20, 40, 80),
         batch3_exponent=1.5,
         solver_h=(0.1, 0.07),
+        koiter_epsilons=(1e-1, 10**-1.5, 1e-2, 10**-2.5, 1e-3),
+        koiter_h=(0.05, 0.015, 0.008, 0.06),
     ),
     "full": Sizes(
         batch1_h=(0.0312, 0.0078, 0.0039),
@@ -64,6 +70,8 @@ SIZES = {
         batch3_ell=(0, 5, 10, 20, 30, 40, 60, 80),
         batch3_exponent=1.5,
         solver_h=(0.1, 0.07, 0.05),
+        koiter_epsilons=(1e-1, 10**-1.5, 1e-2, 10**-2.5, 1e-3, 10**-3.5, 1e-4),
+        koiter_h=(0.03, 0.0025, 0.0025, 0.04),
     ),
 }
 
@@ -140,6 +148,19 @@ def reproduce(
     t = time.perf_counter()
     sections.append(run_solvers(cfg, folder, [disk(h) for h in sizes.solver_h], 1.5, say, **kw))
     times["solvers"] = time.perf_counter() - t
+    t = time.perf_counter()
+    h, central_h, edge_h, edge_width = sizes.koiter_h
+    graded = DomainSpec(
+        "disk",
+        h=h,
+        radius=0.5,
+        central_h=central_h,
+        central_radius=0.1,
+        edge_h=edge_h,
+        edge_width=edge_width,
+    )
+    sections.append(run_koiter_limit(cfg, folder, graded, sizes.koiter_epsilons, say, **kw))
+    times["koiter"] = time.perf_counter() - t
     total = time.perf_counter() - t0
     v = versions()
     tuned = "; ".join(f"{k}: {p}" for k, p in v["tuning"].items())

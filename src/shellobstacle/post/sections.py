@@ -19,7 +19,15 @@ import numpy as np
 
 from shellobstacle.problem import PenalizedProblem
 
-__all__ = ["AXES", "CrossSection", "cross_section", "horizontal_direction", "line_tree"]
+__all__ = [
+    "AXES",
+    "CrossSection",
+    "cross_section",
+    "horizontal_direction",
+    "line_tree",
+    "mesh_extent",
+    "sample",
+]
 
 AXES = ("y1", "y2")
 
@@ -61,7 +69,8 @@ def _global_max(comm: MPI.Comm, values: np.ndarray, initial: float = -np.inf) ->
     return float(comm.allreduce(float(np.max(values, initial=initial)), op=MPI.MAX))
 
 
-def _mesh_extent(mesh: dolfinx.mesh.Mesh, k: int) -> tuple[float, float]:
+def mesh_extent(mesh: dolfinx.mesh.Mesh, k: int) -> tuple[float, float]:
+    """Smallest and largest coordinate ``k`` of the mesh's nodes (the same on every rank)."""
     x = mesh.geometry.x[:, k]
     return _global_min(mesh.comm, x), _global_max(mesh.comm, x)
 
@@ -82,7 +91,7 @@ def line_tree(mesh: dolfinx.mesh.Mesh, axis: str, at: float) -> dolfinx.geometry
     return dolfinx.geometry.bb_tree(mesh, tdim, entities=np.flatnonzero(meets).astype(np.int32))
 
 
-def _sample(
+def sample(
     u: dolfinx.fem.Function, points: np.ndarray, tree: dolfinx.geometry.BoundingBoxTree
 ) -> tuple[np.ndarray, np.ndarray]:
     """Values of ``u`` at the points inside the mesh, gathered on every rank.
@@ -147,14 +156,14 @@ def cross_section(
         raise ValueError(f"a cross-section needs n >= 2 points, got {n}")
     mesh = problem.mesh
     k = AXES.index(axis)
-    lo, hi = _mesh_extent(mesh, k)
+    lo, hi = mesh_extent(mesh, k)
     s = np.linspace(lo, hi, n)
     points = np.zeros((n, 3))
     points[:, k] = s
     points[:, 1 - k] = at
     if tree is None:
         tree = line_tree(mesh, axis, at)
-    where, zeta = _sample(problem.zeta, points, tree)
+    where, zeta = sample(problem.zeta, points, tree)
     y = points[where, :2]
     G = problem.shell.surface.geometry_numpy(y)
     m = len(where)

@@ -1,0 +1,131 @@
+"""Koiter's model against the membrane model as ε → 0 (``experiment koiter-limit``)."""
+
+from __future__ import annotations
+
+import csv
+import math
+from pathlib import Path
+
+from mpi4py import MPI
+
+import dolfinx
+import numpy as np
+import pytest
+
+from shellobstacle.cli import main
+from shellobstacle.domains import DomainSpec
+from shellobstacle.experiments.koiter_limit import distance_to_boundary, layer_width
+from shellobstacle.meshing import create_mesh
+from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.continuation import continuation
+from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.surface import Surface
+
+COMM = MPI.COMM_WORLD
+PAPER = Path(__file__).parents[1] / "examples" / "paper.toml"
+PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
+
+
+def test_layer_width_of_an_exponential_layer() -> None:
+    """ζ_K = ζ_M (1 − e^{−d/ℓ}) reaches half of ζ_M at d = ℓ ln 2."""
+    d = np.linspace(0.0, 0.2, 2001)
+    membrane = 1e-3 * (1 + d)
+    for ell in (0.005, 0.02):
+        koiter = membrane * (1 - np.exp(-d / ell))
+        assert layer_width(d[::-1], koiter[::-1], membrane[::-1]) == pytest.approx(
+            ell * math.log(2), rel=1e-3
+        )
+    assert math.isnan(layer_width(d, -membrane, membrane))  # bending keeps it on the other side
+
+
+@pytest.mark.skipif(COMM.size > 1, reason="one mesh, serial")
+def test_distance_to_boundary_on_a_disk() -> None:
+    mesh = create_mesh(DomainSpec("disk", h=0.05, radius=0.5))
+    dist = distance_to_boundary(mesh)
+    n = mesh.topology.index_map(2).size_local
+    mid = dolfinx.mesh.compute_midpoints(mesh, 2, np.arange(n, dtype=np.int32))[:, :2]
+    exact = 0.5 - np.linalg.norm(mid, axis=1)
+    # the boundary is sampled at its vertices (spacing ≤ 0.05): within a sagitta and a half-chord
+    assert np.abs(dist.x.array[:n] - exact).max() < 0.03
+    assert dist.x.array[:n].min() > 0
+
+
+def test_bending_scale_is_koiter_at_another_thickness() -> None:
+    """With the load and penalty ∝ ε, scaling the bending energy by (ε'/ε)² gives Koiter's
+    solution at ε' (computed with its own compiled forms)."""
+    mesh = dolfinx.mesh.create_rectangle(
+        COMM,
+        [[-0.25, -0.25], [0.25, 0.25]],
+        [8, 8],
+        ghost_mode=dolfinx.mesh.GhostMode.shared_facet,
+    )
+
+    def solve(eps: float, scale: float | None = None) -> np.ndarray:
+        shell = Shell(
+            Surface.spherical_cap(1.0, 0.85),
+            Material(eps, 0.4, 0.012),
+            Load(("0", "0", PAPER_LOAD)),
+            Obstacle(),
+            "koiter",
+        )
+        problem = PenalizedProblem(shell, mesh, Discretization(degree=2))
+        if scale is not None:
+            problem.set_bending_scale(scale)
+        continuation(problem, NewtonSolver(problem), [1e-1, 1e-2, 1e-3])
+        return problem.zeta.x.array.copy()
+
+    direct, scaled = solve(1e-2), solve(1e-3, scale=100.0)
+    unscaled = solve(1e-3)
+    size = np.sqrt(COMM.allreduce(np.sum(direct**2)))
+    assert np.sqrt(COMM.allreduce(np.sum((direct - scaled) ** 2))) < 1e-8 * size
+    assert np.sqrt(COMM.allreduce(np.sum((direct - unscaled) ** 2))) > 1e-2 * size
+
+
+def test_bending_scale_needs_koiter_and_a_positive_scale() -> None:
+    mesh = dolfinx.mesh.create_unit_square(COMM, 2, 2)
+    shell = Shell(
+        Surface.spherical_cap(1.0, 0.85), Material(1e-3, 0.4, 0.012), Load(("0", "0", "-1e-4"))
+    )
+    with pytest.raises(ValueError, match="only Koiter's model"):
+        PenalizedProblem(shell, mesh).set_bending_scale(2.0)
+
+
+@pytest.fixture(scope="module")
+def koiter_limit_run(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("kl") / "out"
+    if COMM.size > 1:
+        out = Path(COMM.bcast(str(out)))
+    args = ["experiment", "koiter-limit", str(PAPER), "-o", str(out), "-q"]
+    args += ["--set", "domain.h=0.08", "--epsilons", "1e-1,1e-2,1e-3", "--edge-h", "0.02"]
+    assert main(args) == 0
+    return out
+
+
+def test_koiter_tends_to_the_membrane_on_the_papers_problem(koiter_limit_run: Path) -> None:
+    """‖ζ_K(ε) − ζ_M‖_{V_M} falls as ε does; the thick shells do not reach the plane."""
+    with open(koiter_limit_run / "koiter_limit.csv") as f:
+        rows = [{k: float(v) for k, v in row.items()} for row in csv.DictReader(f)]
+    assert [r["epsilon"] for r in rows] == [1e-1, 1e-2, 1e-3]
+    distance = [r["distance_VM"] for r in rows]
+    assert distance[0] > distance[1] > distance[2], distance
+    assert rows[0]["relative"] > 0.5  # ε = 0.1: bending dominates
+    assert rows[0]["contact_area_koiter"] == 0
+    report = (koiter_limit_run / "report.md").read_text()
+    assert "## Koiter's model and the membrane limit" in report
+    for name in ("koiter_limit.png", "koiter_limit_layer.png", "config.toml", "log.txt"):
+        assert (koiter_limit_run / name).is_file(), name
+
+
+@pytest.mark.parametrize(
+    "bad",
+    [
+        ["--epsilons", "0,1e-2"],
+        ["--epsilons", ""],
+        ["--edge-h", "-1"],
+        ["--set", "solver.linear_solver='iterative'"],
+    ],
+)
+def test_koiter_limit_refuses_bad_options(tmp_path: Path, bad: list[str]) -> None:
+    out = tmp_path / "x"
+    assert main(["experiment", "koiter-limit", str(PAPER), "-o", str(out), "-q", *bad]) == 2
