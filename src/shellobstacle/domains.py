@@ -14,6 +14,8 @@ import numpy as np
 __all__ = ["KINDS", "DomainSpec", "coarsening_steps", "validate"]
 
 KINDS = ("disk", "ellipse", "polygon", "rectangle", "file")
+#: the kinds whose meshes can be graded towards the boundary (edge_h, edge_width)
+GRADED_KINDS = ("disk", "ellipse", "polygon")
 
 
 @dataclass(frozen=True)
@@ -130,26 +132,26 @@ def validate(spec: DomainSpec) -> None:
     diameter = _diameter(spec)
     if spec.h > diameter:
         raise ValueError(f"mesh size h={spec.h} exceeds the domain's diameter {diameter:g}")
-    if spec.central_h is not None or spec.central_radius is not None:
-        if spec.kind not in ("disk", "ellipse"):
-            raise ValueError("central_h/central_radius are only supported for disk and ellipse")
-        if spec.central_h is None or spec.central_radius is None:
-            raise ValueError("central_h and central_radius must be given together")
-        if not 0 < spec.central_h <= spec.h or not spec.central_radius > 0:
-            raise ValueError(
-                f"need 0 < central_h <= h and central_radius > 0, got central_h="
-                f"{spec.central_h}, central_radius={spec.central_radius}"
-            )
-    if spec.edge_h is not None or spec.edge_width is not None:
-        if spec.kind not in ("disk", "ellipse", "polygon"):
-            raise ValueError("edge_h/edge_width are only supported for disk, ellipse and polygon")
-        if spec.edge_h is None or spec.edge_width is None:
-            raise ValueError("edge_h and edge_width must be given together")
-        if not 0 < spec.edge_h <= spec.h or not spec.edge_width > 0:
-            raise ValueError(
-                f"need 0 < edge_h <= h and edge_width > 0, got edge_h={spec.edge_h}, "
-                f"edge_width={spec.edge_width}"
-            )
+    central_kinds = ("disk", "ellipse")
+    _check_refined_zone(spec, "central_h", "central_radius", central_kinds, "disk and ellipse")
+    _check_refined_zone(spec, "edge_h", "edge_width", GRADED_KINDS, "disk, ellipse and polygon")
+
+
+def _check_refined_zone(
+    spec: DomainSpec, size: str, extent: str, kinds: tuple[str, ...], kinds_text: str
+) -> None:
+    """A finer zone's mesh size and extent: both or neither, ``0 < size <= h``, extent > 0."""
+    h_zone, width = getattr(spec, size), getattr(spec, extent)
+    if h_zone is None and width is None:
+        return
+    if spec.kind not in kinds:
+        raise ValueError(f"{size}/{extent} are only supported for {kinds_text}")
+    if h_zone is None or width is None:
+        raise ValueError(f"{size} and {extent} must be given together")
+    if not 0 < h_zone <= spec.h or not width > 0:
+        raise ValueError(
+            f"need 0 < {size} <= h and {extent} > 0, got {size}={h_zone}, {extent}={width}"
+        )
 
 
 def _area_perimeter(spec: DomainSpec) -> tuple[float, float]:

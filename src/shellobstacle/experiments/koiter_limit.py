@@ -28,7 +28,7 @@ import numpy as np
 import ufl
 
 from shellobstacle.config import Config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.domains import GRADED_KINDS, DomainSpec
 from shellobstacle.experiments.common import NewtonProgress, Say, finish_figure, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.io.checkpoint import Checkpoint
@@ -113,7 +113,7 @@ def validate(
     for name, value in (("--edge-h", edge_h), ("--edge-width", edge_width)):
         if value is not None and not value > 0:
             raise ConfigError(f"{name} must be > 0, got {value}")
-    if (edge_h or edge_width) and cfg.domain.kind not in ("disk", "ellipse", "polygon"):
+    if (edge_h or edge_width) and cfg.domain.kind not in GRADED_KINDS:
         raise ConfigError(
             f"--edge-h/--edge-width grade disk, ellipse and polygon meshes, not a "
             f"{cfg.domain.kind!r} domain: leave them out"
@@ -128,7 +128,7 @@ def graded_domain(
 ) -> DomainSpec:
     """``domain`` graded towards γ: ``edge_h`` (default: its own, else h/4) within
     ``edge_width`` (default: its own, else 3√ε of the smallest ε) of the edge."""
-    if domain.kind not in ("disk", "ellipse", "polygon"):
+    if domain.kind not in GRADED_KINDS:
         return domain
     h = domain.h
     edge_h = edge_h or domain.edge_h or h / 4
