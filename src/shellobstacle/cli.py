@@ -15,9 +15,15 @@ from mpi4py import MPI
 
 import shellobstacle
 from shellobstacle import commands
-from shellobstacle.commands import EXIT_FAILED, EXIT_INTERRUPTED, EXIT_OK, EXIT_USAGE
+from shellobstacle.commands import (
+    EXIT_FAILED,
+    EXIT_INTERRUPTED,
+    EXIT_INVALID,
+    EXIT_OK,
+    EXIT_USAGE,
+)
 
-__all__ = ["EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_OK", "EXIT_USAGE", "main"]
+__all__ = ["EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_INVALID", "EXIT_OK", "EXIT_USAGE", "main"]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -173,7 +179,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point; returns the exit code (0 ok, 1 solver failure, 2 user error)."""
+    """Entry point; returns the exit code (0 ok, 1 solver failure, 2 user error, 3 a solution
+    outside the model's validity, 130 interrupted)."""
     args = _parser().parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.folder = None  # the result folder, once known (for the interruption message)

@@ -14,7 +14,7 @@ from mpi4py import MPI
 
 from shellobstacle.reporter import Reporter
 
-EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
 
 def check(args: argparse.Namespace) -> int:
@@ -93,6 +93,12 @@ def run_and_write(
         f"done: κ = {summary['kappa']:.3e}, contact area {summary['contact_area']:.5g} "
         f"(projected {summary['contact_area_projected']:.5g}), min ζ_3 = {summary['zeta3_min']:.5g}"
     )
+    if not summary["validity"]["valid"]:
+        report(
+            "the solution is outside the model's validity (see the warnings above and "
+            f"{folder}/summary.json's 'validity'): exit status {EXIT_INVALID}"
+        )
+        return EXIT_INVALID
     return EXIT_OK
 
 

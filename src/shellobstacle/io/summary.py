@@ -22,7 +22,8 @@ def write_solution(
     say: Callable[[str], Any],
     warnings_seen: list[str] | None = None,
 ) -> dict[str, Any]:
-    """Write ``summary.json`` (always, also after a failure), ParaView files and figures.
+    """Write ``summary.json`` (always, also after a failure), ParaView files and figures;
+    the validity measures (:mod:`shellobstacle.post.validity`) are reported through ``say``.
 
     Returns:
         The summary dictionary.
@@ -30,11 +31,16 @@ def write_solution(
     from shellobstacle.io.paraview import write_paraview
     from shellobstacle.post.contact import Postprocessor
     from shellobstacle.post.plotting import plot_cross_section
+    from shellobstacle.post.validity import assess
 
     problem = result.problem
     t = time.perf_counter()
     post = Postprocessor(problem)
     quantities = post.summary()
+    kappa = 0.0 if result.method == "active-set" else float(problem.kappa.value)
+    validity = assess(post, kappa)
+    for line in validity.warnings():
+        say(f"warning: {line}")
     timings = dict(result.timings)
     timings["postprocess"] = time.perf_counter() - t
     last = result.steps[-1] if result.steps else None
@@ -47,7 +53,7 @@ def write_solution(
         "iterations_last_kappa": last.iterations if last else 0,
         "dofs": problem.num_dofs,
         "h": result.h,
-        "kappa": 0.0 if result.method == "active-set" else float(problem.kappa.value),
+        "kappa": kappa,
         "kappa_target": result.kappa,
         **quantities,
         "residual_history": last.residual_norms if last else [],
@@ -64,7 +70,8 @@ def write_solution(
             }
             for c in result.checks
         ],
-        "warnings": warnings_seen or [],
+        "validity": validity.as_dict(),
+        "warnings": [*(warnings_seen or []), *validity.warnings()],
         "surface": cfg.shell.surface.description,
         "timings": timings,
         "versions": versions(),

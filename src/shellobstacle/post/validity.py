@@ -1,0 +1,165 @@
+"""Is a computed solution inside the validity of the linear shell model and the penalty method?
+
+A solver can converge to a solution that means nothing physically: a load strong enough to push
+the whole shell through the plane, or a load singular inside ω, gives a penalized solution that
+penetrates the plane by a large part of the shell's height, or a deformed surface that turns
+over itself. Scale-free measures, computed after every solve:
+
+``penetration``
+    ``max {g(ζ)}^- / max θ·q``: the largest penetration of the plane against the shell's
+    initial height above it (the gap scale). The penalized solution penetrates by ``O(κ)``;
+    a penetration that is a sizeable part of the height means the constraint is not imposed.
+``displacement``
+    ``max |ζ_i a^i| / diam θ(ω)``: the linear model assumes displacements small against the
+    shell (MODEL.md §2); beyond a quarter of its size the linearization is not credible.
+``orientation``
+    ``min a_3 · (ã_1 ∧ ã_2) / √a`` with the deformed tangent vectors ``ã_α = a_α + ∂_α U``,
+    ``U = ζ_i a^i``: 1 for no deformation, ``≤ 0`` where the deformed surface folds over.
+``penalty_ratio``
+    the penetration against ``κ max(√a |p|) / ε``, the penetration at which the penalty force
+    ``(ε/κ) {g}^-`` balances the load at a point (MODEL.md §4): how many times the largest
+    load the plane's reaction carries somewhere. Recorded, not judged: a membrane's contact
+    pressure can be a measure concentrated on curves (the paper's problem: 4.5 at κ = h²,
+    39 at κ = h³ on the same mesh), so the ratio grows as κ → 0 with nothing wrong.
+
+A measure beyond its threshold in :data:`THRESHOLDS` makes the result *outside the validity*:
+``solve`` warns on the terminal and in ``summary.json`` and exits with status 3
+(:data:`~shellobstacle.commands.EXIT_INVALID`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+from mpi4py import MPI
+
+import dolfinx
+import dolfinx.fem
+import numpy as np
+import ufl
+
+__all__ = ["THRESHOLDS", "Validity", "assess"]
+
+#: Largest accepted value of each measure (``orientation``: smallest accepted value).
+THRESHOLDS: dict[str, float] = {
+    "penetration": 0.05,
+    "displacement": 0.25,
+    "orientation": 0.0,
+}
+
+_EXPLAIN = {
+    "penetration": "of the shell's height above the plane (max θ·q): the constraint is not "
+    "imposed; decrease κ (a larger penalty exponent) or check that the load is not far beyond "
+    "what the shell can carry",
+    "displacement": "of the shell's size: outside the linear model's small displacements; "
+    "reduce the load",
+    "orientation": "the deformed surface folds over itself somewhere: the load is far beyond "
+    "the linear model; reduce it",
+}
+
+
+@dataclass
+class Validity:
+    """The measures of the module docstring, their thresholds and the warnings."""
+
+    penetration: float
+    displacement: float
+    orientation: float
+    penalty_ratio: float | None
+    thresholds: dict[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
+
+    @property
+    def violations(self) -> list[str]:
+        """Names of the measures beyond their thresholds."""
+        t = self.thresholds
+        out = []
+        if self.penetration > t["penetration"]:
+            out.append("penetration")
+        if self.displacement > t["displacement"]:
+            out.append("displacement")
+        if self.orientation <= t["orientation"]:
+            out.append("orientation")
+        return out
+
+    @property
+    def valid(self) -> bool:
+        """True when every measure is within its threshold."""
+        return not self.violations
+
+    def warnings(self) -> list[str]:
+        """One line per violated measure: the value, the threshold and what to do."""
+        lines = []
+        for name in self.violations:
+            value, limit = getattr(self, name), self.thresholds[name]
+            if name == "orientation":
+                lines.append(
+                    f"outside the model's validity: orientation {value:.3g} ≤ {limit:g}, "
+                    + _EXPLAIN[name]
+                )
+            else:
+                lines.append(
+                    f"outside the model's validity: {name} {value:.3g} > {limit:g} "
+                    + _EXPLAIN[name]
+                )
+        return lines
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly record (``summary.json``'s ``validity``)."""
+        return {
+            "valid": self.valid,
+            "penetration": self.penetration,
+            "displacement": self.displacement,
+            "orientation": self.orientation,
+            "penalty_ratio": self.penalty_ratio,
+            "thresholds": dict(self.thresholds),
+            "violations": self.violations,
+        }
+
+
+def assess(post: Any, kappa: float) -> Validity:
+    """The validity measures of ``post.problem``'s current ``ζ`` (global, the same on every
+    rank); ``post`` is its :class:`~shellobstacle.post.contact.Postprocessor`, ``kappa`` the
+    penalty parameter of the solve (0 for the exact problem: no ``penalty_ratio``)."""
+    problem = post.problem
+    comm: MPI.Comm = post.comm
+    violation = float(post.contact()["max_violation"])
+    penetration = violation / post.gap_scale if post.gap_scale > 0 else float("inf")
+
+    n_owned = post.P1.dofmap.index_map.size_local
+    U = post.cartesian_displacement()
+    bs = U.function_space.dofmap.index_map_bs
+    Uo = U.x.array.reshape(-1, bs)[: U.function_space.dofmap.index_map.size_local]
+    umax = comm.allreduce(float(np.max(np.linalg.norm(Uo, axis=1), initial=0.0)), op=MPI.MAX)
+    points = post.P1.tabulate_dof_coordinates()[:n_owned]
+    theta = np.asarray(problem.shell.surface.theta_numpy(points), dtype=float)
+    lo, hi = theta.min(axis=1, initial=np.inf), theta.max(axis=1, initial=-np.inf)
+    comm.Allreduce(MPI.IN_PLACE, lo, op=MPI.MIN)
+    comm.Allreduce(MPI.IN_PLACE, hi, op=MPI.MAX)
+    size = float(np.linalg.norm(hi - lo))
+
+    G, zeta = problem.G, problem.zeta
+    degree = max(problem.disc.degree - 1, 0)
+    DG = dolfinx.fem.functionspace(problem.mesh, ("DG", degree))
+    Ucart = ufl.as_vector(G.cartesian([zeta[i] for i in range(3)]))
+    a = [ufl.as_vector(G.a_cov[al]) + Ucart.dx(al) for al in range(2)]
+    orientation = ufl.dot(ufl.as_vector(G.a3), ufl.cross(a[0], a[1])) / G.sqrt_a
+    load = ufl.sqrt(sum(p * p for p in problem.p)) * G.sqrt_a
+    local_orientation, local_load = (
+        _cell_values(expr, DG, problem.mesh) for expr in (orientation, load)
+    )
+    omin = comm.allreduce(float(np.min(local_orientation, initial=np.inf)), op=MPI.MIN)
+    pmax = comm.allreduce(float(np.max(local_load, initial=0.0)), op=MPI.MAX)
+
+    ratio = None
+    if kappa > 0 and pmax > 0:
+        eps = float(problem.shell.material.epsilon)
+        ratio = violation / (kappa * pmax / eps)
+    return Validity(penetration, umax / size if size > 0 else float("inf"), omin, ratio)
+
+
+def _cell_values(expr: Any, space: dolfinx.fem.FunctionSpace, mesh: dolfinx.mesh.Mesh):
+    """Values of ``expr`` at the interpolation points of the owned cells of ``space``."""
+    f = dolfinx.fem.Function(space)
+    f.interpolate(dolfinx.fem.Expression(expr, space.element.interpolation_points))
+    return f.x.array[: space.dofmap.index_map.size_local * space.dofmap.index_map_bs]
