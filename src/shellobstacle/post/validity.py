@@ -43,7 +43,7 @@ __all__ = ["THRESHOLDS", "Validity", "assess"]
 
 #: Largest accepted value of each measure (``orientation``: smallest accepted value).
 THRESHOLDS: dict[str, float] = {
-    "penetration": 0.05,
+    "penetration": 0.1,
     "displacement": 0.25,
     "orientation": 0.0,
 }
