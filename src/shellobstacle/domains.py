@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["KINDS", "DomainSpec", "coarsening_steps", "validate"]
+__all__ = ["KINDS", "DomainSpec", "coarsening_steps", "estimated_vertices", "validate"]
 
 KINDS = ("disk", "ellipse", "polygon", "rectangle", "file")
 #: the kinds whose meshes can be graded towards the boundary (edge_h, edge_width)
@@ -166,7 +166,7 @@ def _area_perimeter(spec: DomainSpec) -> tuple[float, float]:
     return area, float(np.linalg.norm(np.roll(v, -1, axis=0) - v, axis=1).sum())
 
 
-def _estimated_vertices(spec: DomainSpec, grow: float = 1.0) -> float:
+def estimated_vertices(spec: DomainSpec, grow: float = 1.0) -> float:
     """Vertices of a mesh of ``spec`` with every size times ``grow``: area / (√3/2 h²)."""
     area, perimeter = _area_perimeter(spec)
     density = 1.0 / (math.sqrt(3.0) / 2.0)
@@ -186,7 +186,7 @@ def coarsening_steps(spec: DomainSpec) -> int:
     if spec.kind not in ("disk", "ellipse", "polygon") or spec.gmsh_max_vertices <= 0:
         return 0
     steps = 0
-    while _estimated_vertices(spec, 2.0**steps) > spec.gmsh_max_vertices:
+    while estimated_vertices(spec, 2.0**steps) > spec.gmsh_max_vertices:
         steps += 1
     # the coarse mesh must still resolve the domain (a few cells across)
     while steps and spec.h * 2.0**steps > _diameter(spec) / 8:

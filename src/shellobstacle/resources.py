@@ -1,0 +1,135 @@
+"""What a mesh will cost before it is made: vertices, dofs and memory, against the machine.
+
+A one-character typo in ``h`` (``0.0001`` for ``0.001``) asks for 10⁸ vertices: meshing alone
+would run for hours and exhaust the memory. :func:`require_fits` estimates the cost from the
+domain's area and ``h`` (:func:`~shellobstacle.domains.estimated_vertices`) and refuses, in one
+line with the estimate, what cannot fit in this machine's memory.
+
+The memory per dof was measured on the paper's problem with the direct solver (peak resident
+memory, ``docs/perf/koiter/`` and the 1.93 M-dof runs of ``docs/performance.md``): 3.0–3.4 kB
+per dof for the membrane model with P1, 3.4 kB with P2, 9.1 kB for Koiter's model with P2
+(whose factor fills more); a mesh alone costs 0.6–0.7 kB per vertex. The figures below round
+them up; they are estimates within a factor of about 1.5, good for refusing what is far out of
+reach, not for planning a run to the last gigabyte (``--force`` proceeds anyway).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from mpi4py import MPI
+
+from shellobstacle.config import ConfigError
+from shellobstacle.domains import DomainSpec, estimated_vertices
+
+__all__ = ["Estimate", "ResourceError", "estimate", "machine_memory", "require_fits"]
+
+#: Peak memory per dof of a solve, bytes, by (model, degree).
+BYTES_PER_DOF = {("membrane", 1): 3.5e3, ("membrane", 2): 4.0e3, ("koiter", 2): 10.0e3}
+#: Memory per vertex of a mesh and the assumption checks (no solve), bytes.
+BYTES_PER_VERTEX_MESH = 1.0e3
+#: The interpreter with DOLFINx, PETSc and the compiled forms, bytes per process.
+BASE_BYTES = 0.3e9
+#: The share of this machine's memory an estimate may take.
+MEMORY_SHARE = 0.8
+
+
+class ResourceError(ConfigError):
+    """The mesh asked for cannot fit in this machine's memory."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Estimated size and peak memory (all ranks together) of a mesh and its solve."""
+
+    vertices: float
+    dofs: float
+    bytes_mesh: float
+    bytes_solve: float
+
+
+def mesh_vertices(spec: DomainSpec) -> float | None:
+    """Estimated vertices of the mesh of ``spec`` after its refinements (None: unknown)."""
+    if spec.kind == "rectangle":
+        (x0, y0), (x1, y1) = spec.corners
+        count = float((math.ceil((x1 - x0) / spec.h) + 1) * (math.ceil((y1 - y0) / spec.h) + 1))
+    elif spec.kind == "file":
+        count = _msh_nodes(Path(spec.path)) if spec.path else None
+        if count is None:
+            return None
+    else:
+        count = estimated_vertices(spec)
+    return count * 4.0**spec.refinements  # a uniform refinement quadruples the cells
+
+
+def estimate(spec: DomainSpec, model: str = "membrane", degree: int = 1) -> Estimate | None:
+    """Vertices, dofs (3 components; P2 adds the edge midpoints, about 3 per vertex) and the
+    peak memory of meshing only and of a solve; None when the mesh size cannot be known."""
+    vertices = mesh_vertices(spec)
+    if vertices is None:
+        return None
+    nodes = vertices if degree == 1 else 4.0 * vertices
+    dofs = 3.0 * nodes
+    per_dof = BYTES_PER_DOF.get((model, degree), BYTES_PER_DOF[("koiter", 2)])
+    return Estimate(vertices, dofs, vertices * BYTES_PER_VERTEX_MESH, dofs * per_dof)
+
+
+def machine_memory() -> float:
+    """Physical memory of this machine, bytes."""
+    return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def require_fits(
+    spec: DomainSpec,
+    model: str = "membrane",
+    degree: int = 1,
+    solve: bool = True,
+    what: str = "[domain]",
+    comm: MPI.Comm = MPI.COMM_WORLD,
+) -> Estimate | None:
+    """Raise :class:`ResourceError` (on every rank) when the mesh of ``spec`` (and its solve,
+    if ``solve``) would need more than :data:`MEMORY_SHARE` of this machine's memory.
+
+    The ranks on this machine need their share of the whole run's memory (the mesh is
+    distributed evenly), plus :data:`BASE_BYTES` each.
+    """
+    est = estimate(spec, model, degree)
+    if est is None:
+        return None
+    local = comm.Split_type(MPI.COMM_TYPE_SHARED)
+    on_node = local.size
+    local.Free()
+    need = (est.bytes_solve if solve else est.bytes_mesh) * on_node / comm.size
+    need += BASE_BYTES * on_node
+    have = machine_memory()
+    if need > MEMORY_SHARE * have:
+        size = f"h = {spec.h:g}" if spec.kind != "file" else f"{spec.path}"
+        task = "solving" if solve else "meshing"
+        raise ResourceError(
+            f"{what}: {size} gives about {est.vertices:.2g} vertices and {est.dofs:.2g} dofs; "
+            f"{task} needs about {need / 1e9:.3g} GB on this machine, which has "
+            f"{have / 1e9:.3g} GB: use a larger h (or more machines under MPI), or pass --force"
+        )
+    return est
+
+
+def _msh_nodes(path: Path) -> float | None:
+    """The node count in a gmsh ``.msh`` file's ``$Nodes`` header (formats 2 and 4)."""
+    try:
+        with path.open("rb") as f:
+            head = f.read(1 << 16).decode("latin-1")
+    except OSError:
+        return None
+    m = re.search(r"\$MeshFormat\s+([\d.]+)", head)
+    n = re.search(r"\$Nodes\s+([^\n]+)", head)
+    if not (m and n):
+        return None
+    fields = n.group(1).split()
+    try:
+        return float(fields[1] if m.group(1).startswith("4") else fields[0])
+    except (IndexError, ValueError):
+        return None
