@@ -70,8 +70,8 @@ def test_default_folder_is_new_each_time(tmp_path: Path, monkeypatch: pytest.Mon
     args = ["solve", str(SMALL), "-q", "--set", "domain.h=0.08", "--set", "output.paraview=false"]
     assert main(args) == 0
     assert main(args) == 0
-    assert (tmp_path / "small-results" / "summary.json").is_file()
-    assert (tmp_path / "small-results-2" / "summary.json").is_file()
+    assert (tmp_path / "small-solve" / "summary.json").is_file()
+    assert (tmp_path / "small-solve-2" / "summary.json").is_file()
 
 
 def test_check_prints_the_assumption_table(capsys: pytest.CaptureFixture) -> None:

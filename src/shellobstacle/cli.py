@@ -64,11 +64,18 @@ def _parser() -> argparse.ArgumentParser:
 
     def output(sp: argparse.ArgumentParser, resume: bool, default: str) -> None:
         sp.add_argument(
-            "-o", "--output", default=None, help=f"result folder (default: a new folder {default})"
+            "-o",
+            "--output",
+            default=None,
+            help=f"result folder (default: a new folder {default}, or {default}-2, -3, ... "
+            "if taken); a folder that a failed run left without results is reused",
         )
         group = sp.add_mutually_exclusive_group()
         group.add_argument(
-            "--overwrite", action="store_true", help="allow writing into a non-empty -o"
+            "--overwrite",
+            action="store_true",
+            help="replace the results in -o: the run writes into .NAME.partial beside it and "
+            "swaps it in whole when it ends; if it fails, the old results stay",
         )
         if resume:
             group.add_argument(
@@ -88,7 +95,7 @@ def _parser() -> argparse.ArgumentParser:
         epilog="example: shellobstacle solve examples/paper.toml -o paper-run",
     )
     common(s)
-    output(s, resume=False, default="named after the config")
+    output(s, resume=False, default="CONFIG-solve")
     s.add_argument(
         "--force",
         action="store_true",
@@ -110,9 +117,11 @@ def _parser() -> argparse.ArgumentParser:
         epilog="example: shellobstacle reproduce -o paper  (add --full for the paper's sizes; "
         "after an interruption: shellobstacle reproduce -o paper --resume)",
     )
-    output(r, resume=True, default="paper-results")
+    output(r, resume=True, default="reproduce-MODE")
     r.add_argument(
-        "--full", action="store_true", help="the paper's sizes (h ≈ 0.0312, 0.0078, 0.0039; long)"
+        "--full",
+        action="store_true",
+        help="the paper's sizes (h ≈ 0.0312, 0.0078, 0.0039; long); mode full, else fast",
     )
     verbosity(r)
 
@@ -183,7 +192,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     outside the model's validity, 130 interrupted)."""
     args = _parser().parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
-    args.folder = None  # the result folder, once known (for the interruption message)
+    args.folder = None  # the ResultFolder, once known (for the messages below)
+    args.report = None  # the Reporter, whose log.txt also gets how the run ended
     from shellobstacle.checks import AssumptionError
     from shellobstacle.config import ConfigError
     from shellobstacle.expressions import ExpressionError
@@ -206,26 +216,55 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "experiment":
             return commands.experiment(args)
     except (ConfigError, ExpressionError, AssumptionError, ResultsError) as err:
+        _record(args, f"error: {err}")
         if MPI.COMM_WORLD.rank == 0:
-            print(f"shellobstacle: error: {err}", file=sys.stderr)
+            print(f"shellobstacle: error: {err}{_kept(args)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
+        _record(args, "interrupted")
         if MPI.COMM_WORLD.rank == 0:
-            hint = ""
-            if args.folder is not None and hasattr(args, "resume"):
-                hint = (
-                    f"; the finished steps are recorded in {args.folder}/steps/: continue with "
-                    f"the same command and --resume -o {args.folder}"
-                )
-            print(f"shellobstacle: interrupted{hint}", file=sys.stderr)
+            print(f"shellobstacle: interrupted{_resume_hint(args) or _kept(args)}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except Exception:
+        _record(args, f"internal error (a bug):\n{traceback.format_exc()}")
         if MPI.COMM_WORLD.rank == 0:
             traceback.print_exc()
             print(
                 "shellobstacle: internal error (a bug): please report it with the traceback "
-                "above and your config file",
+                f"above and your config file{_kept(args)}",
                 file=sys.stderr,
             )
         return EXIT_FAILED
     return EXIT_USAGE
+
+
+def _record(args: argparse.Namespace, text: str) -> None:
+    """Write how the run ended into its log.txt (once the run has one)."""
+    if args.report is not None:
+        args.report.record(text)
+
+
+def _logged(args: argparse.Namespace) -> bool:
+    return args.folder is not None and args.report is not None and args.report.log is not None
+
+
+def _kept(args: argparse.Namespace) -> str:
+    """For a failed replacement (--overwrite): the old results are kept, the log is beside."""
+    if not _logged(args) or not args.folder.staged:
+        return ""
+    return (
+        f" ({args.folder.target}/ is unchanged; this run's log is {args.folder.path}/log.txt, "
+        "removed by the next run)"
+    )
+
+
+def _resume_hint(args: argparse.Namespace) -> str:
+    """For an interrupted experiment or reproduce: where its steps are and how to continue."""
+    if args.folder is None or not hasattr(args, "resume"):
+        return ""
+    folder = args.folder
+    unchanged = f" ({folder.target}/ is unchanged until it finishes)" if folder.staged else ""
+    return (
+        f"; the finished steps are recorded in {folder.path}/steps/: continue with the same "
+        f"command and --resume -o {folder.target}{unchanged}"
+    )

@@ -47,9 +47,10 @@ def solve(args: argparse.Namespace) -> int:
         warnings.simplefilter("always")
         cfg = load_config(args.config, args.set)
     report = Reporter(args.quiet, args.verbose)
+    args.report = report
     for w in caught:
         report(f"warning: {w.message}")
-    default = f"{Path(args.config).stem}-results"
+    default = f"{Path(args.config).stem}-solve"
     return run_and_write(
         cfg,
         args.output,
@@ -58,6 +59,7 @@ def solve(args: argparse.Namespace) -> int:
         args.force,
         report,
         [str(w.message) for w in caught],
+        args,
     )
 
 
@@ -69,16 +71,24 @@ def run_and_write(
     force: bool,
     report: Reporter,
     config_warnings: Sequence[str] = (),
+    args: argparse.Namespace | None = None,
 ) -> int:
-    """Solve a config and write its result folder; returns the exit code."""
+    """Solve a config and write its result folder; returns the exit code.
+
+    A solve that does not converge has results too (the last iterate, the residual history):
+    they replace an old folder like a converged solve's, and the exit code is 1.
+    """
     from shellobstacle.config import to_toml
     from shellobstacle.io.folders import atomic_write, prepare_folder
     from shellobstacle.io.summary import write_solution
     from shellobstacle.pipeline import solve_config
 
-    folder = prepare_folder(output, default, overwrite)
+    where = prepare_folder(output, default, overwrite)
+    if args is not None:
+        args.folder = where
+    folder = where.path
     report.attach(folder / "log.txt")
-    report(f"results go to {folder}/")
+    _announce(where, report)
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -87,19 +97,40 @@ def run_and_write(
     summary = write_solution(result, cfg, folder, report, seen)
     if not result.converged:
         report(f"FAILED: {result.error}")
-        report(f"the last iterate and the residual history are in {folder}/")
+        report(f"the last iterate and the residual history are in {where.target}/")
+        _commit(where, report)
         return EXIT_FAILED
     report(
         f"done: κ = {summary['kappa']:.3e}, contact area {summary['contact_area']:.5g} "
         f"(projected {summary['contact_area_projected']:.5g}), min ζ_3 = {summary['zeta3_min']:.5g}"
     )
+    _commit(where, report)
     if not summary["validity"]["valid"]:
         report(
             "the solution is outside the model's validity (see the warnings above and "
-            f"{folder}/summary.json's 'validity'): exit status {EXIT_INVALID}"
+            f"{where.target}/summary.json's 'validity'): exit status {EXIT_INVALID}"
         )
         return EXIT_INVALID
     return EXIT_OK
+
+
+def _announce(where: Any, report: Reporter, note: str = "") -> None:
+    """Say where the results go (and, for a replacement, where they are written first)."""
+    staged = ""
+    if where.staged:
+        staged = (
+            f"; written to {where.path}/ and swapped in when the run ends, the old results "
+            "stay until then"
+        )
+    report(f"results go to {where.target}/{note}{staged}")
+
+
+def _commit(where: Any, report: Reporter) -> None:
+    """The run has ended with results: put them in place (a replacement is swapped in)."""
+    where.commit()
+    if where.staged:
+        report.log = where.target / "log.txt"
+        report(f"replaced {where.target}/ with this run's results")
 
 
 def reproduce(args: argparse.Namespace) -> int:
@@ -109,19 +140,21 @@ def reproduce(args: argparse.Namespace) -> int:
     from shellobstacle.io.folders import prepare_folder
 
     mode = "full" if args.full else "fast"
+    args.report = report = Reporter(args.quiet, args.verbose)
     meta = {
         "command": "reproduce",
         "mode": mode,
         "config": _compared_config(load_config(PAPER_CONFIG)),
     }
-    folder = prepare_folder(args.output, "paper-results", args.overwrite, resume=args.resume)
-    args.folder = folder
-    report = Reporter(args.quiet, args.verbose)
+    where = prepare_folder(args.output, f"reproduce-{mode}", args.overwrite, resume=args.resume)
+    args.folder = where
+    folder = where.path
     checkpoint = _open_checkpoint(folder, meta, args, report)
     report.attach(folder / "log.txt", append=args.resume)
-    report(f"results go to {folder}/ (mode {mode}{', resumed' if args.resume else ''})")
+    _announce(where, report, f" (mode {mode}{', resumed' if args.resume else ''})")
     reproduce(folder, mode, report, checkpoint, report.newton)
     _finish(checkpoint, report)
+    _commit(where, report)
     return EXIT_OK
 
 
@@ -175,12 +208,22 @@ def _floats(text: str, what: str) -> list[float]:
 def _experiment_options(args: argparse.Namespace) -> dict[str, Any]:
     """The options of ``args.batch`` that change its numbers (compared on ``--resume``)."""
     if args.batch == "penalty":
+        from shellobstacle.config import ConfigError
+        from shellobstacle.schema import SCHEMA
+
+        quadratures = [v.strip() for v in args.quadratures.split(",")]
+        choices = SCHEMA["discretization"]["penalty_quadrature"].choices
+        for q in quadratures:
+            if q not in choices:
+                raise ConfigError(
+                    f"--quadratures: {q!r} is not one of {', '.join(map(repr, choices))}"
+                )
         return {
             "--start": args.start,
             "--step": args.step,
             "--q-max": args.q_max,
             "--tol": args.tol,
-            "--quadratures": [v.strip() for v in args.quadratures.split(",")],
+            "--quadratures": quadratures,
         }
     if args.batch == "mesh":
         return {
@@ -219,11 +262,14 @@ def experiment(args: argparse.Namespace) -> int:
         "config": _compared_config(cfg),
     }
     default = f"{Path(args.config).stem}-{args.batch}"
-    folder = prepare_folder(args.output, default, args.overwrite, resume=args.resume)
-    args.folder = folder
     report = Reporter(args.quiet, args.verbose)
+    args.report = report
+    where = prepare_folder(args.output, default, args.overwrite, resume=args.resume)
+    args.folder = where
+    folder = where.path
     checkpoint = _open_checkpoint(folder, meta, args, report)
     report.attach(folder / "log.txt", append=args.resume)
+    _announce(where, report, " (resumed)" if args.resume else "")
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
     kw: dict[str, Any] = {"checkpoint": checkpoint, "newton_progress": report.newton}
     if args.batch == "penalty":
@@ -261,8 +307,9 @@ def experiment(args: argparse.Namespace) -> int:
             "interrupted run (`steps/`), not recomputed; their `seconds` are those of that run.\n"
         )
     atomic_write(folder / "report.md", f"# Experiment {args.batch}: {args.config}\n\n{text}")
-    report(f"report written: {folder / 'report.md'}")
+    report(f"report written: {where.target / 'report.md'}")
     _finish(checkpoint, report)
+    _commit(where, report)
     return EXIT_OK
 
 

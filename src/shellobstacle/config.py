@@ -205,8 +205,10 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     if "h" in d and not d["h"] > 0:
         raise ConfigError(f"{source}: domain.h must be > 0, got {d['h']}")
     if "path" in d and not Path(d["path"]).is_absolute():
+        # relative to the config; the resolved config (a result folder's config.toml) holds
+        # the absolute path, so that it reruns from anywhere
         base = Path(source).parent if source not in ("<config>", "") else Path(".")
-        d["path"] = str((base / d["path"]).resolve())
+        d["path"] = r["domain"]["path"] = str((base / d["path"]).resolve())
     if not 0 <= d["refinements"] <= 8:
         raise ConfigError(
             f"{source}: domain.refinements must be in 0..8 (each multiplies the cells by 4), "

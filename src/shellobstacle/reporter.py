@@ -53,6 +53,20 @@ class Reporter:
             with self.log.open("a") as f:
                 f.write(line + "\n")
 
+    def record(self, text: str) -> None:
+        """Append ``text`` (how the run ended: an error, a traceback) to the log file only.
+
+        The terminal gets it from :func:`shellobstacle.cli.main`; nothing happens before the
+        log file is known.
+        """
+        if self.log is None or MPI.COMM_WORLD.rank != 0:
+            return
+        try:
+            with self.log.open("a") as f:
+                f.write(f"[{time.perf_counter() - self.start:7.1f}s] {text.rstrip()}\n")
+        except OSError:  # the folder is gone: the terminal still has the message
+            pass
+
     def attach(self, path: Path, append: bool = False) -> None:
         """Start logging to ``path`` (the lines so far are written first).
 

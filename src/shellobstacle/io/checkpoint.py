@@ -94,10 +94,10 @@ def open_checkpoint(
 ) -> Checkpoint:
     """Start recording in ``folder/steps`` (a fresh run) or check it for ``--resume``.
 
-    A fresh run removes an earlier ``steps/`` (the folder was allowed with ``--overwrite``) and
-    writes ``meta.json``. A resumed run compares ``meta`` with the recorded one on the keys
-    :data:`COMPARED` and refuses (:class:`CheckpointError`, naming the difference) if they
-    differ.
+    A fresh run writes ``meta.json`` into a new ``steps/`` (an earlier one is removed, though
+    :func:`~shellobstacle.io.folders.prepare_folder` gives a fresh run a folder without it).
+    A resumed run compares ``meta`` with the recorded one on the keys :data:`COMPARED` and
+    refuses (:class:`CheckpointError`, naming the difference) if they differ.
     """
     steps = Path(folder) / STEPS
     meta = _normalize(meta)
