@@ -99,7 +99,8 @@ def _parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--force",
         action="store_true",
-        help="proceed although the theory's assumptions fail (recorded in the results)",
+        help="proceed although the theory's assumptions fail (recorded in the results) or the "
+        "mesh looks too large for this machine's memory",
     )
 
     c = sub.add_parser(
@@ -109,6 +110,11 @@ def _parser() -> argparse.ArgumentParser:
         epilog="example: shellobstacle check examples/paper.toml",
     )
     common(c, verbose=False)
+    c.add_argument(
+        "--force",
+        action="store_true",
+        help="mesh although the mesh looks too large for this machine's memory",
+    )
 
     r = sub.add_parser(
         "reproduce",
@@ -149,7 +155,11 @@ def _parser() -> argparse.ArgumentParser:
     e.add_argument("--step", type=float, default=0.5, help="penalty: exponent step (0.5)")
     e.add_argument("--q-max", type=float, default=12.0, help="penalty: last exponent tried (12)")
     e.add_argument("--tol", type=float, default=2e-6, help="stop below this difference (2e-6)")
-    e.add_argument("--quadratures", default="gauss,vertex", help="penalty: penalty quadratures")
+    e.add_argument(
+        "--quadratures",
+        default=None,
+        help="penalty: penalty quadratures (gauss,vertex with P1 elements, gauss with P2)",
+    )
     e.add_argument("--q", default="0.4,0.5,0.6,0.7,1.0,1.3", help="mesh: exponents q")
     e.add_argument("--refinements", type=int, default=3, help="mesh: uniform refinements (3)")
     e.add_argument("--parameter", default="ell", help="load: the [load] parameter to sweep")
@@ -171,6 +181,11 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="koiter-limit: width of the band meshed at --edge-h (default: domain.edge_width, "
         "else 3√(smallest ε))",
+    )
+    e.add_argument(
+        "--force",
+        action="store_true",
+        help="proceed although a mesh looks too large for this machine's memory",
     )
 
     sub.add_parser(

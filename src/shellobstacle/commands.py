@@ -21,8 +21,11 @@ def check(args: argparse.Namespace) -> int:
     from shellobstacle.checks import check_assumptions, format_checks
     from shellobstacle.config import load_config
     from shellobstacle.pipeline import make_mesh
+    from shellobstacle.resources import require_fits
 
     cfg = load_config(args.config, args.set)
+    if not args.force:
+        require_fits(cfg.domain, solve=False)
     mesh = make_mesh(cfg.domain)
     checks = check_assumptions(cfg.shell, mesh)
     if MPI.COMM_WORLD.rank == 0:
@@ -82,7 +85,10 @@ def run_and_write(
     from shellobstacle.io.folders import atomic_write, prepare_folder
     from shellobstacle.io.summary import write_solution
     from shellobstacle.pipeline import solve_config
+    from shellobstacle.resources import require_fits
 
+    if not force:
+        require_fits(cfg.domain, cfg.shell.model, cfg.discretization.degree)
     where = prepare_folder(output, default, overwrite)
     if args is not None:
         args.folder = where
@@ -196,65 +202,28 @@ def _finish(checkpoint: Any, report: Reporter) -> None:
         )
 
 
-def _floats(text: str, what: str) -> list[float]:
-    from shellobstacle.config import ConfigError
-
-    try:
-        return [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise ConfigError(f"{what}: expected comma-separated numbers, got {text!r}") from None
-
-
-def _experiment_options(args: argparse.Namespace) -> dict[str, Any]:
-    """The options of ``args.batch`` that change its numbers (compared on ``--resume``)."""
-    if args.batch == "penalty":
-        from shellobstacle.config import ConfigError
-        from shellobstacle.schema import SCHEMA
-
-        quadratures = [v.strip() for v in args.quadratures.split(",")]
-        choices = SCHEMA["discretization"]["penalty_quadrature"].choices
-        for q in quadratures:
-            if q not in choices:
-                raise ConfigError(
-                    f"--quadratures: {q!r} is not one of {', '.join(map(repr, choices))}"
-                )
-        return {
-            "--start": args.start,
-            "--step": args.step,
-            "--q-max": args.q_max,
-            "--tol": args.tol,
-            "--quadratures": quadratures,
-        }
-    if args.batch == "mesh":
-        return {
-            "--q": _floats(args.q, "--q"),
-            "--refinements": args.refinements,
-            "--tol": args.tol,
-        }
-    if args.batch == "solvers":
-        return {"--sizes": _floats(args.sizes, "--sizes"), "--exponent": args.exponent}
-    if args.batch == "koiter-limit":
-        return {
-            "--epsilons": _floats(args.epsilons, "--epsilons"),
-            "--edge-h": args.edge_h,
-            "--edge-width": args.edge_width,
-        }
-    return {"--parameter": args.parameter, "--values": _floats(args.values, "--values")}
-
-
 def experiment(args: argparse.Namespace) -> int:
     """One batch on a user's config."""
     from shellobstacle.config import ConfigError, load_config, to_toml
     from shellobstacle.experiments import koiter_limit, load, mesh, solvers
     from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
     from shellobstacle.io.folders import atomic_write, prepare_folder
+    from shellobstacle.options import experiment_domains, experiment_options
+    from shellobstacle.resources import require_fits
 
     cfg = load_config(args.config, args.set)
     if args.batch == "load" and cfg.penalty.exponent is None:
         raise ConfigError("experiment load needs penalty.exponent (κ = h^exponent)")
-    options = _experiment_options(args)
+    options = experiment_options(args, cfg)
     if args.batch == "koiter-limit":
         koiter_limit.validate(cfg, options["--epsilons"], args.edge_h, args.edge_width)
+    if not args.force:
+        for domain in experiment_domains(args, cfg, options):
+            model, degree = cfg.shell.model, cfg.discretization.degree
+            if args.batch == "koiter-limit":
+                model, degree = "koiter", 2
+            option = {"solvers": "--sizes", "koiter-limit": "--edge-h/--edge-width"}
+            require_fits(domain, model, degree, what=option.get(args.batch, "[domain]"))
     meta = {
         "command": "experiment",
         "batch": args.batch,

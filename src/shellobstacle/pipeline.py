@@ -123,7 +123,8 @@ def solve(
             for ``method = "active-set"``.
         discretization: element degree, boundary condition of ζ_3, penalty quadrature.
         options: Newton tolerances and linear solver.
-        force: proceed (with a warning) when the theory's assumptions fail.
+        force: proceed (with a warning) when the theory's assumptions fail, and mesh even
+            when the mesh looks too large for this machine (:mod:`shellobstacle.resources`).
         progress: called with one-line progress messages.
         method: ``"newton"`` (continuation in κ), ``"brezis-sibony"`` (the iteration (38) at
             the target κ) or ``"active-set"`` (the exact nodal VI, κ = 0).
@@ -133,6 +134,7 @@ def solve(
 
     Raises:
         AssumptionError: the data violate MODEL.md §3 (unless ``force``).
+        ResourceError: the mesh would not fit in this machine's memory (unless ``force``).
     """
     if method not in METHODS:
         raise ConfigError(f"solver.method must be one of {METHODS}, got {method!r}")
@@ -142,6 +144,10 @@ def solve(
     timings: dict[str, float] = {}
     t = time.perf_counter()
     if isinstance(domain, DomainSpec):
+        if not force:
+            from shellobstacle.resources import require_fits
+
+            require_fits(domain, shell.model, (discretization or Discretization()).degree)
         say(f"meshing {domain.kind} (target h = {domain.h})")
         mesh = make_mesh(domain, ghosted=shell.model == "koiter")
     else:

@@ -107,7 +107,7 @@ def require_fits(
     need += BASE_BYTES * on_node
     have = machine_memory()
     if need > MEMORY_SHARE * have:
-        size = f"h = {spec.h:g}" if spec.kind != "file" else f"{spec.path}"
+        size = _describe(spec)
         task = "solving" if solve else "meshing"
         raise ResourceError(
             f"{what}: {size} gives about {est.vertices:.2g} vertices and {est.dofs:.2g} dofs; "
@@ -115,6 +115,17 @@ def require_fits(
             f"{have / 1e9:.3g} GB: use a larger h (or more machines under MPI), or pass --force"
         )
     return est
+
+
+def _describe(spec: DomainSpec) -> str:
+    """The sizes that set the mesh's vertices, as the user wrote them."""
+    parts = [f"h = {spec.h:g}" if spec.kind != "file" else f"the mesh {spec.path}"]
+    for name in ("central_h", "edge_h"):
+        if getattr(spec, name) is not None:
+            parts.append(f"{name} = {getattr(spec, name):g}")
+    if spec.refinements:
+        parts.append(f"{spec.refinements} refinement(s)")
+    return ", ".join(parts)
 
 
 def _msh_nodes(path: Path) -> float | None:

@@ -1,0 +1,147 @@
+"""Options and sizes checked before any work: every experiment option (shellobstacle.options)
+and the estimated size of every mesh against the machine (shellobstacle.resources).
+
+Each mistake ends with exit 2, one line on stderr naming the option, and no result folder.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mpi4py import MPI
+
+import gmsh
+import pytest
+
+from shellobstacle import resources
+from shellobstacle.cli import main
+from shellobstacle.config import ConfigError
+from shellobstacle.domains import DomainSpec
+from shellobstacle.meshing import create_mesh
+from shellobstacle.options import MAX_STEPS, numbers
+from shellobstacle.resources import estimate, mesh_vertices
+
+EXAMPLES = Path(__file__).parents[1] / "examples"
+PAPER, KOITER = str(EXAMPLES / "paper.toml"), str(EXAMPLES / "cylinder_koiter.toml")
+COARSE = ["--set", "domain.h=0.1"]
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
+
+BAD_OPTIONS = [
+    (["penalty", PAPER, *COARSE, "--step", "0"], "--step must be a positive number"),
+    (["penalty", PAPER, *COARSE, "--start", "-1"], "--start must be a positive number"),
+    (["penalty", PAPER, *COARSE, "--tol", "nan"], "--tol must be a positive number"),
+    (["penalty", PAPER, *COARSE, "--q-max", "0.2"], "--q-max (0.2) must be at least --start"),
+    (["penalty", PAPER, *COARSE, "--step", "1e-5"], f"more than {MAX_STEPS} exponents"),
+    (["penalty", PAPER, *COARSE, "--quadratures", "gaus"], "'gaus' is not one of"),
+    (["penalty", PAPER, *COARSE, "--quadratures", ","], "expected one or more of"),
+    (["penalty", PAPER, *COARSE, "--quadratures", "gauss,gauss"], "names a quadrature twice"),
+    (["penalty", KOITER, *COARSE, "--quadratures", "vertex"], "use --quadratures gauss"),
+    (["mesh", PAPER, *COARSE, "--q", ""], "--q: expected at least one number"),
+    (["mesh", PAPER, *COARSE, "--q", "1,-1"], "--q: expected positive numbers, got -1"),
+    (["mesh", PAPER, *COARSE, "--q", "inf"], "--q: expected positive numbers, got inf"),
+    (["mesh", PAPER, *COARSE, "--q", "a,b"], "--q: expected comma-separated numbers"),
+    (["mesh", PAPER, *COARSE, "--refinements", "-1"], "--refinements must be between 0"),
+    (["load", KOITER, *COARSE, "--parameter", "foo"], "--parameter 'foo': the load has no"),
+    (["load", KOITER, *COARSE, "--parameter", "P", "--values", ""], "--values: expected at"),
+    (["solvers", PAPER, "--sizes", "5"], "--sizes: mesh size h=5.0 exceeds"),
+    (["solvers", PAPER, "--sizes", "0"], "--sizes: expected positive numbers"),
+    (["solvers", PAPER, *COARSE, "--exponent", "0"], "--exponent must be a positive"),
+    (["koiter-limit", PAPER, *COARSE, "--epsilons", "0"], "--epsilons: expected positive"),
+    (["koiter-limit", PAPER, *COARSE, "--edge-h", "-1"], "--edge-h must be a positive"),
+    (["solvers", PAPER, "--sizes", "0.0003"], "--sizes: h = 0.0003 gives about"),
+    (["koiter-limit", PAPER, "--edge-h", "1e-5"], "edge_h = 1e-05 gives about"),
+    (["mesh", PAPER, "--refinements", "8"], "8 refinement(s) gives about"),
+]
+
+
+@pytest.mark.parametrize(("args", "message"), BAD_OPTIONS, ids=lambda v: str(v)[:40])
+def test_bad_experiment_options_are_refused_before_any_work(
+    args: list[str], message: str, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """Exit 2, one stderr line naming the option and what is wrong, no folder made."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["experiment", *args, "-q"]) == 2
+    err = capsys.readouterr().err
+    assert message in err, err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_numbers() -> None:
+    assert numbers("1, 2,3 ,", "--x") == [1.0, 2.0, 3.0]
+    with pytest.raises(ConfigError, match="at most"):
+        numbers(",".join(["1"] * (MAX_STEPS + 1)), "--x")
+    with pytest.raises(ConfigError, match="expected finite numbers, got nan"):
+        numbers("1,nan", "--x")
+
+
+@pytest.mark.parametrize(
+    "spec",
+    [
+        DomainSpec("disk", 0.05),
+        DomainSpec("disk", 0.05, central_h=0.01, central_radius=0.1),
+        DomainSpec("ellipse", 0.04, semi_axes=(0.6, 0.3), edge_h=0.01, edge_width=0.05),
+        DomainSpec("polygon", 0.05, vertices=((0, 0), (1, 0), (1, 1), (0.5, 0.4), (0, 1))),
+        DomainSpec("rectangle", 0.07, corners=((0, 0), (1, 0.5)), refinements=2),
+        DomainSpec("disk", 0.1, refinements=3),
+    ],
+    ids=["disk", "central", "edge", "polygon", "rectangle", "refined"],
+)
+def test_estimated_vertices_within_a_factor_of_the_mesh(spec: DomainSpec) -> None:
+    """The estimate that guards the memory is within a factor 1.5 of the real count."""
+    mesh = create_mesh(spec)
+    real = mesh.topology.index_map(0).size_global
+    assert real / 1.5 < mesh_vertices(spec) < 1.5 * real, (mesh_vertices(spec), real)
+
+
+def test_msh_file_node_count(tmp_path: Path) -> None:
+    """A file domain's vertices are read from its $Nodes header (4 per refinement)."""
+    path = str(tmp_path / "plate.msh")
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    try:
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.1)
+        gmsh.model.add("plate")
+        surface = gmsh.model.occ.addRectangle(0, 0, 0, 2, 1)
+        gmsh.model.occ.synchronize()
+        gmsh.model.addPhysicalGroup(2, [surface], 1)
+        gmsh.model.mesh.generate(2)
+        nodes = len(gmsh.model.mesh.getNodes()[0])
+        gmsh.write(path)
+    finally:
+        gmsh.finalize()
+    assert mesh_vertices(DomainSpec("file", path=path)) == nodes
+    assert mesh_vertices(DomainSpec("file", path=path, refinements=2)) == 16 * nodes
+    assert mesh_vertices(DomainSpec("file", path=str(tmp_path / "none.msh"))) is None
+
+
+def test_estimates_by_model() -> None:
+    """P1: 3 dofs per vertex; P2: 3 per vertex and edge (about 4 nodes per vertex)."""
+    spec = DomainSpec("disk", 0.05)
+    p1, p2 = estimate(spec, "membrane", 1), estimate(spec, "koiter", 2)
+    assert p1.dofs == 3 * p1.vertices and p2.dofs == 12 * p2.vertices
+    assert p2.bytes_solve / p2.dofs > p1.bytes_solve / p1.dofs
+
+
+@pytest.mark.parametrize("command", ["solve", "check", "experiment"])
+def test_too_large_for_this_machine_unless_force(
+    command: str, tmp_path: Path, monkeypatch, capsys
+) -> None:
+    """On a machine with 0.2 GB the paper's coarse mesh is refused (exit 2, one line with the
+    estimate and the machine's memory, no folder); --force proceeds."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(resources, "machine_memory", lambda: 0.2e9)
+    args = [*([command] if command != "experiment" else ["experiment", "solvers"]), PAPER]
+    args += ["-q", "--set", "domain.h=0.1", "--set", "output.paraview=false"]
+    if command == "experiment":
+        args += ["--sizes", "0.15"]
+    if command == "check":
+        monkeypatch.setattr(resources, "BYTES_PER_VERTEX_MESH", 1e6)
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "GB on this machine, which has 0.2 GB" in err and "--force" in err
+    assert len(err.strip().splitlines()) == 1
+    assert list(tmp_path.iterdir()) == []
+    assert main([*args, "--force"]) == 0
+    if command != "check":
+        assert len(list(tmp_path.iterdir())) == 1  # the result folder
