@@ -195,9 +195,12 @@ def test_out_of_range(capsys, tmp_path, changes, needles) -> None:
 
 
 def test_degree_3_through_set(capsys) -> None:
-    """The same errors come from ``--set`` overrides."""
+    """The same errors come from ``--set`` overrides, naming the ``--set``, not the file."""
     code, _, err = run(capsys, "check", str(SMALL), "--set", "discretization.degree=3")
-    assert_user_error(code, err, "small.toml", "discretization.degree must be 1 or 2")
+    assert_user_error(
+        code, err, "--set discretization.degree=3: discretization.degree must be 1 or 2"
+    )
+    assert "small.toml" not in err
 
 
 # --------------------------------------------------------------------------- expressions
