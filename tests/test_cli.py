@@ -132,7 +132,7 @@ def test_force_proceeds_and_records_the_warning(tmp_path: Path) -> None:
     [
         ("domain.hh=0.1", "did you mean 'h'"),
         ("material.epsilon=-1", "epsilon must be > 0"),
-        ("penalty.kappa=1e-3", "not both"),
+        ("penalty.kappa=0", "--set penalty.kappa=0: penalty.kappa must be > 0"),
         ('load.p=["0", "0", "import os"]', "load.p[3]"),
         ("obstacle.q=[0, 0, 0]", "nonzero normal"),
         ("discretization.degree=3", "degree must be 1 or 2"),

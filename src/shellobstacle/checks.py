@@ -14,7 +14,9 @@ from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
 import dolfinx
 import numpy as np
 
+from shellobstacle.finiteness import Failure, first_failure, require_finite
 from shellobstacle.model import Shell
+from shellobstacle.surface import Geometry
 
 __all__ = ["AssumptionError", "Check", "check_assumptions", "format_checks", "sample_points"]
 
@@ -80,9 +82,8 @@ def _local_extreme(values: np.ndarray, points: np.ndarray, kind: str) -> Extreme
     return (float(values[i]), (float(points[i, 0]), float(points[i, 1])))
 
 
-def _quantities(shell: Shell, pts: np.ndarray) -> list[np.ndarray]:
-    """det(a_αβ), K, θ·q, a³·q and ε·max|κ_principal| at ``pts``."""
-    G = shell.surface.geometry_numpy(pts)
+def _quantities(shell: Shell, G: Geometry, n: int) -> list[np.ndarray]:
+    """det(a_αβ), K, θ·q, a³·q and ε·max|κ_principal| from ``G`` evaluated at ``n`` points."""
     q = np.asarray(shell.obstacle.q)
     with np.errstate(invalid="ignore", divide="ignore"):
         det_a = np.asarray(G.det_a, float)
@@ -91,7 +92,6 @@ def _quantities(shell: Shell, pts: np.ndarray) -> list[np.ndarray]:
         a3_q = sum(np.asarray(G.a3[k], float) * q[k] for k in range(3))
         H = np.asarray(G.mean_curvature, float)
         kmax = np.abs(H) + np.sqrt(np.maximum(H * H - K, 0.0))
-    n = len(pts)
     return [
         np.broadcast_to(v, (n,)) for v in (det_a, K, theta_q, a3_q, shell.material.epsilon * kmax)
     ]
@@ -118,8 +118,8 @@ ROWS = [
         "θ·q",
         "min",
         "min θ·q > 0",
-        "the reference shell must lie strictly inside {x·q > 0}: raise the offset or move "
-        "the plane (Lemma 3.1)",
+        "the reference shell must lie strictly inside {x·q > 0}: move the shell or the plane "
+        "(Lemma 3.1)",
     ),
     (
         "normal towards obstacle",
@@ -140,17 +140,43 @@ ROWS = [
 """name, quantity, extreme sought, requirement and hint of each check (order of _quantities)."""
 
 
+def _half_space_hint(shell: Shell, hint: str) -> str:
+    """For the caps, which way to move ``surface.offset``: θ_3 = … − offset, so θ·q falls by
+    q_3 for each unit of offset, and a shell below the plane needs a smaller offset when
+    q_3 > 0 (a larger one when q_3 < 0)."""
+    q3 = shell.obstacle.q[2]
+    if shell.surface.name not in ("spherical_cap", "ellipsoid_cap") or q3 == 0.0:
+        return hint
+    way = "lower" if q3 > 0 else "raise"
+    return (
+        "the reference shell must lie strictly inside {x·q > 0}: "
+        f"{way} surface.offset (it shifts the cap along −e_3) or move the plane (Lemma 3.1)"
+    )
+
+
 def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
     """Evaluate assumptions 1–4 and 6 of MODEL.md §3 (5, ``|q| = 1``, is enforced by Obstacle);
-    for Koiter's model the Gaussian curvature is reported but not required (§8)."""
+    for Koiter's model the Gaussian curvature is reported but not required (§8).
+
+    Raises:
+        ExpressionError: θ, its derivatives or the load are not finite at a point of the mesh
+            (:mod:`shellobstacle.finiteness`): the assumptions are then meaningless.
+    """
     pts = sample_points(mesh)
     found: list[list[Extreme]] = [[] for _ in ROWS]
+    failures: list[Failure | None] = []
     for start in range(0, max(len(pts), 1), CHUNK):
         chunk = pts[start : start + CHUNK]
-        for row, values, found_row in zip(ROWS, _quantities(shell, chunk), found, strict=True):
+        G = shell.surface.geometry_numpy(chunk)
+        failures.append(first_failure(shell, G, chunk))
+        quantities = _quantities(shell, G, len(chunk))
+        for row, values, found_row in zip(ROWS, quantities, found, strict=True):
             found_row.append(_local_extreme(values, chunk, row[2]))
+    require_finite(shell, failures, mesh.comm)
     checks = []
     for (name, quantity, kind, requirement, hint), local in zip(ROWS, found, strict=True):
+        if name == "inside half-space":
+            hint = _half_space_hint(shell, hint)
         value, where = _pick(mesh.comm.allgather(_pick(local, kind)), kind)
         ok = bool(np.isfinite(value) and (value < 1.0 if kind == "max" else value > 0.0))
         if name == "elliptic" and shell.model == "koiter":

@@ -6,8 +6,8 @@ Keys, types and defaults come from :mod:`shellobstacle.schema`.
 from __future__ import annotations
 
 import dataclasses
-import difflib
 import math
+import re
 import tomllib
 import warnings
 from collections.abc import Mapping
@@ -17,6 +17,7 @@ from typing import Any
 
 from shellobstacle.domains import DomainSpec
 from shellobstacle.expressions import ExpressionError
+from shellobstacle.messages import not_one_of, suggest
 from shellobstacle.model import (
     Discretization,
     Load,
@@ -26,10 +27,10 @@ from shellobstacle.model import (
     Shell,
 )
 from shellobstacle.schema import REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
-from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions
 from shellobstacle.surface import Surface
 
-__all__ = ["Config", "ConfigError", "load_config", "parse_config", "to_toml"]
+__all__ = ["Config", "ConfigError", "apply_overrides", "load_config", "parse_config", "to_toml"]
 
 
 class ConfigError(ValueError):
@@ -51,13 +52,32 @@ class Config:
     source: str
 
 
-def _suggest(name: str, options: list[str]) -> str:
-    close = difflib.get_close_matches(name, options, n=1, cutoff=0.5)
-    return f"; did you mean {close[0]!r}?" if close else f"; valid keys: {', '.join(options)}"
+class _Origins:
+    """Which ``--set`` gave a key, so that an error names it rather than the file."""
+
+    def __init__(self, source: str, given: Mapping[str, str] | None) -> None:
+        self.source = source
+        self.given = dict(given or {})
+
+    def of(self, prefix: str) -> str:
+        """The ``--set`` that gave ``prefix`` or a key inside it, else the file."""
+        for dotted, text in reversed(self.given.items()):
+            if dotted == prefix or dotted.startswith(prefix + "."):
+                return text
+        return self.source
+
+    def named_in(self, message: str) -> str:
+        """The ``--set`` texts whose keys ``message`` names, else the file."""
+        texts = [
+            text
+            for dotted, text in self.given.items()
+            if re.search(rf"(?<![\w.]){re.escape(dotted)}(?!\w)", message)
+        ]
+        return ", ".join(dict.fromkeys(texts)) or self.source
 
 
-def _coerce(value: Any, key: Key, where: str) -> Any:
-    """Check and convert one value to the key's type."""
+def _coerce(value: Any, key: Key, where: str, origin: str, dotted: str) -> Any:
+    """Check and convert one value to the key's type (``where`` = ``origin: dotted``)."""
 
     def number(v: Any, what: str) -> float:
         if isinstance(v, bool) or not isinstance(v, int | float):
@@ -85,10 +105,7 @@ def _coerce(value: Any, key: Key, where: str) -> Any:
         if not isinstance(value, str):
             raise ConfigError(f"{where} must be a string, got {value!r}")
         if key.choices and value not in key.choices:
-            raise ConfigError(
-                f"{where} = {value!r} is not one of {', '.join(map(repr, key.choices))}"
-                + _suggest(value, list(key.choices)).replace("valid keys", "choices")
-            )
+            raise ConfigError(f"{origin}: {not_one_of(dotted, value, key.choices)}")
         return value
     if t.startswith(("float[", "str[", "str|float[")):
         n = int(t[t.index("[") + 1 : -1])
@@ -121,20 +138,30 @@ def _coerce(value: Any, key: Key, where: str) -> Any:
     raise AssertionError(t)
 
 
-def parse_config(data: Mapping[str, Any], source: str = "<config>") -> Config:
+def parse_config(
+    data: Mapping[str, Any], source: str = "<config>", overrides: Mapping[str, str] | None = None
+) -> Config:
     """Validate a parsed TOML document and build a :class:`Config`.
 
+    Args:
+        data: the document.
+        source: the file it came from, named in errors.
+        overrides: dotted key → the ``--set`` text that gave it (:func:`apply_overrides`);
+            errors about those keys name the ``--set`` instead of the file.
+
     Raises:
-        ConfigError: naming ``source``, the section, the key and the fix.
+        ConfigError: naming the file (or ``--set``), the section, the key and the fix.
     """
+    origins = _Origins(source, overrides)
     resolved: dict[str, dict[str, Any]] = {}
     for section in data:
         if section not in SCHEMA:
             raise ConfigError(
-                f"{source}: unknown section [{section}]" + _suggest(section, list(SCHEMA))
+                f"{origins.of(section)}: unknown section [{section}]"
+                + suggest(section, list(SCHEMA))
             )
         if not isinstance(data[section], dict):
-            raise ConfigError(f"{source}: [{section}] must be a table of keys")
+            raise ConfigError(f"{origins.of(section)}: [{section}] must be a table of keys")
     for section in REQUIRED_SECTIONS:
         if section not in data:
             raise ConfigError(f"{source}: missing section [{section}]")
@@ -146,13 +173,15 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>") -> Config:
         for name in given:
             if name not in keys:
                 raise ConfigError(
-                    f"{source}: unknown key '{name}' in [{section}]" + _suggest(name, list(keys))
+                    f"{origins.of(f'{section}.{name}')}: unknown key '{name}' in [{section}]"
+                    + suggest(name, list(keys))
                 )
         out: dict[str, Any] = {}
         for name, key in keys.items():
-            where = f"{source}: {section}.{name}"
+            dotted = f"{section}.{name}"
+            origin = origins.of(dotted)
             if name in given:
-                out[name] = _coerce(given[name], key, where)
+                out[name] = _coerce(given[name], key, f"{origin}: {dotted}", origin, dotted)
             elif key.default is REQUIRED:
                 raise ConfigError(f"{source}: missing key '{name}' in [{section}] ({key.help})")
             elif key.default is not None:
@@ -160,36 +189,36 @@ def parse_config(data: Mapping[str, Any], source: str = "<config>") -> Config:
         resolved[section] = out
     try:
         return _build(resolved, source)
-    except ConfigError:
-        raise
-    except (ValueError, ExpressionError) as err:
-        raise ConfigError(f"{source}: {err}") from None
+    except (ValueError, ExpressionError) as err:  # ConfigError is a ValueError
+        raise ConfigError(f"{origins.named_in(str(err))}: {err}") from None
 
 
-def _need(
-    sec: Mapping[str, Any], section: str, names: tuple[str, ...], why: str, source: str
-) -> None:
+def _need(sec: Mapping[str, Any], section: str, names: tuple[str, ...], why: str) -> None:
     for n in names:
         if n not in sec:
-            raise ConfigError(f"{source}: [{section}] needs '{n}' for {why}")
+            raise ConfigError(f"[{section}] needs '{n}' for {why}")
+
+
+def _surface(s: Mapping[str, Any]) -> Surface:
+    """The surface of ``[surface]``."""
+    kind = s["kind"]
+    if kind == "spherical_cap":
+        _need(s, "surface", ("radius", "offset"), "kind = 'spherical_cap'")
+        return Surface.spherical_cap(s["radius"], s["offset"])
+    if kind == "ellipsoid_cap":
+        _need(s, "surface", ("semi_axes", "offset"), "kind = 'ellipsoid_cap'")
+        return Surface.ellipsoid_cap(s["semi_axes"], s["offset"])
+    if kind == "elliptic_paraboloid":
+        _need(s, "surface", ("height", "curvatures"), "kind = 'elliptic_paraboloid'")
+        return Surface.elliptic_paraboloid(s["height"], s["curvatures"])
+    _need(s, "surface", ("theta",), "kind = 'expression'")
+    return Surface.from_strings(s["theta"])
 
 
 def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
-    s = r["surface"]
-    kind = s["kind"]
-    if kind == "spherical_cap":
-        _need(s, "surface", ("radius", "offset"), "kind = 'spherical_cap'", source)
-        surface = Surface.spherical_cap(s["radius"], s["offset"])
-    elif kind == "ellipsoid_cap":
-        _need(s, "surface", ("semi_axes", "offset"), "kind = 'ellipsoid_cap'", source)
-        surface = Surface.ellipsoid_cap(s["semi_axes"], s["offset"])
-    elif kind == "elliptic_paraboloid":
-        _need(s, "surface", ("height", "curvatures"), "kind = 'elliptic_paraboloid'", source)
-        surface = Surface.elliptic_paraboloid(s["height"], s["curvatures"])
-    else:
-        _need(s, "surface", ("theta",), "kind = 'expression'", source)
-        surface = Surface.from_strings(s["theta"])
-
+    """The objects of a resolved configuration; their constructors validate (the API's
+    messages, which :func:`parse_config` prefixes with the file or the ``--set``)."""
+    surface = _surface(r["surface"])
     m = r["material"]
     material = Material(m["epsilon"], m["lambda"], m["mu"])
     load = Load(tuple(r["load"]["p"]), dict(r["load"].get("parameters", {})))
@@ -198,47 +227,17 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     shell.load_expressions()  # parse now: errors name the key
 
     d = dict(r["domain"])
-    if d["kind"] != "file" and "h" not in d:
-        raise ConfigError(
-            f"{source}: [domain] needs 'h' (target mesh size) for kind = '{d['kind']}'"
-        )
-    if "h" in d and not d["h"] > 0:
-        raise ConfigError(f"{source}: domain.h must be > 0, got {d['h']}")
     if "path" in d and not Path(d["path"]).is_absolute():
         # relative to the config; the resolved config (a result folder's config.toml) holds
         # the absolute path, so that it reruns from anywhere
         base = Path(source).parent if source not in ("<config>", "") else Path(".")
         d["path"] = r["domain"]["path"] = str((base / d["path"]).resolve())
-    if not 0 <= d["refinements"] <= 8:
-        raise ConfigError(
-            f"{source}: domain.refinements must be in 0..8 (each multiplies the cells by 4), "
-            f"got {d['refinements']}"
-        )
     domain = DomainSpec(**d)
 
     disc = Discretization(**r["discretization"])
     sv = r["solver"]
     if model == "koiter":
-        if sv["method"] == "active-set":
-            raise ConfigError(
-                f"{source}: solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1, "
-                "and Koiter's model needs P2: use solver.method = 'newton' with a small κ"
-            )
-        if sv["linear_solver"] == "iterative":
-            raise ConfigError(
-                f"{source}: solver.linear_solver = 'iterative' preconditions ζ_3 as the "
-                "membrane's L² unknown, not Koiter's bending: use linear_solver = 'direct'"
-            )
-        if disc.degree != 2:
-            raise ConfigError(
-                f"{source}: model.kind = 'koiter' needs discretization.degree = 2 (ζ_3 ∈ H² by "
-                f"C⁰ interior penalty), got {disc.degree}: remove the key or set it to 2"
-            )
-        if disc.transverse != "clamped":
-            raise ConfigError(
-                f"{source}: model.kind = 'koiter' clamps ζ_3 and ∂_ν ζ_3 on γ: remove "
-                "discretization.transverse or set it to 'clamped'"
-            )
+        _koiter_choices(sv, disc)
 
     p = r.get("penalty", {})
     penalty = None
@@ -247,11 +246,11 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
             warnings.warn(
                 f"{source}: solver.method = 'active-set' solves the constraint exactly (κ = 0); "
                 "penalty.kappa / penalty.exponent are ignored",
-                stacklevel=2,
+                stacklevel=3,
             )
         if disc.degree != 1:
             raise ConfigError(
-                f"{source}: solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1: "
+                "solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1: "
                 "set discretization.degree = 1"
             )
         # the exact solver's constraint is the nodal one, whatever the penalty would use
@@ -260,12 +259,9 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         r["penalty"] = {}
     else:
         penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
-    if sv.get("xi") is not None and not sv["xi"] > 0:
-        raise ConfigError(f"{source}: solver.xi must be > 0, got {sv['xi']}")
-
-    for key in ("rtol", "stol", "bs_rtol"):
-        if sv[key] < 0:
-            raise ConfigError(f"{source}: solver.{key} must be >= 0, got {sv[key]}")
+    BrezisSibonyOptions(xi=sv.get("xi"), mass=sv["mass"], start=sv["start"])  # validates
+    if sv["bs_rtol"] < 0:
+        raise ConfigError(f"solver.bs_rtol must be >= 0, got {sv['bs_rtol']}")
     solver = NewtonOptions(
         rtol=sv["rtol"],
         stol=sv["stol"],
@@ -277,35 +273,103 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     return Config(shell, domain, disc, penalty, solver, sv["method"], dict(r["output"]), r, source)
 
 
+def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
+    """The solver and discretization choices Koiter's model cannot take."""
+    if sv["method"] == "active-set":
+        raise ConfigError(
+            "solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1, "
+            "and Koiter's model needs P2: use solver.method = 'newton' with a small κ"
+        )
+    if sv["linear_solver"] == "iterative":
+        raise ConfigError(
+            "solver.linear_solver = 'iterative' preconditions ζ_3 as the "
+            "membrane's L² unknown, not Koiter's bending: use linear_solver = 'direct'"
+        )
+    if disc.degree != 2:
+        raise ConfigError(
+            "model.kind = 'koiter' needs discretization.degree = 2 (ζ_3 ∈ H² by "
+            f"C⁰ interior penalty), got {disc.degree}: remove the key or set it to 2"
+        )
+    if disc.transverse != "clamped":
+        raise ConfigError(
+            "model.kind = 'koiter' clamps ζ_3 and ∂_ν ζ_3 on γ: remove "
+            "discretization.transverse or set it to 'clamped'"
+        )
+
+
 def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
-    """Read a TOML file, apply ``section.key=value`` overrides, validate.
+    """Read a TOML file, apply ``section.key=value`` overrides (:func:`apply_overrides`),
+    validate.
 
     Raises:
-        ConfigError: for a missing or malformed file and every validation problem.
+        ConfigError: for a missing, unreadable or malformed file and every validation problem.
     """
     path = Path(path)
-    if not path.is_file():
+    data = _read(path)
+    given = apply_overrides(data, overrides or [])
+    return parse_config(data, str(path), given)
+
+
+def _read(path: Path) -> dict[str, Any]:
+    """The TOML document in ``path``; a directory, a binary or unreadable file is refused."""
+    if path.is_dir():
+        raise ConfigError(f"config file {str(path)!r} is a directory: give a TOML file")
+    if not path.exists():
         raise ConfigError(f"config file {str(path)!r} does not exist")
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} is not a regular file: give a TOML file")
     try:
-        data = tomllib.loads(path.read_text())
+        raw = path.read_bytes()
+    except OSError as err:
+        raise ConfigError(f"config file {str(path)!r} cannot be read: {err.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ConfigError(
+            f"{path}: not a text file (byte {err.start} is not UTF-8): give a TOML config file"
+        ) from None
+    try:
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from None
-    for item in overrides or []:
-        apply_override(data, item, str(path))
-    return parse_config(data, str(path))
 
 
-def apply_override(data: dict[str, Any], item: str, source: str = "--set") -> None:
-    """Apply ``section.key=value`` (value in TOML syntax; bare words are strings)."""
-    if "=" not in item or "." not in item.split("=", 1)[0]:
-        raise ConfigError(f"--set {item!r}: expected section.key=value, e.g. domain.h=0.01")
-    lhs, rhs = item.split("=", 1)
-    section, key = lhs.strip().split(".", 1)
-    try:
-        value = tomllib.loads(f"v = {rhs.strip()}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = rhs.strip()
-    data.setdefault(section, {})[key] = value
+#: keys of which a config gives one: a ``--set`` of one removes the other from the file
+_EXCLUSIVE = {"penalty.kappa": "exponent", "penalty.exponent": "kappa"}
+
+
+def apply_overrides(data: dict[str, Any], items: list[str]) -> dict[str, str]:
+    """Apply ``section.key=value`` overrides in order (value in TOML syntax, bare words are
+    strings; ``load.parameters.ell=3`` sets a key inside a table). A ``--set`` of
+    ``penalty.kappa`` removes the file's ``penalty.exponent`` and conversely.
+
+    Returns:
+        dotted key → the ``--set`` text that gave it (errors about it name the ``--set``).
+    """
+    given: dict[str, str] = {}
+    for item in items:
+        lhs, sep, rhs = item.partition("=")
+        parts = [part.strip() for part in lhs.split(".")]
+        if not sep or len(parts) < 2 or not all(parts):
+            raise ConfigError(f"--set {item!r}: expected section.key=value, e.g. domain.h=0.01")
+        text = f"--set {item.strip()}"
+        try:
+            value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = rhs.strip()
+        table = data
+        for i, part in enumerate(parts[:-1]):
+            table = table.setdefault(part, {})
+            if not isinstance(table, dict):
+                where = ".".join(parts[: i + 1])
+                raise ConfigError(f"{text}: {where} is not a table, it cannot hold '{parts[-1]}'")
+        dotted = ".".join(parts)
+        partner = _EXCLUSIVE.get(dotted)
+        if partner is not None and f"penalty.{partner}" not in given:
+            table.pop(partner, None)
+        table[parts[-1]] = value
+        given[dotted] = text
+    return given
 
 
 def _toml_value(v: Any) -> str:

@@ -11,11 +11,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from shellobstacle.messages import not_one_of
+
 __all__ = ["KINDS", "DomainSpec", "coarsening_steps", "estimated_vertices", "validate"]
 
 KINDS = ("disk", "ellipse", "polygon", "rectangle", "file")
 #: the kinds whose meshes can be graded towards the boundary (edge_h, edge_width)
 GRADED_KINDS = ("disk", "ellipse", "polygon")
+#: uniform refinements after meshing (each multiplies the cells by 4)
+MAX_REFINEMENTS = 8
 
 
 @dataclass(frozen=True)
@@ -58,6 +62,9 @@ class DomainSpec:
     edge_h: float | None = None
     edge_width: float | None = None
     gmsh_max_vertices: int = 8_000
+
+    def __post_init__(self) -> None:
+        validate(self)
 
 
 def _diameter(spec: DomainSpec) -> float:
@@ -116,19 +123,27 @@ def _is_simple(v: np.ndarray) -> bool:
 
 
 def validate(spec: DomainSpec) -> None:
-    """Raise ValueError (identically on every rank) for an inconsistent spec."""
+    """Raise ValueError (identically on every rank) for an inconsistent spec; the messages
+    name the keys of ``[domain]``, as the config loader reports them."""
     if spec.kind not in KINDS:
-        raise ValueError(f"unknown domain kind {spec.kind!r}; valid kinds: {', '.join(KINDS)}")
-    if spec.refinements < 0:
-        raise ValueError(f"refinements must be >= 0, got {spec.refinements}")
+        raise ValueError(not_one_of("domain.kind", spec.kind, KINDS))
+    if not 0 <= spec.refinements <= MAX_REFINEMENTS:
+        raise ValueError(
+            f"domain.refinements must be in 0..{MAX_REFINEMENTS} (each multiplies the cells "
+            f"by 4), got {spec.refinements}"
+        )
     if spec.gmsh_max_vertices < 0:
-        raise ValueError(f"gmsh_max_vertices must be >= 0 (0: never), got {spec.gmsh_max_vertices}")
+        raise ValueError(
+            f"domain.gmsh_max_vertices must be >= 0 (0: never), got {spec.gmsh_max_vertices}"
+        )
     if spec.kind == "file":
         if not spec.path:
             raise ValueError("kind 'file' needs path=<gmsh .msh file>")
         return
-    if spec.h is None or not spec.h > 0:
-        raise ValueError(f"mesh size h must be positive, got {spec.h}")
+    if spec.h is None:
+        raise ValueError(f"[domain] needs 'h' (target mesh size) for kind = '{spec.kind}'")
+    if not spec.h > 0:
+        raise ValueError(f"domain.h must be > 0, got {spec.h}")
     diameter = _diameter(spec)
     if spec.h > diameter:
         raise ValueError(f"mesh size h={spec.h} exceeds the domain's diameter {diameter:g}")

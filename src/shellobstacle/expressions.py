@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import functools
 import keyword
+import math
 import re
 import tokenize
 from collections.abc import Callable, Mapping
@@ -190,6 +191,7 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
         raise ExpressionError(f"{what}: {text!r} is not a scalar expression")
     if expr.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
         raise ExpressionError(f"{what}: {text!r} is not finite (it evaluates to {expr})")
+    _check_constants(expr, what, text)
     for pw in expr.atoms(sp.Piecewise):
         if pw.args[-1].cond != sp.true:
             raise ExpressionError(
@@ -197,6 +199,26 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
                 "it is defined everywhere"
             )
     return expr
+
+
+def _check_constants(expr: sp.Expr, what: str, text: str) -> None:
+    """Refuse constant parts that are no finite real double (``exp(1000)``, ``1e400``): the
+    forms and the checks evaluate them in double precision."""
+    for node in sp.preorder_traversal(expr):
+        if not isinstance(node, sp.Expr) or node.free_symbols or node in (sp.pi, sp.E):
+            continue
+        try:
+            value = complex(node.evalf(20))
+        except (TypeError, ValueError, OverflowError):
+            continue  # not a number (a condition's parts are checked on their own)
+        if not (math.isfinite(value.real) and math.isfinite(value.imag)):
+            shown = f"{node.evalf(4)}" if node.is_Number else f"{node} ≈ {node.evalf(4)}"
+            raise ExpressionError(
+                f"{what}: {shown} in {text!r} overflows double precision (at most 1.8e308): "
+                "rescale the expression"
+            )
+        if value.imag != 0.0:
+            raise ExpressionError(f"{what}: {node} in {text!r} is not real ({value:.6g})")
 
 
 def _check_powers(tree: Any, what: str, text: str) -> None:

@@ -17,6 +17,7 @@ import numpy as np
 import sympy as sp
 
 from shellobstacle.expressions import is_safe_name, parse, y1, y2
+from shellobstacle.messages import not_one_of
 from shellobstacle.surface import Surface
 
 __all__ = [
@@ -135,7 +136,7 @@ class Shell:
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
-            raise ValueError(f"model.kind must be one of {MODELS}, got {self.model!r}")
+            raise ValueError(not_one_of("model.kind", self.model, MODELS))
 
     def load_expressions(self) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
         """``p^{i,ε}`` as SymPy expressions (see :meth:`Load.expressions`)."""
@@ -169,14 +170,10 @@ class Discretization:
         if self.degree not in (1, 2):
             raise ValueError(f"discretization.degree must be 1 or 2, got {self.degree}")
         if self.transverse not in TRANSVERSE:
-            raise ValueError(
-                f"discretization.transverse must be one of {TRANSVERSE}, got {self.transverse!r}"
-            )
+            raise ValueError(not_one_of("discretization.transverse", self.transverse, TRANSVERSE))
         if self.penalty_quadrature not in PENALTY_QUADRATURES:
-            raise ValueError(
-                "discretization.penalty_quadrature must be one of "
-                f"{PENALTY_QUADRATURES}, got {self.penalty_quadrature!r}"
-            )
+            key, value = "discretization.penalty_quadrature", self.penalty_quadrature
+            raise ValueError(not_one_of(key, value, PENALTY_QUADRATURES))
         if self.penalty_quadrature == "vertex" and self.degree != 1:
             raise ValueError(
                 "discretization.penalty_quadrature = 'vertex' is the nodal constraint of P1; "

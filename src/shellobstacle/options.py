@@ -143,21 +143,22 @@ def experiment_domains(
             than ω).
     """
     domain = cfg.domain
-    if args.batch == "mesh":
-        finest = domain.refinements + options["--refinements"]
-        domains = [dataclasses.replace(domain, refinements=finest)]
-    elif args.batch == "solvers":
-        domains = [dataclasses.replace(domain, h=h) for h in options["--sizes"]]
-    elif args.batch == "koiter-limit":
-        from shellobstacle.experiments.koiter_limit import graded_domain
+    option = {"solvers": "--sizes", "koiter-limit": "--edge-h/--edge-width"}
+    try:
+        if args.batch == "mesh":
+            finest = domain.refinements + options["--refinements"]
+            domains = [dataclasses.replace(domain, refinements=finest)]
+        elif args.batch == "solvers":
+            domains = [dataclasses.replace(domain, h=h) for h in options["--sizes"]]
+        elif args.batch == "koiter-limit":
+            from shellobstacle.experiments.koiter_limit import graded_domain
 
-        domains = [graded_domain(domain, options["--epsilons"], args.edge_h, args.edge_width)]
-    else:
-        domains = [domain]
-    for spec in domains:
-        try:
+            epsilons = options["--epsilons"]
+            domains = [graded_domain(domain, epsilons, args.edge_h, args.edge_width)]
+        else:
+            domains = [domain]
+        for spec in domains:
             validate(spec)
-        except ValueError as err:
-            option = {"solvers": "--sizes", "koiter-limit": "--edge-h/--edge-width"}
-            raise ConfigError(f"{option.get(args.batch, '[domain]')}: {err}") from None
+    except ValueError as err:
+        raise ConfigError(f"{option.get(args.batch, '[domain]')}: {err}") from None
     return domains

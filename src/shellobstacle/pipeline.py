@@ -135,6 +135,8 @@ def solve(
     Raises:
         AssumptionError: the data violate MODEL.md §3 (unless ``force``).
         ResourceError: the mesh would not fit in this machine's memory (unless ``force``).
+        ExpressionError: θ, its derivatives or the load are not finite at a point of the mesh
+            (whatever ``force``: nothing can be solved there).
     """
     if method not in METHODS:
         raise ConfigError(f"solver.method must be one of {METHODS}, got {method!r}")
@@ -177,7 +179,10 @@ def solve(
         say(f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ")
         _newton(result, kappas, options, say, newton_progress)
     elif method == "brezis-sibony":
-        say(f"h = {h:.4g}, {problem.num_dofs} dofs; Brezis–Sibony at κ = {kappas[-1]:.3e}")
+        say(
+            f"h = {h:.4g}, {problem.num_dofs} dofs; solving for 1 value of κ = {kappas[-1]:.3e} "
+            "by Brezis–Sibony (no continuation)"
+        )
         _brezis_sibony(result, method_options, say)
     else:
         say(f"h = {h:.4g}, {problem.num_dofs} dofs; the exact nodal problem (κ = 0)")

@@ -56,7 +56,7 @@ class Geometry:
     ) -> None:
         self.theta = list(theta)
         self.sqrt = sqrt
-        self._d2, self._d3 = d2, d3
+        self.d2, self._d3 = d2, d3  # ∂_α∂_β θ_i, kept for the finiteness check
         a1, a2 = list(d1[0]), list(d1[1])
         self.a_cov: list[Vec] = [a1, a2]
         normal = cross(a1, a2)
@@ -101,7 +101,7 @@ class Geometry:
         """
         if self._d3 is None:
             raise ValueError("b^τ_{β|α} needs the third derivatives of θ (Geometry(d3=...))")
-        d2, d3, A, b, C = self._d2, self._d3, self.a_upper, self.b_lower, self.christoffel
+        d2, d3, A, b, C = self.d2, self._d3, self.a_upper, self.b_lower, self.christoffel
         r = range(2)
         # Γ_αβ,σ = ∂_α a_β · a_σ (lower Christoffel symbols)
         low = [[[dot(d2[al][be], self.a_cov[s]) for s in r] for be in r] for al in r]

@@ -29,7 +29,14 @@ from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
-__all__ = ["PAPER_BATCH3_LOAD", "LoadStudy", "load_study", "plot_contact_area", "write_load_study"]
+__all__ = [
+    "PAPER_BATCH3_LOAD",
+    "LoadStudy",
+    "is_paper_load",
+    "load_study",
+    "plot_contact_area",
+    "write_load_study",
+]
 
 #: The paper's g_ℓ (MODEL.md §7, batch 3) with ℓ as the load parameter ``ell``.
 PAPER_BATCH3_LOAD = (
@@ -150,8 +157,9 @@ def write_load_study(study: LoadStudy, folder: Path) -> Path:
     return path
 
 
-def plot_contact_area(study: LoadStudy, path: Path) -> Path:
-    """Contact area (surface and projected) against the load parameter."""
+def plot_contact_area(study: LoadStudy, path: Path, paper_load: bool = False) -> Path:
+    """Contact area (surface and projected) against the load parameter; with ``paper_load``
+    also the area of the paper's loaded disk ``|y| < 0.06``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -161,7 +169,8 @@ def plot_contact_area(study: LoadStudy, path: Path) -> Path:
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     ax.plot(ell, [r["contact_area"] for r in study.rows], "o-", label="area with √a dy")
     ax.plot(ell, [r["contact_area_projected"] for r in study.rows], "s--", label="projected (dy)")
-    ax.axhline(np.pi * 0.06**2, color="grey", ls=":", label="loaded disk |y| < 0.06 (π·0.06²)")
+    if paper_load:
+        ax.axhline(np.pi * 0.06**2, color="grey", ls=":", label="loaded disk |y| < 0.06 (π·0.06²)")
     return finish_figure(
         fig,
         ax,
@@ -210,18 +219,19 @@ def run_load(
         title=f"Batch 3: cross-sections y2 = 0 for {parameter} = "
         + ", ".join(f"{v:g}" for v in values),
     )
+    paper_load = is_paper_load(cfg.shell.load)
     if MPI.COMM_WORLD.rank == 0:
-        plot_contact_area(s, png_area)
+        plot_contact_area(s, png_area, paper_load)
     verdict = "grows" if s.area_increases() else "does NOT grow monotonically"
+    name = "ℓ" if paper_load and parameter == "ell" else parameter
     return "\n".join(
         [
             "## Batch 3: the contact area as the load grows",
             "",
-            f"g_ℓ = −(2ε/25)(−5y1² − 5y2² + (1 + 0.05ℓ)·0.295) on |y| < 0.06; h = {s.h:.4g} "
-            f"(refined near the centre), κ = h^{exponent:g} = {s.kappa:.3e}, {s.dofs} dofs. "
-            f"The contact area {verdict} with ℓ. Areas are measured on the nodes (lumped "
-            "masses of the vertices "
-            "with g ≤ 0).",
+            f"{_load_text(cfg.shell.load, paper_load)}; h = {s.h:.4g}{_refined_text(domain)}, "
+            f"κ = h^{exponent:g} = {s.kappa:.3e}, {s.dofs} dofs. "
+            f"The contact area {verdict} with {name}. Areas are measured on the nodes (lumped "
+            "masses of the vertices with g ≤ 0).",
             "",
             table(
                 s.rows,
@@ -240,6 +250,28 @@ def run_load(
             f"![contact area]({png_area.name})",
             "",
         ]
+    )
+
+
+def is_paper_load(load: Load) -> bool:
+    """Whether ``load`` is the paper's g_ℓ of batch 3 (:data:`PAPER_BATCH3_LOAD`)."""
+    return tuple(load.p) == ("0", "0", PAPER_BATCH3_LOAD)
+
+
+def _load_text(load: Load, paper_load: bool) -> str:
+    """The load as the report states it: the paper's formula for its g_ℓ, else the config's."""
+    if paper_load:
+        return "g_ℓ = −(2ε/25)(−5y1² − 5y2² + (1 + 0.05ℓ)·0.295) on |y| < 0.06"
+    return "p = (" + ", ".join(f"`{c}`" for c in load.p) + ")"
+
+
+def _refined_text(domain: DomainSpec) -> str:
+    """How the mesh is refined near the centre, if it is."""
+    if domain.central_h is None:
+        return ""
+    return (
+        f" (refined near the centre: {domain.central_h:g} within {domain.central_radius:g} "
+        f"of {domain.center})"
     )
 
 

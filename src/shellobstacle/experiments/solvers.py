@@ -60,8 +60,9 @@ def _mesh(item: MeshLike, domain: DomainSpec | None) -> tuple[dolfinx.mesh.Mesh,
         return item, None
     if isinstance(item, DomainSpec):
         return create_mesh(item), item.h
-    base = domain or DomainSpec(kind="disk", radius=0.5)
-    return create_mesh(dataclasses.replace(base, h=float(item))), float(item)
+    if domain is None:
+        return create_mesh(DomainSpec(kind="disk", h=float(item), radius=0.5)), float(item)
+    return create_mesh(dataclasses.replace(domain, h=float(item))), float(item)
 
 
 def compare_solvers(

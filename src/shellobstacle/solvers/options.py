@@ -8,6 +8,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from shellobstacle.messages import not_one_of
+
 __all__ = [
     "LINEAR_SOLVERS",
     "ActiveSetOptions",
@@ -60,13 +62,9 @@ class NewtonOptions:
 
     def __post_init__(self) -> None:
         if self.linear_solver not in LINEAR_SOLVERS:
-            raise ValueError(
-                f"solver.linear_solver must be 'direct' or 'iterative', got {self.linear_solver!r}"
-            )
+            raise ValueError(not_one_of("solver.linear_solver", self.linear_solver, LINEAR_SOLVERS))
         if self.factorization not in FACTORIZATIONS:
-            raise ValueError(
-                f"solver.factorization must be 'lu' or 'cholesky', got {self.factorization!r}"
-            )
+            raise ValueError(not_one_of("solver.factorization", self.factorization, FACTORIZATIONS))
         if self.max_iterations < 1:
             raise ValueError(f"solver.max_iterations must be >= 1, got {self.max_iterations}")
         for name in ("rtol", "atol", "stol", "linear_rtol"):
@@ -163,11 +161,11 @@ class BrezisSibonyOptions:
 
     def __post_init__(self) -> None:
         if self.mass not in MASSES:
-            raise ValueError(f"mass must be one of {MASSES}, got {self.mass!r}")
+            raise ValueError(not_one_of("solver.mass", self.mass, MASSES))
         if self.start not in STARTS:
-            raise ValueError(f"start must be one of {STARTS}, got {self.start!r}")
+            raise ValueError(not_one_of("solver.start", self.start, STARTS))
         if self.xi is not None and not self.xi > 0:
-            raise ValueError(f"xi must be > 0 (or None for the automatic step), got {self.xi}")
+            raise ValueError(f"solver.xi must be > 0 (omit it: automatic step), got {self.xi}")
         if not self.safety > 0:
             raise ValueError(f"safety must be > 0, got {self.safety}")
         if self.rtol < 0 or self.rtol_residual < 0:

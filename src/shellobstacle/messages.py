@@ -1,0 +1,26 @@
+"""Wording shared by the config loader and the Python API, so both raise the same text.
+
+A value outside its choices is reported as ``key = 'value' is not one of 'a', 'b'; did you
+mean 'a'?`` wherever it is caught: :mod:`shellobstacle.config` prefixes the file (or the
+``--set``) that gave it, the dataclasses of the API raise the bare text.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Sequence
+
+__all__ = ["not_one_of", "suggest"]
+
+
+def suggest(name: str, options: Sequence[str], what: str = "valid keys") -> str:
+    """``; did you mean 'x'?`` for a close option, else ``; <what>: a, b, c``."""
+    close = difflib.get_close_matches(name, list(options), n=1, cutoff=0.5)
+    return f"; did you mean {close[0]!r}?" if close else f"; {what}: {', '.join(options)}"
+
+
+def not_one_of(key: str, value: object, choices: Sequence[str]) -> str:
+    """The message for ``key = value`` outside ``choices`` (with a suggestion)."""
+    text = f"{key} = {value!r} is not one of {', '.join(map(repr, choices))}"
+    close = difflib.get_close_matches(str(value), list(choices), n=1, cutoff=0.5)
+    return text + (f"; did you mean {close[0]!r}?" if isinstance(value, str) and close else "")
