@@ -2,8 +2,9 @@
 
 The entry point checks the DOLFINx wheel's environment (:mod:`.compat`), applies the opt-in
 process tuning (:mod:`.tuning`, ``SHELLOBSTACLE_TUNING``) before MPI's solvers, PETSc and
-NumPy are loaded, then runs :func:`shellobstacle.cli.main`, which itself changes nothing in
-the process (tests and scripts call it directly).
+NumPy are loaded, starts the watcher that makes Ctrl-C take effect within seconds also inside
+long calls into C (:mod:`.interrupt`), then runs :func:`shellobstacle.cli.main`, which itself
+changes nothing in the process (tests and scripts call it directly).
 """
 
 from __future__ import annotations
@@ -28,8 +29,10 @@ def main() -> int:
         if MPI.COMM_WORLD.rank == 0:
             print(f"shellobstacle: error: {err}", file=sys.stderr)
         return 2
+    from shellobstacle import interrupt
     from shellobstacle.cli import main as cli_main
 
+    interrupt.install()
     return cli_main()
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 import traceback
 from collections.abc import Sequence
 
@@ -205,6 +206,7 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 solver failure, 2 user error, 3 a solution
     outside the model's validity, 130 interrupted)."""
+    started = time.time()
     args = _parser().parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.folder = None  # the ResultFolder, once known (for the messages below)
@@ -236,6 +238,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"shellobstacle: error: {err}{_kept(args)}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
+        from shellobstacle import interrupt
+
+        interrupt.acknowledge()
+        interrupt.remove_unfinished_compilations(since=started)
         _record(args, "interrupted")
         if MPI.COMM_WORLD.rank == 0:
             print(f"shellobstacle: interrupted{_resume_hint(args) or _kept(args)}", file=sys.stderr)

@@ -1,0 +1,133 @@
+"""Ctrl-C honoured within :data:`GRACE` seconds, also inside a long call into C.
+
+Python runs its SIGINT handler only between bytecodes: during a gmsh meshing, a mesh
+refinement, an assembly or a MUMPS factorization of seconds to minutes, a ``KeyboardInterrupt``
+waits for the call to return. The command line therefore starts a small watcher process next to
+each MPI rank. Python's C-level signal handler writes every signal it catches to a pipe
+(:func:`signal.set_wakeup_fd`: no Python code, no GIL); the watcher reads it. When the process
+has not handled the interrupt (:func:`acknowledge`) within :data:`GRACE` seconds, or at a
+second Ctrl-C, the watcher says so on stderr and terminates it (SIGTERM, then SIGKILL).
+
+Result folders stay consistent after such a stop: every file is written atomically, a staged
+``--overwrite`` leaves the old folder untouched, and ``--resume`` continues from the recorded
+steps. An interrupted FFCx compilation leaves its ``.c`` file without the ``.c.cached``
+marker, which makes the next compilation of the same forms wait and fail (FFCx takes the file
+for another process's compilation): :func:`remove_unfinished_compilations` removes those this
+process started. Only the command line installs the watcher (:mod:`shellobstacle.__main__`);
+the library and :func:`shellobstacle.cli.main` leave the process's signals alone.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+__all__ = ["GRACE", "acknowledge", "install", "remove_unfinished_compilations"]
+
+#: Seconds a long call into C may keep running after Ctrl-C.
+GRACE = 2.0
+
+_ack_fd: int | None = None
+
+# The watcher: argv = parent pid, grace, the acknowledgement's fd; fd 0 = the signals.
+_WATCHER = r"""
+import os, select, signal, sys, time
+parent, grace, ack = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
+signals = 0
+def alive():
+    try:
+        os.kill(parent, 0)
+        with open("/proc/%d/stat" % parent) as f:
+            return f.read().rsplit(")", 1)[1].split()[0] != "Z"  # not a zombie
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+def stop(why):
+    os.write(2, ("shellobstacle: interrupted (" + why + "); stopping it\n").encode())
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        if not alive():
+            return
+        os.kill(parent, sig)
+        for _ in range(20):
+            time.sleep(0.05)
+            if not alive():
+                return
+deadline = None
+while True:
+    timeout = None if deadline is None else max(deadline - time.monotonic(), 0.0)
+    ready, _, _ = select.select([signals, ack], [], [], timeout)
+    if not ready:
+        stop("still inside a library call %g s after Ctrl-C" % grace)
+        break
+    if signals in ready:  # before the acknowledgement that may have followed at once
+        data = os.read(signals, 64)
+        if not data:
+            break  # the process has ended
+        if signal.SIGINT in data:
+            if deadline is not None:
+                stop("a second Ctrl-C")
+                break
+            deadline = time.monotonic() + grace
+    if ack in ready:
+        if not os.read(ack, 64):
+            break  # the process has ended
+        deadline = None  # it handled the interrupt
+"""
+
+
+def install(grace: float = GRACE) -> bool:
+    """Start the watcher of this process; False (and nothing changed) where it cannot run
+    (not the main thread, no SIGINT handler of Python's, no ``fork``)."""
+    global _ack_fd
+    if _ack_fd is not None:
+        return True
+    if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        return False  # SIGINT ignored (a background job) or handled by someone else
+    sig_r, sig_w = os.pipe()
+    ack_r, ack_w = os.pipe()
+    os.set_blocking(sig_w, False)
+    try:
+        subprocess.Popen(
+            [sys.executable, "-S", "-c", _WATCHER, str(os.getpid()), str(grace), str(ack_r)],
+            stdin=sig_r,
+            stdout=subprocess.DEVNULL,
+            pass_fds=(ack_r,),
+            close_fds=True,
+            start_new_session=True,  # a terminal's Ctrl-C reaches the process, not the watcher
+        )
+    except OSError:
+        for fd in (sig_r, sig_w, ack_r, ack_w):
+            os.close(fd)
+        return False
+    os.close(sig_r)
+    os.close(ack_r)
+    signal.set_wakeup_fd(sig_w, warn_on_full_buffer=False)
+    _ack_fd = ack_w
+    return True
+
+
+def acknowledge() -> None:
+    """Tell the watcher that the interrupt reached Python (no forced stop)."""
+    if _ack_fd is not None:
+        with contextlib.suppress(OSError):
+            os.write(_ack_fd, b"a")
+
+
+def remove_unfinished_compilations(since: float) -> list[Path]:
+    """Remove the FFCx sources in DOLFINx's JIT cache written since ``since`` (a
+    ``time.time()``) whose compilation did not finish (no ``.c.cached`` marker)."""
+    from dolfinx.jit import get_options
+
+    removed = []
+    for c_file in Path(get_options()["cache_dir"]).glob("*.c"):
+        with contextlib.suppress(OSError):
+            done = c_file.with_suffix(".c.cached").exists()
+            if not done and c_file.stat().st_mtime >= since:
+                c_file.unlink()
+                removed.append(c_file)
+    return removed

@@ -1,0 +1,122 @@
+"""Ctrl-C inside a long call into C (shellobstacle.interrupt): the watcher stops the process
+when Python cannot run its handler, and leaves it alone when Python handled the interrupt.
+
+The long call is gmsh meshing a disk finely (minutes, in C, gmsh's own SIGINT handling off as
+in :mod:`shellobstacle.meshing`). The timeouts only bound a failing test.
+"""
+
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import textwrap
+
+from mpi4py import MPI
+
+import pytest
+
+pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="runs its own processes")
+
+PRELUDE = textwrap.dedent(
+    """
+    import sys, time
+    from shellobstacle import interrupt
+    assert interrupt.install(grace=1.0)
+    print("ready", flush=True)
+    """
+)
+
+LONG_C_CALL = textwrap.dedent(
+    """
+    import gmsh
+    gmsh.initialize(readConfigFiles=False, interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", 0.0003)
+    gmsh.model.occ.addDisk(0, 0, 0, 1, 1)
+    gmsh.model.occ.synchronize()
+    gmsh.model.mesh.generate(2)
+    print("meshed", flush=True)
+    """
+)
+
+HANDLED = textwrap.dedent(
+    """
+    try:
+        time.sleep(60)
+    except KeyboardInterrupt:
+        interrupt.acknowledge()
+        time.sleep(3)  # longer than the grace: cleaning up is allowed
+        print("cleaned up", flush=True)
+        sys.exit(130)
+    """
+)
+
+
+def _interrupt(code: str) -> subprocess.CompletedProcess:
+    """Run ``code`` after the prelude, send SIGINT once it is ready, return the result."""
+    proc = subprocess.Popen(
+        [sys.executable, "-c", PRELUDE + code],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    assert proc.stdout.readline().strip() == "ready"
+    import time
+
+    time.sleep(1.0)  # inside the long call
+    proc.send_signal(signal.SIGINT)
+    try:
+        out, err = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        pytest.fail("the process was not stopped")
+    return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+
+
+def test_a_long_call_into_c_is_stopped() -> None:
+    result = _interrupt(LONG_C_CALL)
+    assert result.returncode == -signal.SIGTERM, result
+    assert "meshed" not in result.stdout
+    assert "still inside a library call 1 s after Ctrl-C" in result.stderr
+
+
+def test_a_handled_interrupt_is_left_alone() -> None:
+    result = _interrupt(HANDLED)
+    assert result.returncode == 130, result
+    assert "cleaned up" in result.stdout
+    assert "stopping it" not in result.stderr
+
+
+def test_the_library_installs_nothing() -> None:
+    """Importing shellobstacle and running cli.main leave SIGINT's wakeup fd unset."""
+    code = (
+        "import signal, shellobstacle\n"
+        "from shellobstacle.cli import main\n"
+        "main(['config-reference'])\n"
+        "assert signal.set_wakeup_fd(-1) == -1\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
+
+
+def test_unfinished_compilations_of_this_process_are_removed(tmp_path, monkeypatch) -> None:
+    """Only sources written since the start and without FFCx's ``.c.cached`` marker go."""
+    import os
+
+    import dolfinx.jit
+
+    from shellobstacle.interrupt import remove_unfinished_compilations
+
+    monkeypatch.setattr(dolfinx.jit, "get_options", lambda: {"cache_dir": tmp_path})
+    for name in ("finished", "unfinished", "old"):
+        (tmp_path / f"{name}.c").write_text("/* source */")
+    (tmp_path / "finished.c.cached").write_text("")
+    os.utime(tmp_path / "old.c", (1.0, 1.0))  # written before this process started
+    removed = remove_unfinished_compilations(since=100.0)
+    assert removed == [tmp_path / "unfinished.c"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "finished.c",
+        "finished.c.cached",
+        "old.c",
+    ]
