@@ -118,3 +118,20 @@ def test_the_papers_problem_is_inside_and_a_crushing_load_outside(tmp_path_facto
     assert log.count("warning: outside the model's validity") == 3
     assert "exit status 3" in log
     assert (out / "cross_section.png").is_file()
+
+
+def test_a_load_sweep_names_the_values_outside_the_validity(tmp_path: Path) -> None:
+    """experiment load: a bump load 100 times the example's pushes the paraboloid's apex
+    through the plane; the report names that value and only it, the log warns."""
+    if MPI.COMM_WORLD.size > 1:
+        pytest.skip("serial")
+    out = tmp_path / "sweep"
+    paraboloid = str(Path(__file__).parents[1] / "examples" / "paraboloid.toml")
+    args = ["experiment", "load", paraboloid, "-q", "-o", str(out), "--set", "domain.h=0.06"]
+    assert main([*args, "--parameter", "ell", "--values", "40,4000"]) == EXIT_OK
+    report = (out / "report.md").read_text()
+    assert "**Outside the model's validity**" in report
+    assert "ell = 4000 (penetration)" in report and "ell = 40 (" not in report
+    log = (out / "log.txt").read_text()
+    assert log.count("warning: ell = 4000: outside the model's validity") == 1
+    assert "warning: ell = 40:" not in log

@@ -25,6 +25,7 @@ from shellobstacle.pipeline import make_mesh
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import CrossSection
+from shellobstacle.post.validity import assess
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
@@ -117,6 +118,7 @@ def load_study(
                 newton_progress=newton_progress,
             )
             c = post.contact()
+            validity = assess(post, float(problem.kappa.value))
             row = {
                 parameter: value,
                 "ell": value,
@@ -125,7 +127,10 @@ def load_study(
                 "max_violation": c["max_violation"],
                 "zeta3_min": post.zeta3_range()[0],
                 "newton": sum(s.newton.iterations for s in steps),
+                "violations": validity.violations,
             }
+            for line in validity.warnings():
+                say(f"warning: {parameter} = {value:g}: {line}")
             section = dataclasses.asdict(post.cross_section())
             record = {"row": row, "section": section, "seconds": time.perf_counter() - ts}
             cp.save_vector(key, problem.zeta)
@@ -223,6 +228,18 @@ def run_load(
     if MPI.COMM_WORLD.rank == 0:
         plot_contact_area(s, png_area, paper_load)
     verdict = "grows" if s.area_increases() else "does NOT grow monotonically"
+    invalid = [
+        f"{parameter} = {r[parameter]:g} ({', '.join(r['violations'])})"
+        for r in s.rows
+        if r.get("violations")
+    ]
+    validity = (
+        "**Outside the model's validity** (`shellobstacle.post.validity`, the user guide's "
+        f'"Validity of a solution"): {"; ".join(invalid)}.'
+        if invalid
+        else "Every solution is inside the model's validity (penetration, displacement, "
+        "orientation within their thresholds)."
+    )
     name = "ℓ" if paper_load and parameter == "ell" else parameter
     return "\n".join(
         [
@@ -231,7 +248,7 @@ def run_load(
             f"{_load_text(cfg.shell.load, paper_load)}; h = {s.h:.4g}{_refined_text(domain)}, "
             f"κ = h^{exponent:g} = {s.kappa:.3e}, {s.dofs} dofs. "
             f"The contact area {verdict} with {name}. Areas are measured on the nodes (lumped "
-            "masses of the vertices with g ≤ 0).",
+            f"masses of the vertices with g ≤ 0). {validity}",
             "",
             table(
                 s.rows,
