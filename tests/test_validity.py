@@ -135,3 +135,14 @@ def test_a_load_sweep_names_the_values_outside_the_validity(tmp_path: Path) -> N
     log = (out / "log.txt").read_text()
     assert log.count("warning: ell = 4000: outside the model's validity") == 1
     assert "warning: ell = 40:" not in log
+
+
+@pytest.mark.mpi
+def test_the_python_api_measures_a_solve() -> None:
+    """SolveResult.validity(): the paper's problem inside, the crushing load outside."""
+    from shellobstacle.pipeline import solve_config
+
+    inside = solve_config(load_config(SMALL, ["domain.h=0.06"])).validity()
+    outside = solve_config(load_config(SMALL, ["domain.h=0.06", CRUSHING])).validity()
+    assert inside.valid and inside.warnings() == []
+    assert set(outside.violations) == {"penetration", "displacement", "orientation"}

@@ -92,6 +92,15 @@ class SolveResult:
         """Iterations summed over all steps (Newton steps over the continuation)."""
         return sum(s.iterations for s in self.steps)
 
+    def validity(self) -> Any:
+        """The solution's :class:`~shellobstacle.post.validity.Validity` (penetration,
+        displacement, orientation against their thresholds); collective under MPI."""
+        from shellobstacle.post.contact import Postprocessor
+        from shellobstacle.post.validity import assess
+
+        kappa = 0.0 if self.method == "active-set" else float(self.problem.kappa.value)
+        return assess(Postprocessor(self.problem), kappa)
+
 
 def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:
     """Mesh ω (``ghosted``: with facet-sharing ghost cells in parallel, which Koiter's facet
