@@ -17,8 +17,8 @@ from typing import Any
 from mpi4py import MPI
 
 import pytest
+from cli_helpers import assert_user_error, run
 
-from shellobstacle.cli import main
 from shellobstacle.config import to_toml
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
@@ -49,24 +49,6 @@ def write_config(folder: Path, changes: dict[str, Any] | None = None, name: str 
     path = folder / name
     path.write_text("\n".join([*top, to_toml(tables)]))
     return path
-
-
-def run(capsys: pytest.CaptureFixture, *args: str) -> tuple[int, str, str]:
-    """``main(args)``: exit code, stdout, stderr."""
-    capsys.readouterr()
-    code = main(list(args))
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def assert_user_error(code: int, err: str, *needles: str) -> None:
-    """Exit code 2, one ``shellobstacle: error:`` line naming every needle, no traceback."""
-    assert code == 2, err
-    assert "Traceback" not in err, err
-    assert err.startswith("shellobstacle: error: "), err
-    assert len(err.strip().splitlines()) == 1, err
-    for needle in needles:
-        assert needle in err, f"{needle!r} not in {err!r}"
 
 
 def check_error(capsys, tmp_path, changes, *needles, command="check") -> str:

@@ -23,6 +23,7 @@ from typing import Any
 from mpi4py import MPI
 
 import pytest
+from cli_helpers import assert_user_error, run
 
 from shellobstacle.cli import main
 from shellobstacle.config import ConfigError, load_config, parse_config, to_toml
@@ -56,23 +57,6 @@ def write(folder: Path, changes: dict[str, Any] | None = None, name: str = "c.to
     path = folder / name
     path.write_text(to_toml(changed(changes or {})))
     return path
-
-
-def run(capsys: pytest.CaptureFixture, *args: str) -> tuple[int, str, str]:
-    capsys.readouterr()
-    code = main(list(args))
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def assert_user_error(code: int, err: str, *needles: str) -> None:
-    """Exit code 2, one ``shellobstacle: error:`` line naming every needle, no traceback."""
-    assert code == 2, err
-    assert "Traceback" not in err, err
-    assert err.startswith("shellobstacle: error: "), err
-    assert len(err.strip().splitlines()) == 1, err
-    for needle in needles:
-        assert needle in err, f"{needle!r} not in {err!r}"
 
 
 # --------------------------------------------------------------------------- 1. the file

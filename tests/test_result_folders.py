@@ -11,14 +11,13 @@ from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 import tomllib
-from collections.abc import Iterator
 from pathlib import Path
 
 from mpi4py import MPI
 
 import pytest
+from cli_helpers import run_on_all_ranks as run
 
 from shellobstacle.cli import EXIT_INTERRUPTED, main
 from shellobstacle.solvers.newton import NewtonSolver
@@ -34,24 +33,6 @@ NO_PARAVIEW = ["--set", "output.paraview=false"]
 THROUGH_PLANE = ["--set", "surface.offset=1.2"]
 PENALTY = ["experiment", "penalty", SMALL, "-q", "--set", "domain.h=0.1"]
 PENALTY += ["--quadratures", "vertex", "--q-max", "2"]
-
-
-@pytest.fixture
-def shared_dir(tmp_path: Path) -> Iterator[Path]:
-    """A folder that every MPI rank sees (rank 0's temporary folder)."""
-    path = Path(tempfile.mkdtemp(dir=tmp_path)) if COMM.rank == 0 else None
-    path = COMM.bcast(path, root=0)
-    yield path
-    COMM.barrier()
-    if COMM.rank == 0:
-        shutil.rmtree(path, ignore_errors=True)
-
-
-def run(args: list[str]) -> int:
-    """``main(args)`` on every rank; returns once rank 0 has written its files."""
-    code = main(args)
-    COMM.barrier()
-    return code
 
 
 def interrupt_solve(monkeypatch: pytest.MonkeyPatch, at: int) -> None:

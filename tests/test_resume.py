@@ -6,15 +6,13 @@ from __future__ import annotations
 import json
 import math
 import re
-import shutil
-import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 
 from mpi4py import MPI
 
 import numpy as np
 import pytest
+from cli_helpers import run_on_all_ranks as run
 
 from shellobstacle.cli import EXIT_INTERRUPTED, main
 from shellobstacle.io.checkpoint import Checkpoint
@@ -120,24 +118,6 @@ def assert_same_results(a: Path, b: Path, abs_tol: float = 1e-20) -> None:
         assert_same_numbers(
             json.dumps(without_seconds(ja)), json.dumps(without_seconds(jb)), name, abs_tol
         )
-
-
-@pytest.fixture
-def shared_dir(tmp_path: Path) -> Iterator[Path]:
-    """A folder that every MPI rank sees (rank 0's temporary folder)."""
-    path = Path(tempfile.mkdtemp(dir=tmp_path)) if COMM.rank == 0 else None
-    path = COMM.bcast(path, root=0)
-    yield path
-    COMM.barrier()
-    if COMM.rank == 0:
-        shutil.rmtree(path, ignore_errors=True)
-
-
-def run(args: list[str]) -> int:
-    """``main(args)`` on every rank; returns once rank 0 has written its files."""
-    code = main(args)
-    COMM.barrier()
-    return code
 
 
 def interrupted_then_resumed(
