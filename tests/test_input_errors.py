@@ -265,9 +265,8 @@ def test_theta_undefined_on_two_ranks(capsys, tmp_path) -> None:
 # --------------------------------------------------------------------------- 6. experiment load
 
 
-@serial
-def test_load_experiment_describes_the_users_problem(capsys, tmp_path, monkeypatch) -> None:
-    """On a user's shell: the user's load, no central refinement, no loaded-disk line."""
+def _horizontal_line_labels(monkeypatch) -> list[str]:
+    """The labels of every horizontal line matplotlib draws from now on."""
     import matplotlib.axes
 
     labels: list[str] = []
@@ -278,6 +277,13 @@ def test_load_experiment_describes_the_users_problem(capsys, tmp_path, monkeypat
         return draw(self, *args, **kwargs)
 
     monkeypatch.setattr(matplotlib.axes.Axes, "axhline", axhline)
+    return labels
+
+
+@serial
+def test_load_experiment_describes_the_users_problem(capsys, tmp_path, monkeypatch) -> None:
+    """On a user's shell: the user's load, no central refinement, no loaded-disk line."""
+    labels = _horizontal_line_labels(monkeypatch)
     out = tmp_path / "load"
     args = ["--set", "domain.h=0.1", "--values", "0,20", "-o", str(out), "-q"]
     code, _, err = run(capsys, "experiment", "load", str(EXAMPLES / "paraboloid.toml"), *args)
@@ -304,18 +310,9 @@ def test_load_experiment_keeps_the_papers_wording() -> None:
 
 
 def test_only_the_papers_load_draws_its_loaded_disk(tmp_path, monkeypatch) -> None:
-    import matplotlib.axes
-
     from shellobstacle.experiments import load
 
-    labels: list[str] = []
-    draw = matplotlib.axes.Axes.axhline
-
-    def axhline(self, *args, **kwargs):
-        labels.append(str(kwargs.get("label", "")))
-        return draw(self, *args, **kwargs)
-
-    monkeypatch.setattr(matplotlib.axes.Axes, "axhline", axhline)
+    labels = _horizontal_line_labels(monkeypatch)
     study = load.LoadStudy("ell", 0.1, 1e-3, 100)
     study.rows = [{"ell": v, "contact_area": a, "contact_area_projected": a} for v, a in
                   [(0.0, 0.01), (10.0, 0.02)]]  # fmt: skip
