@@ -74,3 +74,26 @@ def test_forced_kernels_that_crashed_are_named_with_the_fix(coretype: str) -> No
 )
 def test_no_warning_for_other_kernels_or_releases(environ: dict, config: str) -> None:
     assert coretype_warning(environ, config) is None
+
+
+def test_unfinished_compilations_are_a_problem_with_the_files_named(tmp_path, monkeypatch):
+    """A source without FFCx's ``.c.cached`` marker, older than ten minutes, is reported with
+    its path; a finished one and one still being compiled are not."""
+    import os
+    import time
+
+    import dolfinx.jit
+
+    from shellobstacle import doctor
+
+    monkeypatch.setattr(dolfinx.jit, "get_options", lambda: {"cache_dir": tmp_path})
+    for name in ("finished", "killed", "compiling"):
+        (tmp_path / f"{name}.c").write_text("/* source */")
+    (tmp_path / "finished.c.cached").write_text("")
+    old = time.time() - 3600
+    for name in ("finished", "killed"):
+        os.utime(tmp_path / f"{name}.c", (old, old))
+    _, problems = doctor.report("test")
+    stale = [p for p in problems if "FFCx compilation" in p]
+    assert len(stale) == 1 and str(tmp_path / "killed.c") in stale[0]
+    assert "compiling.c" not in stale[0] and "finished.c" not in stale[0]
