@@ -7,6 +7,7 @@ process (the ``shellobstacle`` executable tunes it first: :mod:`shellobstacle.__
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 import traceback
@@ -217,6 +218,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from shellobstacle.io.folders import ResultsError
 
     try:
+        _require_text(args.argv)
         if args.command == "config-reference":
             from shellobstacle.schema import reference_text
 
@@ -233,9 +235,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.command == "experiment":
             return commands.experiment(args)
     except (ConfigError, ExpressionError, AssumptionError, ResultsError) as err:
-        _record(args, f"error: {err}")
+        _record(args, f"error: {_one_line(str(err))}")
         if MPI.COMM_WORLD.rank == 0:
-            print(f"shellobstacle: error: {err}{_kept(args)}", file=sys.stderr)
+            print(f"shellobstacle: error: {_one_line(f'{err}{_kept(args)}')}", file=sys.stderr)
         return EXIT_USAGE
     except KeyboardInterrupt:
         from shellobstacle import interrupt
@@ -257,6 +259,35 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         return EXIT_FAILED
     return EXIT_USAGE
+
+
+def _one_line(text: str) -> str:
+    """``text`` with its invisible characters escaped (the ``\\r`` of a script with CRLF line
+    endings, tabs, newlines of an expression, line separators): a message the user can read
+    and that stays on one line."""
+    return "".join(
+        c if c.isprintable() else c.encode("unicode_escape").decode("ascii") for c in text
+    )
+
+
+def _require_text(argv: Sequence[str]) -> None:
+    """Refuse an argument that is not UTF-8 text (a byte such as 0xff in a file name arrives
+    as a lone surrogate): the paths and values are written into UTF-8 logs, configs and
+    reports, which cannot hold it."""
+    from shellobstacle.config import ConfigError
+
+    for arg in argv:
+        try:
+            arg.encode("utf-8")
+        except UnicodeEncodeError:
+            try:  # the bytes as given (0xff shown as \xff)
+                shown = os.fsencode(arg).decode("utf-8", "backslashreplace")
+            except UnicodeError:
+                shown = arg.encode("utf-8", "backslashreplace").decode("utf-8")
+            raise ConfigError(
+                f"the argument '{shown}' is not UTF-8 text: rename the file or folder, or "
+                "give a UTF-8 value"
+            ) from None
 
 
 def _record(args: argparse.Namespace, text: str) -> None:

@@ -19,13 +19,15 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 3, 1
 
 def check(args: argparse.Namespace) -> int:
     from shellobstacle.checks import check_assumptions, format_checks
-    from shellobstacle.config import load_config
     from shellobstacle.pipeline import make_mesh
     from shellobstacle.resources import require_fits
 
-    cfg = load_config(args.config, args.set)
+    cfg, config_warnings = _load(args)
     if not args.force:
         require_fits(cfg.domain, solve=False)
+    if MPI.COMM_WORLD.rank == 0:
+        for message in config_warnings:
+            print(f"shellobstacle: warning: {message}", file=sys.stderr)
     mesh = make_mesh(cfg.domain)
     checks = check_assumptions(cfg.shell, mesh)
     if MPI.COMM_WORLD.rank == 0:
@@ -43,26 +45,24 @@ def check(args: argparse.Namespace) -> int:
     return EXIT_OK if all(c.passed for c in checks) else EXIT_USAGE
 
 
-def solve(args: argparse.Namespace) -> int:
+def _load(args: argparse.Namespace) -> tuple[Any, list[str]]:
+    """The config of ``args`` and the warnings of loading it, which the command reports once
+    every check has passed (a refused command prints its one error line only)."""
     from shellobstacle.config import load_config
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         cfg = load_config(args.config, args.set)
+    return cfg, [str(w.message) for w in caught]
+
+
+def solve(args: argparse.Namespace) -> int:
+    cfg, config_warnings = _load(args)
     report = Reporter(args.quiet, args.verbose)
     args.report = report
-    for w in caught:
-        report(f"warning: {w.message}")
     default = f"{Path(args.config).stem}-solve"
     return run_and_write(
-        cfg,
-        args.output,
-        default,
-        args.overwrite,
-        args.force,
-        report,
-        [str(w.message) for w in caught],
-        args,
+        cfg, args.output, default, args.overwrite, args.force, report, config_warnings, args
     )
 
 
@@ -95,6 +95,8 @@ def run_and_write(
     folder = where.path
     report.attach(folder / "log.txt")
     _announce(where, report)
+    for message in config_warnings:
+        report(f"warning: {message}")
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -204,16 +206,24 @@ def _finish(checkpoint: Any, report: Reporter) -> None:
 
 def experiment(args: argparse.Namespace) -> int:
     """One batch on a user's config."""
-    from shellobstacle.config import ConfigError, load_config, to_toml
+    from shellobstacle.config import ConfigError, to_toml
     from shellobstacle.experiments import koiter_limit, load, mesh, solvers
     from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
     from shellobstacle.io.folders import atomic_write, prepare_folder
     from shellobstacle.options import experiment_domains, experiment_options
     from shellobstacle.resources import require_fits
 
-    cfg = load_config(args.config, args.set)
+    cfg, config_warnings = _load(args)
+    if args.batch == "load" and cfg.penalty is None:
+        raise ConfigError(
+            "experiment load solves penalized problems (κ = h^exponent), and solver.method = "
+            "'active-set' has no κ: set solver.method = 'newton' and penalty.exponent"
+        )
     if args.batch == "load" and cfg.penalty.exponent is None:
-        raise ConfigError("experiment load needs penalty.exponent (κ = h^exponent)")
+        raise ConfigError(
+            "experiment load needs penalty.exponent (κ = h^exponent): set it instead of "
+            "penalty.kappa, e.g. --set penalty.exponent=1.5"
+        )
     options = experiment_options(args, cfg)
     if args.batch == "koiter-limit":
         koiter_limit.validate(cfg, options["--epsilons"], args.edge_h, args.edge_width)
@@ -239,6 +249,8 @@ def experiment(args: argparse.Namespace) -> int:
     checkpoint = _open_checkpoint(folder, meta, args, report)
     report.attach(folder / "log.txt", append=args.resume)
     _announce(where, report, " (resumed)" if args.resume else "")
+    for message in config_warnings:
+        report(f"warning: {message}")
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
     kw: dict[str, Any] = {"checkpoint": checkpoint, "newton_progress": report.newton}
     if args.batch == "penalty":

@@ -232,6 +232,8 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         # the absolute path, so that it reruns from anywhere
         base = Path(source).parent if source not in ("<config>", "") else Path(".")
         d["path"] = r["domain"]["path"] = str((base / d["path"]).resolve())
+    if d["kind"] == "file" and "path" in d:
+        _require_mesh_file(d["path"])
     domain = DomainSpec(**d)
 
     disc = Discretization(**r["discretization"])
@@ -271,6 +273,17 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         contact_zone=sv["contact_zone"],
     )
     return Config(shell, domain, disc, penalty, solver, sv["method"], dict(r["output"]), r, source)
+
+
+def _require_mesh_file(path: str) -> None:
+    """A mesh file is a regular file: refused at loading, before any result folder."""
+    p = Path(path)
+    problem = "is a directory" if p.is_dir() else "does not exist" if not p.exists() else None
+    if problem or not p.is_file():
+        raise ConfigError(
+            f"domain.path: mesh file {path!r} {problem or 'is not a regular file'}: give a "
+            "gmsh .msh file (a relative path is relative to the config file)"
+        )
 
 
 def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:

@@ -170,30 +170,37 @@ def _check_refined_zone(
 
 
 def _area_perimeter(spec: DomainSpec) -> tuple[float, float]:
-    """Area and perimeter of a disk, ellipse (Ramanujan's perimeter) or polygon."""
+    """Area and perimeter of a disk, ellipse (Ramanujan's perimeter) or polygon (``inf`` for
+    sizes whose square overflows: products of floats overflow to ``inf``, powers raise)."""
     if spec.kind == "disk":
-        return math.pi * spec.radius**2, 2 * math.pi * spec.radius
+        return math.pi * spec.radius * spec.radius, 2 * math.pi * spec.radius
     if spec.kind == "ellipse":
         a, b = spec.semi_axes
         return math.pi * a * b, math.pi * (3 * (a + b) - math.sqrt((3 * a + b) * (a + 3 * b)))
     v = np.asarray(spec.vertices, dtype=float)
-    area = 0.5 * abs(float(np.dot(v[:, 0], np.roll(v[:, 1], -1) - np.roll(v[:, 1], 1))))
-    return area, float(np.linalg.norm(np.roll(v, -1, axis=0) - v, axis=1).sum())
+    with np.errstate(over="ignore", invalid="ignore"):
+        area = 0.5 * abs(float(np.dot(v[:, 0], np.roll(v[:, 1], -1) - np.roll(v[:, 1], 1))))
+        return area, float(np.linalg.norm(np.roll(v, -1, axis=0) - v, axis=1).sum())
 
 
 def estimated_vertices(spec: DomainSpec, grow: float = 1.0) -> float:
-    """Vertices of a mesh of ``spec`` with every size times ``grow``: area / (√3/2 h²)."""
+    """Vertices of a mesh of ``spec`` with every size times ``grow``: area / (√3/2 h²).
+
+    Never raises for tiny or huge sizes: a count beyond the floats is ``inf``.
+    """
     area, perimeter = _area_perimeter(spec)
-    density = 1.0 / (math.sqrt(3.0) / 2.0)
-    h = spec.h * grow
-    count = area * density / h**2
+
+    def per_area(size: float) -> float:  # x / size / size: inf rather than 1/0 when size² = 0
+        return 2.0 / math.sqrt(3.0) / (size * grow) / (size * grow)
+
+    count = area * per_area(spec.h)
     if spec.central_h is not None:
-        zone = min(area, math.pi * spec.central_radius**2)
-        count += zone * density * (1.0 / (spec.central_h * grow) ** 2 - 1.0 / h**2)
+        zone = min(area, math.pi * spec.central_radius * spec.central_radius)
+        count += zone * (per_area(spec.central_h) - per_area(spec.h))
     if spec.edge_h is not None:
         band = min(area, perimeter * (spec.edge_width + 2.0 * (spec.h - spec.edge_h)))
-        count += band * density * (1.0 / (spec.edge_h * grow) ** 2 - 1.0 / h**2)
-    return count
+        count += band * (per_area(spec.edge_h) - per_area(spec.h))
+    return math.inf if math.isnan(count) else count  # nan: inf - inf, both sizes tiny
 
 
 def coarsening_steps(spec: DomainSpec) -> int:

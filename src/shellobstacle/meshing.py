@@ -133,9 +133,15 @@ def _check_file(model, path: str) -> str:
     """Merge a .msh file into ``model``; return an error message ("" if it is usable)."""
     import gmsh
 
+    fix = "set domain.path to a gmsh .msh file of linear triangles"
+    if os.path.isdir(path):
+        return f"mesh file {path!r} is a directory: {fix}"
     if not os.path.isfile(path):
-        return f"mesh file {path!r} does not exist"
-    gmsh.merge(path)
+        return f"mesh file {path!r} does not exist: {fix}"
+    try:
+        gmsh.merge(path)
+    except Exception as exc:  # gmsh raises Exception with its own message
+        return f"gmsh cannot read the mesh file {path!r} ({exc}): {fix}"
     types = {int(t) for dim in (2, 3) for t in model.mesh.getElementTypes(dim)}
     if types != {_TRIANGLE}:
         found = ", ".join(model.mesh.getElementProperties(t)[0] for t in sorted(types))

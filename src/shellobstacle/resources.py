@@ -56,7 +56,7 @@ def mesh_vertices(spec: DomainSpec) -> float | None:
     """Estimated vertices of the mesh of ``spec`` after its refinements (None: unknown)."""
     if spec.kind == "rectangle":
         (x0, y0), (x1, y1) = spec.corners
-        count = float((math.ceil((x1 - x0) / spec.h) + 1) * (math.ceil((y1 - y0) / spec.h) + 1))
+        count = _points_along(x1 - x0, spec.h) * _points_along(y1 - y0, spec.h)
     elif spec.kind == "file":
         count = _msh_nodes(Path(spec.path)) if spec.path else None
         if count is None:
@@ -64,6 +64,13 @@ def mesh_vertices(spec: DomainSpec) -> float | None:
     else:
         count = estimated_vertices(spec)
     return count * 4.0**spec.refinements  # a uniform refinement quadruples the cells
+
+
+def _points_along(length: float, h: float) -> float:
+    """Vertices on a side of ``length`` cut into cells of at most ``h`` (``inf`` beyond the
+    floats: ``ceil`` of ``inf`` raises, an integer product may not convert back)."""
+    cells = length / h
+    return float(math.ceil(cells)) + 1.0 if math.isfinite(cells) else math.inf
 
 
 def estimate(spec: DomainSpec, model: str = "membrane", degree: int = 1) -> Estimate | None:
@@ -106,9 +113,14 @@ def require_fits(
     need = (est.bytes_solve if solve else est.bytes_mesh) * on_node / comm.size
     need += BASE_BYTES * on_node
     have = machine_memory()
-    if need > MEMORY_SHARE * have:
+    if not need <= MEMORY_SHARE * have:
         size = _describe(spec)
         task = "solving" if solve else "meshing"
+        if not math.isfinite(need):
+            raise ResourceError(
+                f"{what}: {size} gives more vertices than a float can count (over 1e308): "
+                "use a larger h"
+            )
         raise ResourceError(
             f"{what}: {size} gives about {est.vertices:.2g} vertices and {est.dofs:.2g} dofs; "
             f"{task} needs about {need / 1e9:.3g} GB on this machine, which has "
@@ -141,6 +153,7 @@ def _msh_nodes(path: Path) -> float | None:
         return None
     fields = n.group(1).split()
     try:
-        return float(fields[1] if m.group(1).startswith("4") else fields[0])
+        count = float(fields[1] if m.group(1).startswith("4") else fields[0])
     except (IndexError, ValueError):
         return None
+    return count if math.isfinite(count) and count >= 0 else None  # else gmsh will refuse it

@@ -104,10 +104,13 @@ def open_checkpoint(
     error, old = None, None
     if comm.rank == 0:
         if resume:
+            again = "cannot resume: start again with --overwrite instead of --resume"
             try:
                 old = json.loads((steps / "meta.json").read_text())
             except (OSError, ValueError) as err:
-                old, error = None, f"cannot read {steps / 'meta.json'}: {err}; cannot resume"
+                old, error = None, f"cannot read {steps / 'meta.json'}: {err}; {again}"
+            if old is not None and not isinstance(old, dict):
+                old, error = None, f"{steps / 'meta.json'} is not the record of a run; {again}"
             if old is not None:
                 diff = meta_differences(
                     {k: old.get(k) for k in COMPARED}, {k: meta.get(k) for k in COMPARED}

@@ -244,6 +244,8 @@ def _blocked_parent(path: Path) -> str | None:
     """Why ``path`` cannot be created, naming the ancestor at fault, or None."""
     parent = path.parent
     while not parent.exists() and parent != parent.parent:
+        if parent.is_symlink():
+            return _dangling(parent)
         parent = parent.parent
     if not parent.is_dir():
         return f"'{parent}' is a file, so the output folder '{path}' cannot be created"
@@ -252,9 +254,16 @@ def _blocked_parent(path: Path) -> str | None:
     return None
 
 
+def _dangling(link: Path) -> str:
+    """A symbolic link to nothing: where it points (a path the user can create)."""
+    return f"'{link}' is a symbolic link to '{os.readlink(link)}', which does not exist"
+
+
 def _given(path: Path, overwrite: bool) -> tuple[ResultFolder | None, str | None]:
     again = "choose another -o"
-    if (path.exists() or path.is_symlink()) and not path.is_dir():
+    if path.is_symlink() and not path.exists():
+        return None, f"{_dangling(path)}: create that folder or {again}"
+    if path.exists() and not path.is_dir():
         return None, f"output path '{path}' is a file, not a folder: {again} or remove the file"
     real = _real(path)
     old = _aside(real)
