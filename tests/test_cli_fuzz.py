@@ -76,6 +76,9 @@ def _reached(*_args: object, **_kwargs: object) -> None:
 def _no_work() -> Iterator[None]:
     import importlib
 
+    # every module first: one imported under the stubs would keep them in its names
+    for module, _ in WORK:
+        importlib.import_module(module)
     with pytest.MonkeyPatch.context() as mp:
         for module, name in WORK:
             mp.setattr(importlib.import_module(module), name, _reached)

@@ -227,13 +227,13 @@ def experiment(args: argparse.Namespace) -> int:
     options = experiment_options(args, cfg)
     if args.batch == "koiter-limit":
         koiter_limit.validate(cfg, options["--epsilons"], args.edge_h, args.edge_width)
-    if not args.force:
-        for domain in experiment_domains(args, cfg, options):
-            model, degree = cfg.shell.model, cfg.discretization.degree
-            if args.batch == "koiter-limit":
-                model, degree = "koiter", 2
-            option = {"solvers": "--sizes", "koiter-limit": "--edge-h/--edge-width"}
-            require_fits(domain, model, degree, what=option.get(args.batch, "[domain]"))
+    domains = experiment_domains(args, cfg, options)  # validated, also with --force
+    model, degree = cfg.shell.model, cfg.discretization.degree
+    if args.batch == "koiter-limit":
+        model, degree = "koiter", 2
+    option = {"solvers": "--sizes", "koiter-limit": "--edge-h/--edge-width"}
+    for domain in domains if not args.force else []:
+        require_fits(domain, model, degree, what=option.get(args.batch, "[domain]"))
     meta = {
         "command": "experiment",
         "batch": args.batch,

@@ -1,4 +1,5 @@
-"""Wording shared by the config loader and the Python API, so both raise the same text.
+"""Wording shared by the config loader and the Python API, so both raise the same text, and
+the error type of a problem the user can fix (:class:`ConfigError`).
 
 A value outside its choices is reported as ``key = 'value' is not one of 'a', 'b'; did you
 mean 'a'?`` wherever it is caught: :mod:`shellobstacle.config` prefixes the file (or the
@@ -10,7 +11,7 @@ from __future__ import annotations
 import difflib
 from collections.abc import Sequence
 
-__all__ = ["not_one_of", "suggest"]
+__all__ = ["ConfigError", "not_one_of", "suggest"]
 
 
 def suggest(name: str, options: Sequence[str], what: str = "valid keys") -> str:
@@ -24,3 +25,7 @@ def not_one_of(key: str, value: object, choices: Sequence[str]) -> str:
     text = f"{key} = {value!r} is not one of {', '.join(map(repr, choices))}"
     close = difflib.get_close_matches(str(value), list(choices), n=1, cutoff=0.5)
     return text + (f"; did you mean {close[0]!r}?" if isinstance(value, str) and close else "")
+
+
+class ConfigError(ValueError):
+    """A configuration problem the user can fix; the message names file, key and fix."""

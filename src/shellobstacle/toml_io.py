@@ -1,0 +1,103 @@
+"""TOML text in and out: reading a config file, ``--set`` overrides, writing a resolved config.
+
+:mod:`shellobstacle.config` validates what is read here.
+"""
+
+from __future__ import annotations
+
+import tomllib
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+from shellobstacle.messages import ConfigError
+
+__all__ = ["apply_overrides", "read_toml", "to_toml"]
+
+
+def read_toml(path: Path) -> dict[str, Any]:
+    """The TOML document in ``path``; a directory, a binary or unreadable file is refused."""
+    if path.is_dir():
+        raise ConfigError(f"config file {str(path)!r} is a directory: give a TOML file")
+    if not path.exists():
+        raise ConfigError(f"config file {str(path)!r} does not exist")
+    if not path.is_file():
+        raise ConfigError(f"config file {str(path)!r} is not a regular file: give a TOML file")
+    try:
+        raw = path.read_bytes()
+    except OSError as err:
+        raise ConfigError(f"config file {str(path)!r} cannot be read: {err.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise ConfigError(
+            f"{path}: not a text file (byte {err.start} is not UTF-8): give a TOML config file"
+        ) from None
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from None
+
+
+#: keys of which a config gives one: a ``--set`` of one removes the other from the file
+_EXCLUSIVE = {"penalty.kappa": "exponent", "penalty.exponent": "kappa"}
+
+
+def apply_overrides(data: dict[str, Any], items: list[str]) -> dict[str, str]:
+    """Apply ``section.key=value`` overrides in order (value in TOML syntax, bare words are
+    strings; ``load.parameters.ell=3`` sets a key inside a table). A ``--set`` of
+    ``penalty.kappa`` removes the file's ``penalty.exponent`` and conversely.
+
+    Returns:
+        dotted key → the ``--set`` text that gave it (errors about it name the ``--set``).
+    """
+    given: dict[str, str] = {}
+    for item in items:
+        lhs, sep, rhs = item.partition("=")
+        parts = [part.strip() for part in lhs.split(".")]
+        if not sep or len(parts) < 2 or not all(parts):
+            raise ConfigError(f"--set {item!r}: expected section.key=value, e.g. domain.h=0.01")
+        text = f"--set {item.strip()}"
+        try:
+            value = tomllib.loads(f"v = {rhs.strip()}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = rhs.strip()
+        table = data
+        for i, part in enumerate(parts[:-1]):
+            table = table.setdefault(part, {})
+            if not isinstance(table, dict):
+                where = ".".join(parts[: i + 1])
+                raise ConfigError(f"{text}: {where} is not a table, it cannot hold '{parts[-1]}'")
+        dotted = ".".join(parts)
+        partner = _EXCLUSIVE.get(dotted)
+        if partner is not None and f"penalty.{partner}" not in given:
+            table.pop(partner, None)
+        table[parts[-1]] = value
+        given[dotted] = text
+    return given
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, int | float):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, list | tuple):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
+    raise TypeError(f"cannot write {v!r} to TOML")
+
+
+def to_toml(resolved: Mapping[str, Mapping[str, Any]]) -> str:
+    """Serialize a resolved configuration (what was used, defaults included)."""
+    parts = []
+    for section, keys in resolved.items():
+        if not keys:
+            continue
+        parts.append(f"[{section}]")
+        parts += [f"{k} = {_toml_value(v)}" for k, v in keys.items()]
+        parts.append("")
+    return "\n".join(parts)
