@@ -350,3 +350,19 @@ def test_large_mesh_is_the_coarse_gmsh_mesh_refined_twice(spec: DomainSpec):
 def test_gmsh_max_vertices_must_not_be_negative():
     with pytest.raises(ValueError, match="gmsh_max_vertices must be >= 0"):
         create_mesh(DomainSpec(kind="disk", h=0.1, gmsh_max_vertices=-1))
+
+
+@pytest.mark.mpi
+def test_a_mesh_too_large_for_the_machine_is_refused_on_every_rank(monkeypatch) -> None:
+    """require_fits raises the same one-line ResourceError on every rank (the ranks on this
+    machine need their share of the run's memory); what fits passes everywhere."""
+    from shellobstacle import resources
+
+    monkeypatch.setattr(resources, "machine_memory", lambda: 1.0e9)
+    spec = DomainSpec("disk", 0.002)  # about 2.3e5 vertices, 7e5 dofs: 2.4 GB
+    with pytest.raises(resources.ResourceError) as caught:
+        resources.require_fits(spec)
+    messages = COMM.allgather(str(caught.value))
+    assert len(set(messages)) == 1 and "which has 1 GB" in messages[0]
+    assert "\n" not in messages[0]
+    assert resources.require_fits(DomainSpec("disk", 0.1)) is not None
