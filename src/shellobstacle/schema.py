@@ -50,7 +50,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "vertices": Key("points", OPTIONAL, "polygon: list of [y1, y2] vertices"),
         "corners": Key("points", OPTIONAL, "rectangle: [[y1_min, y2_min], [y1_max, y2_max]]"),
         "path": Key(
-            "str", OPTIONAL, "file: a gmsh .msh file of triangles (relative to the config)"
+            "str",
+            OPTIONAL,
+            "file: a gmsh .msh file of triangles (relative to the config; a result folder's "
+            "config.toml holds it absolute)",
         ),
         "refinements": Key("int", 0, "uniform refinements after meshing (nested meshes)"),
         "central_h": Key("float", OPTIONAL, "disk/ellipse: finer mesh size near the centre"),
