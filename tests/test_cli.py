@@ -232,3 +232,17 @@ def test_brezis_sibony_method_cap_is_reported(tmp_path: Path) -> None:
     step = summary["continuation"][0]
     assert summary["converged"] is False and step["iterations"] == 50
     assert 0 < step["contraction_factor"] < 1
+
+
+def test_an_experiment_whose_solver_fails_says_so_in_one_line(tmp_path: Path, capsys) -> None:
+    """Newton's non-convergence inside a sweep is a solver failure (exit 1, one line with the
+    remedy and where the finished steps are), not an internal error."""
+    out = tmp_path / "sweep"
+    args = ["experiment", "penalty", str(SMALL), "-q", "-o", str(out)]
+    args += ["--set", "domain.h=0.1", "--set", "solver.max_iterations=1", "--q-max", "1"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("shellobstacle: solver failure: Newton did not converge"), err
+    assert "raise solver.max_iterations" in err and f"{out}/steps/" in err
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    assert "solver failure: Newton did not converge" in (out / "log.txt").read_text()

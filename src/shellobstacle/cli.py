@@ -216,6 +216,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     from shellobstacle.config import ConfigError
     from shellobstacle.expressions import ExpressionError
     from shellobstacle.io.folders import ResultsError
+    from shellobstacle.solvers.base import ConvergenceError
 
     try:
         _require_text(args.argv)
@@ -239,6 +240,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         if MPI.COMM_WORLD.rank == 0:
             print(f"shellobstacle: error: {_one_line(f'{err}{_kept(args)}')}", file=sys.stderr)
         return EXIT_USAGE
+    except ConvergenceError as err:
+        _record(args, f"solver failure: {_one_line(str(err))}")
+        if MPI.COMM_WORLD.rank == 0:
+            steps = ""
+            if args.folder is not None and hasattr(args, "resume"):
+                steps = f"; the finished steps are recorded in {args.folder.path}/steps/"
+            print(
+                f"shellobstacle: solver failure: {_one_line(str(err))}: raise "
+                "solver.max_iterations or loosen solver.rtol in a new run"
+                f"{steps or _kept(args)}",
+                file=sys.stderr,
+            )
+        return EXIT_FAILED
     except KeyboardInterrupt:
         from shellobstacle import interrupt
 
