@@ -132,3 +132,14 @@ def test_koiter_tends_to_the_membrane_on_the_papers_problem(koiter_limit_run: Pa
 def test_koiter_limit_refuses_bad_options(tmp_path: Path, bad: list[str]) -> None:
     out = tmp_path / "x"
     assert main(["experiment", "koiter-limit", str(PAPER), "-o", str(out), "-q", *bad]) == 2
+
+
+@pytest.mark.skipif(COMM.size > 1, reason="serial")
+def test_koiter_limit_verbose_prints_each_newton_step(tmp_path: Path) -> None:
+    """-v: a line per Newton iteration of every solve, in log.txt too."""
+    out = tmp_path / "verbose"
+    args = ["experiment", "koiter-limit", str(PAPER), "-o", str(out), "-v"]
+    args += ["--set", "domain.h=0.1", "--epsilons", "1e-1", "--edge-h", "0.05"]
+    assert main(args) == 0
+    log = (out / "log.txt").read_text()
+    assert "Newton 1: relative residual" in log and "Newton: " in log

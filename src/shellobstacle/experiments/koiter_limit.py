@@ -205,7 +205,8 @@ def koiter_limit(
     tree = line_tree(mesh, "y1", 0.0)
 
     def solve(problem: PenalizedProblem) -> list[Any]:
-        return continuation(problem, NewtonSolver(problem, newton), kappas, newton_progress)
+        solver = NewtonSolver(problem, newton)
+        return continuation(problem, solver, kappas, newton_progress=newton_progress)
 
     membrane = {}
     for transverse in ("clamped", "free"):
