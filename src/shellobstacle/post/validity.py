@@ -7,11 +7,11 @@ over itself. Scale-free measures, computed after every solve:
 
 ``penetration``
     ``max {g(ζ)}^- / max θ·q``: the largest penetration of the plane against the shell's
-    initial height above it (the gap scale). The penalized solution penetrates by ``O(κ)``;
-    a penetration that is a sizeable part of the height means the constraint is not imposed.
+    initial height above it (the gap scale). The penalized solution's penetration vanishes as
+    κ → 0; one that is a sizeable part of the height means the constraint is not imposed.
 ``displacement``
-    ``max |ζ_i a^i| / diam θ(ω)``: the linear model assumes displacements small against the
-    shell (MODEL.md §2); beyond a quarter of its size the linearization is not credible.
+    ``max |ζ_i a^i| / diam θ(ω)``: the linearized strain (MODEL.md §2) assumes displacements
+    small against the shell; beyond a quarter of its size the linearization is not credible.
 ``orientation``
     ``min a_3 · (ã_1 ∧ ã_2) / √a`` with the deformed tangent vectors ``ã_α = a_α + ∂_α U``,
     ``U = ζ_i a^i``: 1 for no deformation, ``≤ 0`` where the deformed surface folds over.
