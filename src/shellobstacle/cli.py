@@ -243,13 +243,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ConvergenceError as err:
         _record(args, f"solver failure: {_one_line(str(err))}")
         if MPI.COMM_WORLD.rank == 0:
-            steps = ""
-            if args.folder is not None and hasattr(args, "resume"):
-                steps = f"; the finished steps are recorded in {args.folder.path}/steps/"
             print(
                 f"shellobstacle: solver failure: {_one_line(str(err))}: raise "
                 "solver.max_iterations or loosen solver.rtol in a new run"
-                f"{steps or _kept(args)}",
+                f"{_steps_recorded(args) or _kept(args)}",
                 file=sys.stderr,
             )
         return EXIT_FAILED
@@ -324,13 +321,18 @@ def _kept(args: argparse.Namespace) -> str:
     )
 
 
+def _steps_recorded(args: argparse.Namespace) -> str:
+    """For an experiment or reproduce that stopped: where its finished steps are."""
+    if args.folder is None or not hasattr(args, "resume"):
+        return ""
+    return f"; the finished steps are recorded in {args.folder.path}/steps/"
+
+
 def _resume_hint(args: argparse.Namespace) -> str:
     """For an interrupted experiment or reproduce: where its steps are and how to continue."""
-    if args.folder is None or not hasattr(args, "resume"):
+    steps = _steps_recorded(args)
+    if not steps:
         return ""
     folder = args.folder
     unchanged = f" ({folder.target}/ is unchanged until it finishes)" if folder.staged else ""
-    return (
-        f"; the finished steps are recorded in {folder.path}/steps/: continue with the same "
-        f"command and --resume -o {folder.target}{unchanged}"
-    )
+    return f"{steps}: continue with the same command and --resume -o {folder.target}{unchanged}"

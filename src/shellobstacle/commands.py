@@ -210,8 +210,11 @@ def experiment(args: argparse.Namespace) -> int:
     from shellobstacle.experiments import koiter_limit, load, mesh, solvers
     from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
     from shellobstacle.io.folders import atomic_write, prepare_folder
-    from shellobstacle.options import experiment_domains, experiment_options
-    from shellobstacle.resources import require_fits
+    from shellobstacle.options import (
+        experiment_domains,
+        experiment_options,
+        require_experiment_fits,
+    )
 
     cfg, config_warnings = _load(args)
     if args.batch == "load" and cfg.penalty is None:
@@ -228,12 +231,8 @@ def experiment(args: argparse.Namespace) -> int:
     if args.batch == "koiter-limit":
         koiter_limit.validate(cfg, options["--epsilons"], args.edge_h, args.edge_width)
     domains = experiment_domains(args, cfg, options)  # validated, also with --force
-    model, degree = cfg.shell.model, cfg.discretization.degree
-    if args.batch == "koiter-limit":
-        model, degree = "koiter", 2
-    option = {"solvers": "--sizes", "koiter-limit": "--edge-h/--edge-width"}
-    for domain in domains if not args.force else []:
-        require_fits(domain, model, degree, what=option.get(args.batch, "[domain]"))
+    if not args.force:
+        require_experiment_fits(args, cfg, domains)
     meta = {
         "command": "experiment",
         "batch": args.batch,

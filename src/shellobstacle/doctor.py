@@ -13,7 +13,6 @@ import os
 import platform
 import time
 from collections.abc import Mapping
-from pathlib import Path
 
 __all__ = ["CRASHING_CORETYPES", "coretype_warning", "numpy_blas_config", "report"]
 
@@ -93,7 +92,9 @@ def report(installed: str) -> tuple[list[str], list[str]]:
             f"MUMPS' selected inverse entries are out of reach ({reason}): the direct solver "
             "falls back to one factorization per κ (solver.contact_zone has no effect)"
         )
-    if stale := unfinished_compilations(older_than=600.0):
+    from shellobstacle.interrupt import unfinished_compilations
+
+    if stale := unfinished_compilations(older_than=time.time() - 600.0):
         problems.append(
             f"{len(stale)} FFCx compilation(s) in {stale[0].parent} never finished (a killed "
             "run?); the next compilation of the same forms waits for them and fails: remove "
@@ -101,18 +102,3 @@ def report(installed: str) -> tuple[list[str], list[str]]:
             + (" ..." if len(stale) > 3 else "")
         )
     return lines, problems
-
-
-def unfinished_compilations(older_than: float) -> list[Path]:
-    """FFCx sources in DOLFINx's JIT cache without the ``.c.cached`` marker of a finished
-    compilation, last written more than ``older_than`` seconds ago."""
-    from dolfinx.jit import get_options
-
-    now = time.time()
-    stale = []
-    for c_file in sorted(Path(get_options()["cache_dir"]).glob("*.c")):
-        with contextlib.suppress(OSError):
-            done = c_file.with_suffix(".c.cached").exists()
-            if not done and now - c_file.stat().st_mtime > older_than:
-                stale.append(c_file)
-    return stale

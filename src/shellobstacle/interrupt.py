@@ -20,13 +20,20 @@ the library and :func:`shellobstacle.cli.main` leave the process's signals alone
 from __future__ import annotations
 
 import contextlib
+import math
 import os
 import signal
 import subprocess
 import sys
 from pathlib import Path
 
-__all__ = ["GRACE", "acknowledge", "install", "remove_unfinished_compilations"]
+__all__ = [
+    "GRACE",
+    "acknowledge",
+    "install",
+    "remove_unfinished_compilations",
+    "unfinished_compilations",
+]
 
 #: Seconds a long call into C may keep running after Ctrl-C.
 GRACE = 2.0
@@ -118,16 +125,28 @@ def acknowledge() -> None:
             os.write(_ack_fd, b"a")
 
 
-def remove_unfinished_compilations(since: float) -> list[Path]:
-    """Remove the FFCx sources in DOLFINx's JIT cache written since ``since`` (a
-    ``time.time()``) whose compilation did not finish (no ``.c.cached`` marker)."""
+def unfinished_compilations(
+    newer_than: float = -math.inf, older_than: float = math.inf
+) -> list[Path]:
+    """FFCx sources in DOLFINx's JIT cache without the ``.c.cached`` marker of a finished
+    compilation, last written after ``newer_than`` and before ``older_than`` (``time.time()``
+    values)."""
     from dolfinx.jit import get_options
 
-    removed = []
-    for c_file in Path(get_options()["cache_dir"]).glob("*.c"):
+    found = []
+    for c_file in sorted(Path(get_options()["cache_dir"]).glob("*.c")):
         with contextlib.suppress(OSError):
             done = c_file.with_suffix(".c.cached").exists()
-            if not done and c_file.stat().st_mtime >= since:
-                c_file.unlink()
-                removed.append(c_file)
+            if not done and newer_than <= c_file.stat().st_mtime < older_than:
+                found.append(c_file)
+    return found
+
+
+def remove_unfinished_compilations(since: float) -> list[Path]:
+    """Remove the unfinished FFCx sources written since ``since`` (a ``time.time()``)."""
+    removed = []
+    for c_file in unfinished_compilations(newer_than=since):
+        with contextlib.suppress(OSError):
+            c_file.unlink()
+            removed.append(c_file)
     return removed

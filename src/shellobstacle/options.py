@@ -16,7 +16,13 @@ from typing import Any
 from shellobstacle.config import Config, ConfigError
 from shellobstacle.domains import DomainSpec, validate
 
-__all__ = ["MAX_STEPS", "experiment_domains", "experiment_options", "numbers"]
+__all__ = [
+    "MAX_STEPS",
+    "experiment_domains",
+    "experiment_options",
+    "numbers",
+    "require_experiment_fits",
+]
 
 #: The most values a sweep may take (penalty exponents, mesh exponents, load values, ...).
 MAX_STEPS = 200
@@ -143,7 +149,6 @@ def experiment_domains(
             than ω).
     """
     domain = cfg.domain
-    option = {"solvers": "--sizes", "koiter-limit": "--edge-h/--edge-width"}
     try:
         if args.batch == "mesh":
             finest = domain.refinements + options["--refinements"]
@@ -160,5 +165,26 @@ def experiment_domains(
         for spec in domains:
             validate(spec)
     except ValueError as err:
-        raise ConfigError(f"{option.get(args.batch, '[domain]')}: {err}") from None
+        raise ConfigError(f"{_size_option(args)}: {err}") from None
     return domains
+
+
+def require_experiment_fits(
+    args: argparse.Namespace, cfg: Config, domains: list[DomainSpec]
+) -> None:
+    """Refuse (:class:`~shellobstacle.resources.ResourceError`) a mesh of ``domains`` that
+    would not fit in this machine's memory with the model the batch solves."""
+    from shellobstacle.resources import require_fits
+
+    model, degree = cfg.shell.model, cfg.discretization.degree
+    if args.batch == "koiter-limit":
+        model, degree = "koiter", 2
+    for domain in domains:
+        require_fits(domain, model, degree, what=_size_option(args))
+
+
+def _size_option(args: argparse.Namespace) -> str:
+    """What sets the size of the batch's meshes, as errors name it."""
+    return {"solvers": "--sizes", "koiter-limit": "--edge-h/--edge-width"}.get(
+        args.batch, "[domain]"
+    )

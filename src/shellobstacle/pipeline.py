@@ -92,14 +92,19 @@ class SolveResult:
         """Iterations summed over all steps (Newton steps over the continuation)."""
         return sum(s.iterations for s in self.steps)
 
-    def validity(self) -> Any:
+    @property
+    def solved_kappa(self) -> float:
+        """The κ of the solution held (0 for the exact active-set solution)."""
+        return 0.0 if self.method == "active-set" else float(self.problem.kappa.value)
+
+    def validity(self, post: Any = None) -> Any:
         """The solution's :class:`~shellobstacle.post.validity.Validity` (penetration,
-        displacement, orientation against their thresholds); collective under MPI."""
+        displacement, orientation against their thresholds); ``post``: the problem's
+        :class:`~shellobstacle.post.contact.Postprocessor` if one exists. Collective."""
         from shellobstacle.post.contact import Postprocessor
         from shellobstacle.post.validity import assess
 
-        kappa = 0.0 if self.method == "active-set" else float(self.problem.kappa.value)
-        return assess(Postprocessor(self.problem), kappa)
+        return assess(post or Postprocessor(self.problem), self.solved_kappa)
 
 
 def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:

@@ -31,14 +31,12 @@ def write_solution(
     from shellobstacle.io.paraview import write_paraview
     from shellobstacle.post.contact import Postprocessor
     from shellobstacle.post.plotting import plot_cross_section
-    from shellobstacle.post.validity import assess
 
     problem = result.problem
     t = time.perf_counter()
     post = Postprocessor(problem)
     quantities = post.summary()
-    kappa = 0.0 if result.method == "active-set" else float(problem.kappa.value)
-    validity = assess(post, kappa)
+    validity = result.validity(post)
     for line in validity.warnings():
         say(f"warning: {line}")
     timings = dict(result.timings)
@@ -53,7 +51,7 @@ def write_solution(
         "iterations_last_kappa": last.iterations if last else 0,
         "dofs": problem.num_dofs,
         "h": result.h,
-        "kappa": kappa,
+        "kappa": result.solved_kappa,
         "kappa_target": result.kappa,
         **quantities,
         "residual_history": last.residual_norms if last else [],
