@@ -372,5 +372,3 @@ def test_config_refuses_what_koiter_cannot_use() -> None:
         _config(model=koiter, discretization={"transverse": "free"})
     with pytest.raises(ConfigError, match="linear_solver = 'direct'"):
         _config(model=koiter, solver={"linear_solver": "iterative"})
-    with pytest.raises(ConfigError, match="method = 'newton'"):
-        _config(model=koiter, solver={"method": "active-set"})

@@ -246,14 +246,10 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
                 "penalty.kappa / penalty.exponent are ignored",
                 stacklevel=3,
             )
-        if disc.degree != 1:
-            raise ConfigError(
-                "solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1: "
-                "set discretization.degree = 1"
-            )
-        # the exact solver's constraint is the nodal one, whatever the penalty would use
-        disc = dataclasses.replace(disc, penalty_quadrature="vertex")
-        r["discretization"]["penalty_quadrature"] = "vertex"
+        if disc.degree == 1:
+            # the exact solver's constraint is the nodal one, which P1's vertex penalty has
+            disc = dataclasses.replace(disc, penalty_quadrature="vertex")
+            r["discretization"]["penalty_quadrature"] = "vertex"
         r["penalty"] = {}
     else:
         penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
@@ -284,11 +280,6 @@ def _require_mesh_file(path: str) -> None:
 
 def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
     """The solver and discretization choices Koiter's model cannot take."""
-    if sv["method"] == "active-set":
-        raise ConfigError(
-            "solver.method = 'active-set' imposes g ≥ 0 at the vertices of P1, "
-            "and Koiter's model needs P2: use solver.method = 'newton' with a small κ"
-        )
     if sv["linear_solver"] == "iterative":
         raise ConfigError(
             "solver.linear_solver = 'iterative' preconditions ζ_3 as the "

@@ -293,7 +293,7 @@ def _active_set(result: SolveResult, options: Any, say: Progress) -> None:
     ]
     result.extra["multiplier"] = r.multiplier
     result.extra["contact_pressure"] = r.contact_pressure
-    say(f"active set: {r.iterations} steps, {r.active_nodes} active vertices, KKT {r.kkt}")
+    say(f"active set: {r.iterations} steps, {r.active_nodes} active nodes, KKT {r.kkt}")
 
 
 def solve_config(

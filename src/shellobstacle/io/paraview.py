@@ -195,8 +195,8 @@ def write_paraview(
         problem: The solved problem.
         post: Its :class:`~shellobstacle.post.contact.Postprocessor`.
         folder: Output folder (created if needed).
-        extra: More scalar P1 fields (e.g. the contact pressure of the exact solver), written
-            with the gap and the contact indicator.
+        extra: More scalar fields in the nodes' space (e.g. the contact pressure of the exact
+            solver), written at the vertices with the gap and the contact indicator.
 
     Returns:
         The paths of the written ``.bp`` folders (the same list on every rank).
@@ -233,6 +233,8 @@ def write_paraview(
             g = dolfinx.fem.Function(W, name=f.name)
             g.interpolate(f)  # vertex values of the P2 field
             p1_vectors.append(g)
+        S = dolfinx.fem.functionspace(problem.mesh, ("Lagrange", 1))
+        extra = [_vertex_values(f, S) for f in extra]
     flat = [*p1_vectors, gap, contact, *extra]
     paths.insert(0, _write(comm, folder / "parameter_domain.bp", flat))
 
@@ -248,3 +250,10 @@ def write_paraview(
     deformed_fields = [reference.transfer(f) for f in (p1_vectors[1], gap, contact)]
     paths.append(_write(comm, folder / "deformed_surface.bp", deformed_fields))
     return paths
+
+
+def _vertex_values(f: dolfinx.fem.Function, S: dolfinx.fem.FunctionSpace) -> dolfinx.fem.Function:
+    """``f`` at the vertices, as a Function on the scalar P1 space ``S`` (same name)."""
+    g = dolfinx.fem.Function(S, name=f.name)
+    g.interpolate(f)
+    return g

@@ -1,16 +1,19 @@
-"""Exact solver of the discrete obstacle problem P_M^{ε,h} with nodal constraints (MODEL.md §3, §5).
+"""Exact solver of the discrete obstacle problem with nodal constraints (MODEL.md §3, §5).
 
-For P1 elements with the constraint imposed at the vertices, the discrete
-variational inequality (``κ = 0``) is the strictly convex quadratic program
+With the constraint imposed at the Lagrange nodes ``x_i`` of the displacement space (P1: the
+vertices; P2: the vertices and edge midpoints), the discrete variational inequality
+(``κ = 0``) is the strictly convex quadratic program
 
 :math:`\\min_{η ∈ V_h} J(η) = \\tfrac12 η^T K η - f^T η` subject to
-:math:`g_i(η) = θ(x_i)·q + c(x_i)·η(x_i) ≥ 0` at every vertex :math:`x_i`,
+:math:`g_i(η) = θ(x_i)·q + c(x_i)·η(x_i) ≥ 0` at every node :math:`x_i`,
 
-with ``K`` the (linear, ``κ``-independent) membrane stiffness matrix and ``f`` the
-load vector, both carrying the problem's homogeneous Dirichlet conditions. It is
-the limit ``κ → 0`` of the penalized problem with ``penalty_quadrature = "vertex"``.
+with ``K`` the (linear, ``κ``-independent) stiffness matrix of either model and ``f`` the
+load vector, both carrying the problem's homogeneous Dirichlet conditions. For P1 it is the
+limit ``κ → 0`` of the penalized problem with ``penalty_quadrature = "vertex"``; for P2 no
+quadrature has exactly these points with positive weights, so the penalized problems
+approach it only as ``h → 0``.
 
-**Bounds.** The rotations of :mod:`~shellobstacle.solvers.nodal` turn each vertex's
+**Bounds.** The rotations of :mod:`~shellobstacle.solvers.nodal` turn each node's
 constraint into a lower bound on one rotated unknown, ``u_b ≥ ψ_b``: with ``K' = QᵀKQ`` and
 ``f' = Qᵀf`` the problem is a bound-constrained QP.
 
@@ -31,10 +34,10 @@ sparsity of ``K'`` (its symbolic factorization is reused):
    within a few steps, phase 1 continues with a larger ``γ``.
 
 **KKT.** At the solution ``(ζ^h, λ)`` (``B`` the constraint matrix: row ``i`` is
-``c(x_i)`` on the unknowns of vertex ``i``): ``K ζ − f − Bᵀλ = 0``, ``g_i ≥ 0``,
+``c(x_i)`` on the unknowns of node ``i``): ``K ζ − f − Bᵀλ = 0``, ``g_i ≥ 0``,
 ``λ_i ≥ 0``, ``λ_i g_i = 0``. The multiplier ``λ_i = (K'u − f')_{i,k_i} / |c(x_i)|`` is
 the nodal contact force (``λ ≥ 0`` pushes the shell away from the plane); divided by
-the lumped mass ``∫ φ_i √a dy`` it is a contact pressure. A penalized solution
+a lumped mass (P1: ``∫ φ_i √a dy``) it is a contact pressure. A penalized solution
 approximates it by ``(ε/κ) m^0_i {g_i}^- / |c(x_i)|`` with ``m^0_i = ∫ φ_i dy``.
 """
 
@@ -67,7 +70,7 @@ class ActiveSetResult:
     Attributes:
         converged: whether the active set settled and the KKT measures pass ``kkt_rtol``.
         iterations: linear solves in total (``newton_steps + pdas_steps``).
-        active_nodes: global number of vertices in the final active set.
+        active_nodes: global number of nodes in the final active set.
         reason: why the solver stopped.
         kkt: ``primal_feasibility = max_i {g_i}^-``, ``dual_feasibility = max_i {λ_i}^-``,
             ``complementarity = max_i |λ_i g_i|`` (absolute; see ``scales``) and
@@ -81,9 +84,10 @@ class ActiveSetResult:
         active_history: global size of the active set after each primal–dual step.
         timings: seconds in ``setup`` (stiffness, rotation, ``QᵀKQ``: once per solver),
             ``assemble`` (load), ``solve`` (factorizations and solves), ``kkt`` and ``total``.
-        multiplier: ``λ`` (nodal contact forces), a P1 Function (the solver's own, refreshed
-            by each :meth:`ActiveSetSolver.solve`: copy it to keep it).
-        contact_pressure: ``λ_i / ∫ φ_i √a dy``, a P1 Function (likewise refreshed).
+        multiplier: ``λ`` (nodal contact forces), a scalar Function on the nodes (the
+            solver's own, refreshed by each :meth:`ActiveSetSolver.solve`: copy it to keep it).
+        contact_pressure: ``λ_i / m_i``, ``m_i`` the lumped masses of
+            :class:`~shellobstacle.solvers.nodal.NodalConstraint` (likewise refreshed).
     """
 
     converged: bool
@@ -113,27 +117,28 @@ class ActiveSetResult:
 
 
 class ActiveSetSolver:
-    """Exact solver of the discrete obstacle problem (κ = 0) of one P1 :class:`PenalizedProblem`.
+    """Exact solver of the discrete obstacle problem (κ = 0) of one :class:`PenalizedProblem`.
 
     The stiffness matrix, the nodal rotation and ``K' = QᵀKQ`` are built once; each
     :meth:`solve` re-assembles only the load, so load parameters may change between solves.
 
     Args:
-        problem: a P1 problem with ``penalty_quadrature = "vertex"`` (its ``κ`` is not used).
+        problem: a P1 problem with ``penalty_quadrature = "vertex"``, or a P2 problem (its
+            ``κ`` is not used).
         options: schedule, limits and tolerance.
 
     Raises:
-        ValueError: for other discretizations, or when a vertex whose displacement is fixed
+        ValueError: for other discretizations, or when a node whose displacement is fixed
             lies below the plane (no admissible displacement).
     """
 
     def __init__(self, problem: PenalizedProblem, options: ActiveSetOptions | None = None) -> None:
         disc = problem.disc
-        if disc.degree != 1 or disc.penalty_quadrature != "vertex":
+        if not (disc.degree == 2 or (disc.degree == 1 and disc.penalty_quadrature == "vertex")):
             raise ValueError(
-                "ActiveSetSolver solves the nodal (vertex) constraint of P1 elements: it needs "
-                "Discretization(degree=1, penalty_quadrature='vertex'), got "
-                f"degree={disc.degree}, penalty_quadrature={disc.penalty_quadrature!r}"
+                "ActiveSetSolver solves the nodal constraint of P1 (vertices, as "
+                "penalty_quadrature='vertex' penalizes) or P2 (vertices and edge midpoints): "
+                f"got degree={disc.degree}, penalty_quadrature={disc.penalty_quadrature!r}"
             )
         self.problem = problem
         self.options = options or ActiveSetOptions()

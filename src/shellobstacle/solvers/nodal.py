@@ -1,13 +1,14 @@
-"""The nodal constraint of P1 as bounds: one rotation per vertex (MODEL.md §3, §5).
+"""The nodal constraint as bounds: one rotation per node (MODEL.md §3, §5).
 
-With the constraint ``g ≥ 0`` imposed at the vertices, each constraint involves only the
-three unknowns of its vertex. An orthogonal change of variables ``η_i = Q_i u_i`` per vertex
-(a Householder reflection whose column ``k_i`` is ``c(x_i)/|c(x_i)|``; it leaves fixed
-Dirichlet components alone) turns it into a lower bound on one rotated unknown,
-``u_{i,k_i} ≥ ψ_i = −θ(x_i)·q / |c(x_i)|``. With the block-diagonal ``Q`` (a PETSc matrix,
-block size 3), ``K' = QᵀKQ`` and ``f' = Qᵀf`` the obstacle problem is a bound-constrained
-quadratic program. The multiplier of a bound, ``λ_i = (K'u − f')_{i,k_i} / |c(x_i)|``, is the
-nodal contact force; divided by the lumped mass ``∫ φ_i √a dy`` it is a contact pressure.
+With the constraint ``g ≥ 0`` imposed at the Lagrange nodes (P1: the vertices; P2: the
+vertices and edge midpoints), each constraint involves only the three unknowns of its node.
+An orthogonal change of variables ``η_i = Q_i u_i`` per node (a Householder reflection whose
+column ``k_i`` is ``c(x_i)/|c(x_i)|``; it leaves fixed Dirichlet components alone) turns it
+into a lower bound on one rotated unknown, ``u_{i,k_i} ≥ ψ_i = −θ(x_i)·q / |c(x_i)|``. With
+the block-diagonal ``Q`` (a PETSc matrix, block size 3), ``K' = QᵀKQ`` and ``f' = Qᵀf`` the
+obstacle problem is a bound-constrained quadratic program. The multiplier of a bound,
+``λ_i = (K'u − f')_{i,k_i} / |c(x_i)|``, is the nodal contact force; divided by a lumped
+mass it is a contact pressure.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import ufl
 
 from shellobstacle.problem import PenalizedProblem
 
-__all__ = ["NodalConstraint", "nodal_rotations"]
+__all__ = ["NodalConstraint", "lumped_mass_p2", "nodal_rotations"]
 
 
 def nodal_rotations(
@@ -31,18 +32,18 @@ def nodal_rotations(
     """Orthogonal 3×3 matrices ``Q_i`` whose column ``k_i`` is the free part of ``c_i``, normalized.
 
     ``Q_i`` is a Householder reflection (with column ``k_i`` negated where needed) acting only
-    on the free (non-Dirichlet) components of vertex ``i``: ``Q_i e_j = e_j`` for every fixed
+    on the free (non-Dirichlet) components of node ``i``: ``Q_i e_j = e_j`` for every fixed
     component ``j``, so fixed unknowns stay fixed in the rotated basis, and
     ``c_i · (Q_i u) = |c_i^F| u_{k_i}`` (``c_i^F`` the free part of ``c_i``).
 
     Args:
         c: ``c_j(x_i) = a^j(x_i)·q``, shape ``(n, 3)``.
-        free: which components of each vertex are free, shape ``(n, 3)``, bool.
-        rel_tol: a vertex carries no constraint when ``|c_i^F| ≤ rel_tol · max_i |c_i|``.
+        free: which components of each node are free, shape ``(n, 3)``, bool.
+        rel_tol: a node carries no constraint when ``|c_i^F| ≤ rel_tol · max_i |c_i|``.
 
     Returns:
         ``(Q, k, cn)``: ``Q`` of shape ``(n, 3, 3)``, ``k`` the index of the constrained rotated
-        component (``-1`` where the vertex carries no constraint), and ``cn = |c_i^F|``.
+        component (``-1`` where the node carries no constraint), and ``cn = |c_i^F|``.
     """
     n = c.shape[0]
     cf = np.where(free, c, 0.0)
@@ -67,20 +68,24 @@ def nodal_rotations(
 
 
 class NodalConstraint:
-    """The vertex data of one P1 problem: gaps, rotations, bounds and the multiplier's space.
+    """The nodal data of one problem: gaps, rotations, bounds and the multiplier's space.
+
+    The nodes are the Lagrange nodes of the displacement space: the vertices for P1, the
+    vertices and edge midpoints for P2.
 
     Attributes:
-        theta_q: ``θ(x_i)·q`` at the owned vertices.
+        theta_q: ``θ(x_i)·q`` at the owned nodes.
         c: ``c_j(x_i) = a^j(x_i)·q``, shape ``(n, 3)``.
-        free: which components of each vertex are free (not Dirichlet), shape ``(n, 3)``.
-        nodes: the owned vertices that carry a constraint.
+        free: which components of each node are free (not Dirichlet), shape ``(n, 3)``.
+        nodes: the owned nodes that carry a constraint.
         iB: their constrained rotated unknowns (local positions).
         psi: the bounds ``u_b ≥ ψ_b``.
         Q: the block-diagonal rotation (PETSc).
-        multiplier, contact_pressure: P1 Functions that :meth:`set_multiplier` fills.
+        multiplier, contact_pressure: scalar Functions on the nodes that
+            :meth:`set_multiplier` fills.
 
     Raises:
-        ValueError: a vertex whose displacement is fixed lies below the plane.
+        ValueError: a node whose displacement is fixed lies below the plane.
     """
 
     def __init__(self, problem: PenalizedProblem) -> None:
@@ -101,11 +106,11 @@ class NodalConstraint:
             free[dofs[:first_ghost]] = False
         self.free = free.reshape(n, bs)
         self.Qn, self.k, self.cn = nodal_rotations(self.c, self.free)
-        self.nodes = np.flatnonzero(self.k >= 0)  # constrained vertices (local)
+        self.nodes = np.flatnonzero(self.k >= 0)  # constrained nodes (local)
         bad = np.flatnonzero((self.k < 0) & (self.theta_q < 0))
         if self.comm.allreduce(int(bad.size), op=MPI.SUM):
             raise ValueError(
-                "a vertex whose displacement is fixed lies below the plane (θ·q < 0): "
+                "a node whose displacement is fixed lies below the plane (θ·q < 0): "
                 "the obstacle problem has no admissible displacement"
             )
         self.iB = bs * self.nodes + self.k[self.nodes]
@@ -122,33 +127,38 @@ class NodalConstraint:
             comm=self.comm,
         )
         self.Q.assemble()
-        # the multiplier lives on P1 (collapsed first component: dof j ↔ vertex parent[j] // 3)
-        P1, parent = V.sub(0).collapse()
+        # the multiplier lives on the scalar space of the nodes (the collapsed first
+        # component: dof j ↔ node parent[j] // 3)
+        S, parent = V.sub(0).collapse()
         self._node_of = np.asarray(parent).reshape(-1) // bs
-        self._n1 = P1.dofmap.index_map.size_local
-        self.multiplier = dolfinx.fem.Function(P1, name="multiplier")
-        self.contact_pressure = dolfinx.fem.Function(P1, name="contact_pressure")
-        phi = ufl.TestFunction(P1)
-        mass = dolfinx.fem.assemble_vector(
-            dolfinx.fem.form(phi * problem.G.sqrt_a * problem.dx_penalty)
-        )
-        mass.scatter_reverse(dolfinx.la.InsertMode.add)
-        mass.scatter_forward()
-        self.mass = mass.array.copy()  # lumped ∫ φ_j √a dy of the local P1 dofs
+        self._n1 = S.dofmap.index_map.size_local
+        self.multiplier = dolfinx.fem.Function(S, name="multiplier")
+        self.contact_pressure = dolfinx.fem.Function(S, name="contact_pressure")
+        if problem.disc.degree == 1:
+            phi = ufl.TestFunction(S)
+            mass = dolfinx.fem.assemble_vector(
+                dolfinx.fem.form(phi * problem.G.sqrt_a * problem.dx_penalty)
+            )
+            mass.scatter_reverse(dolfinx.la.InsertMode.add)
+            mass.scatter_forward()
+            self.mass = mass.array.copy()  # lumped ∫ φ_j √a dy of the local P1 dofs
+        else:
+            self.mass = lumped_mass_p2(S, problem.G.sqrt_a)
 
     def gap(self, zeta: np.ndarray) -> np.ndarray:
-        """``g_i = θ(x_i)·q + c(x_i)·ζ(x_i)`` at the owned vertices (``zeta``: local dofs)."""
+        """``g_i = θ(x_i)·q + c(x_i)·ζ(x_i)`` at the owned nodes (``zeta``: local dofs)."""
         eta = zeta[: self.n * self.bs].reshape(self.n, self.bs)
         return self.theta_q + np.sum(self.c * eta, axis=1)
 
     def constraint_force(self, lam: np.ndarray) -> np.ndarray:
-        """``Bᵀλ`` on the owned dofs (row ``i`` of ``B`` is ``c(x_i)`` on vertex ``i``'s free
+        """``Bᵀλ`` on the owned dofs (row ``i`` of ``B`` is ``c(x_i)`` on node ``i``'s free
         unknowns)."""
         return (np.where(self.free, self.c, 0.0) * lam[:, None]).reshape(-1)
 
     def set_multiplier(self, lam: np.ndarray) -> None:
-        """:attr:`multiplier` ← ``λ`` (owned vertices) and :attr:`contact_pressure` ←
-        ``λ_i / ∫ φ_i √a dy``."""
+        """:attr:`multiplier` ← ``λ`` (owned nodes) and :attr:`contact_pressure` ←
+        ``λ_i / m_i`` with the lumped mass ``m_i`` (P1: ``∫ φ_i √a dy``; P2:
+        :func:`lumped_mass_p2`)."""
         lam_local = np.zeros(int(self._node_of.max(initial=-1)) + 1)
         lam_local[: self.n] = lam
         self.multiplier.x.array[: self._n1] = lam_local[self._node_of[: self._n1]]
@@ -157,3 +167,27 @@ class NodalConstraint:
         self.contact_pressure.x.array[:] = np.divide(
             self.multiplier.x.array, m, out=np.zeros_like(m), where=m > 0
         )
+
+
+def lumped_mass_p2(S: dolfinx.fem.FunctionSpace, sqrt_a: ufl.core.expr.Expr) -> np.ndarray:
+    """Positive lumped masses of the P2 nodes of ``S`` (local, ghosts included).
+
+    The P2 nodes of a triangle are the vertices of its uniform refinement into four
+    triangles, so the P1 lumping on that refinement gives each vertex ``1/12`` and each edge
+    midpoint ``1/4`` of ``∫_T √a dy`` (whereas ``∫ φ_i √a dy`` vanishes or is negative at
+    the vertices for P2's own basis, no divisor for a pressure).
+    """
+    mesh = S.mesh
+    DG0 = dolfinx.fem.functionspace(mesh, ("DG", 0))
+    w = dolfinx.fem.assemble_vector(
+        dolfinx.fem.form(ufl.TestFunction(DG0) * sqrt_a * ufl.dx(domain=mesh))
+    ).array
+    cells = np.arange(mesh.topology.index_map(mesh.topology.dim).size_local)
+    per_cell = w[DG0.dofmap.list[cells, 0]]
+    share = np.array([1 / 12] * 3 + [1 / 4] * 3)  # basix P2: vertex dofs first, then edges
+    dofs = S.dofmap.list[cells]
+    mass = dolfinx.la.vector(S.dofmap.index_map)
+    np.add.at(mass.array, dofs.reshape(-1), (per_cell[:, None] * share[None, :]).reshape(-1))
+    mass.scatter_reverse(dolfinx.la.InsertMode.add)
+    mass.scatter_forward()
+    return mass.array.copy()
