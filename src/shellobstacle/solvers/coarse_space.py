@@ -1,4 +1,4 @@
-"""A cheap approximate solve with the membrane stiffness: Galerkin on a coarse background grid.
+"""A cheap approximate solve with the stiffness: Galerkin on a coarse background grid.
 
 The contact zone (:mod:`shellobstacle.solvers.zone`) must be known before its
 factorization; before any contact it is where the first Newton step ``δ = K⁻¹ r`` would
@@ -10,7 +10,9 @@ the grid must resolve the contact region, not the mesh),
     δ̃ = P (Pᵀ K P)⁻¹ Pᵀ r,
 
 where ``P`` interpolates the grid's nodal values at the dofs of the displacement space (its
-rows zero at the Dirichlet dofs, so ``P`` maps into the discrete space). ``δ̃`` is the best
+rows zero at the Dirichlet dofs, so ``P`` maps into the discrete space). For Koiter's model
+the grid functions are C¹ quadratic B-splines instead: the interior penalty of its bending
+energy makes the kinks of P1 hats so stiff that ``δ̃`` comes out far too small. ``δ̃`` is the best
 approximation of ``δ`` in the energy norm from that subspace; it works for any mesh, domain
 and degree, serially and in parallel, and costs one product ``PᵀKP`` and a Cholesky
 factorization of a matrix about 1/16 the size of ``K``.
@@ -43,6 +45,8 @@ class CoarseSpace:
         max_nodes: About the most grid nodes, whatever the mesh (the default, 10,000, makes
             ``H ≈ 0.01`` on the unit square and halves the seed's time at 1.92 M dofs without
             changing the zone; meshes under 160,000 nodes keep ``H ≈ 4h``).
+        smooth: tensor-product quadratic B-splines (C¹) instead of the grid's P1 hat
+            functions: for Koiter's ``K``, whose interior penalty makes the hats' kinks stiff.
     """
 
     def __init__(
@@ -52,6 +56,7 @@ class CoarseSpace:
         bcs: list,
         ratio: float = 16.0,
         max_nodes: int = 10_000,
+        smooth: bool = False,
     ) -> None:
         comm = V.mesh.comm
         imap, bs = V.dofmap.index_map, V.dofmap.index_map_bs
@@ -67,31 +72,23 @@ class CoarseSpace:
         ratio = max(ratio, nodes / max_nodes)
         spacing = math.sqrt(extent[0] * extent[1] * ratio / nodes)
         nx, ny = (max(1, math.ceil(e / spacing)) for e in extent)
-        # barycentric weights of every owned node in its grid triangle (cells split along
-        # the diagonal from (i, j) to (i+1, j+1))
         u = (x - lo) / extent * [nx, ny]
-        i = np.clip(np.floor(u[:, 0]).astype(np.int64), 0, nx - 1)
-        j = np.clip(np.floor(u[:, 1]).astype(np.int64), 0, ny - 1)
-        s, t = u[:, 0] - i, u[:, 1] - j
-        upper = s < t
-        node = j * (nx + 1) + i
-        corners = np.stack([node, np.where(upper, node + nx + 1, node + 1), node + nx + 2], 1)
-        weights = np.stack(
-            [np.where(upper, 1 - t, 1 - s), np.where(upper, t - s, s - t), np.where(upper, s, t)],
-            1,
-        )
+        if smooth:
+            columns, weights, width = _quadratic_bsplines(u, nx, ny)
+        else:
+            columns, weights, width = _hats(u, nx, ny)
         # one row per owned dof (node b, component c: local row b·bs + c), zero where Dirichlet
         free = K.createVecLeft()
         free.set(1.0)
         dolfinx.fem.petsc.set_bc(free, bcs)  # (homogeneous conditions: 0 at the Dirichlet dofs)
         keep = free.array_r.reshape(n_own, bs) != 0.0
         free.destroy()
-        rows = np.repeat(np.arange(n_own * bs, dtype=np.int64), 3)
-        cols = np.repeat(corners, bs, axis=0) * bs + np.tile(np.arange(bs), n_own)[:, None]
+        rows = np.repeat(np.arange(n_own * bs, dtype=np.int64), columns.shape[1])
+        cols = np.repeat(columns, bs, axis=0) * bs + np.tile(np.arange(bs), n_own)[:, None]
         vals = np.repeat(weights, bs, axis=0) * keep.reshape(-1, 1)
         cols, vals = cols.ravel(), vals.ravel()
         # grid functions used: those with weight (≥ 1/2 in all) at free dofs; renumbered
-        mass = np.bincount(cols, weights=vals, minlength=(nx + 1) * (ny + 1) * bs)
+        mass = np.bincount(cols, weights=vals, minlength=width * bs)
         comm.Allreduce(MPI.IN_PLACE, mass, op=MPI.SUM)
         used = mass >= 0.5
         number = np.cumsum(used) - 1
@@ -125,3 +122,38 @@ class CoarseSpace:
     def destroy(self) -> None:
         for obj in (self.P, self.Kc, self.ksp, self._rc, self._yc):
             obj.destroy()
+
+
+def _hats(u: np.ndarray, nx: int, ny: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """The P1 hat functions of the grid (cells split along the diagonal from ``(i, j)`` to
+    ``(i+1, j+1)``) at the points ``u`` (grid units): their numbers and values, 3 per point,
+    and how many there are."""
+    i = np.clip(np.floor(u[:, 0]).astype(np.int64), 0, nx - 1)
+    j = np.clip(np.floor(u[:, 1]).astype(np.int64), 0, ny - 1)
+    s, t = u[:, 0] - i, u[:, 1] - j
+    upper = s < t
+    node = j * (nx + 1) + i
+    corners = np.stack([node, np.where(upper, node + nx + 1, node + 1), node + nx + 2], 1)
+    weights = np.stack(
+        [np.where(upper, 1 - t, 1 - s), np.where(upper, t - s, s - t), np.where(upper, s, t)], 1
+    )
+    return corners, weights, (nx + 1) * (ny + 1)
+
+
+def _quadratic_bsplines(u: np.ndarray, nx: int, ny: int) -> tuple[np.ndarray, np.ndarray, int]:
+    """The uniform quadratic B-splines ``B_k(u_1) B_l(u_2)`` (``nx + 2`` by ``ny + 2``, a
+    partition of unity on the box) at the points ``u``: 9 numbers and values per point, and
+    how many functions there are. In cell ``i`` with ``s = u − i`` the three nonzero
+    B-splines of one direction are ``(1 − s)²/2``, ``(1 + 2s − 2s²)/2`` and ``s²/2``."""
+
+    def one(v: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+        i = np.clip(np.floor(v).astype(np.int64), 0, n - 1)
+        s = v - i
+        values = np.stack([(1 - s) ** 2 / 2, (1 + 2 * s - 2 * s**2) / 2, s**2 / 2], 1)
+        return i[:, None] + np.arange(3), values
+
+    kx, bx = one(u[:, 0], nx)
+    ky, by = one(u[:, 1], ny)
+    numbers = (ky[:, :, None] * (nx + 2) + kx[:, None, :]).reshape(-1, 9)
+    values = (by[:, :, None] * bx[:, None, :]).reshape(-1, 9)
+    return numbers, values, (nx + 2) * (ny + 2)

@@ -204,14 +204,16 @@ class ZoneModel:
         return self.r.norm()
 
     def floor(self, load_norm: float) -> float:
-        """:meth:`PenalizedSystem.floor` for the zone's problem (its active points)."""
+        """:meth:`PenalizedSystem.floor` for the zone's problem: its active points, and the
+        rounding of ``Kζ`` at the last whole iterate (the condensed residual is made of the
+        same products)."""
         scale = self.problem.gap_scale(self.z)
         S = self.z.duplicate()
         S.set(0.0)
         self.problem.add_penalty(np.where(self.g < 0, scale, 0.0), self.kappa, S)
         norm = S.norm()
         S.destroy()
-        return floor_of(self.system.floor_factor, load_norm, norm)
+        return floor_of(self.system.floor_factor, load_norm, norm) + self.system.elastic_rounding()
 
     def direction(self, floor: float) -> int:
         """``d ← S⁻¹(−∇j)``; the first step of a seeded solve goes to the minimizer of the
