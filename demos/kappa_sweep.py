@@ -55,4 +55,5 @@ ax.loglog(kappas, errors, "o-", label="‖ζ_κ − ζ‖_VM")
 ax.loglog(kappas, [errors[0] * k / kappas[0] for k in kappas], "--", color="0.5", label="∝ κ")
 ax.set(xlabel="κ", ylabel="error in V_M")
 ax.legend()
+plt.show()
 # -

@@ -52,4 +52,5 @@ for i, (epsilon, result) in enumerate(results.items()):
 ax.axhline(0.0, color="k", lw=2)
 ax.set(xlabel="x₁", ylabel="height above the plane x·q")
 ax.legend()
+plt.show()
 # -

@@ -41,8 +41,7 @@ for key in ("contact_area", "contact_area_projected", "max_violation", "zeta3_mi
 
 # The shell along the line y2 = 0 near its apex: the height x·q above the plane of the
 # deformed middle surface θ + ζ_i a^i and of the reference shell θ. The deformed shell is
-# flattened on the plane where the load pushes it (a notebook shows the figure;
-# `fig.savefig("section.png")` writes it from the script).
+# flattened on the plane where the load pushes it.
 
 # +
 section = cross_section(result.problem, axis="y1", at=0.0)
@@ -52,4 +51,5 @@ ax.plot(section.deformed[:, 0], section.height_deformed, label="θ + ζ_i a^i")
 ax.axhline(0.0, color="k", lw=2)
 ax.set(xlabel="x₁", ylabel="height above the plane x·q", xlim=(-0.25, 0.25))
 ax.legend()
+plt.show()
 # -

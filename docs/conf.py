@@ -52,7 +52,7 @@ root_doc = "index"
 
 myst_enable_extensions = ["dollarmath", "amsmath", "colon_fence", "deflist"]
 myst_heading_anchors = 3
-math_eqref_format = "({number})"
+math_eqref_format = "eq. {number}"
 math_numfig = True
 numfig = True
 
