@@ -16,14 +16,18 @@ import itertools
 import math
 from pathlib import Path
 
+import matplotlib.pyplot as plt
+
 from shellobstacle import Discretization, exact_solution, load_config, make_mesh
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 
-ROOT = Path(__file__).resolve().parents[1] if "__file__" in globals() else Path.cwd()
-cfg = load_config(ROOT / "examples" / "paper.toml", ["domain.h=0.04"])
+# examples/ of the repository: beside the script's folder (or a notebook's working folder)
+HERE = (Path(__file__).parent if "__file__" in globals() else Path.cwd()).resolve()
+EXAMPLES = next(d / "examples" for d in (HERE, *HERE.parents) if (d / "examples").is_dir())
+cfg = load_config(EXAMPLES / "paper.toml", ["domain.h=0.04"])
 mesh = make_mesh(cfg.domain)
 disc = Discretization(penalty_quadrature="vertex")
 exact, kkt = exact_solution(cfg.shell, mesh, disc)
@@ -42,3 +46,14 @@ for kappa in kappas:
 pairs = zip(itertools.pairwise(errors), itertools.pairwise(kappas), strict=True)
 rates = [math.log(e0 / e1) / math.log(k0 / k1) for (e0, e1), (k0, k1) in pairs]
 print("observed orders in κ:", ", ".join(f"{r:.2f}" for r in rates))
+
+# The errors on logarithmic axes, against a line of slope 1 through the first one.
+
+# +
+fig, ax = plt.subplots(figsize=(5.0, 3.6), constrained_layout=True)
+ax.loglog(kappas, errors, "o-", label="‖ζ_κ − ζ‖_VM")
+ax.loglog(kappas, [errors[0] * k / kappas[0] for k in kappas], "--", color="0.5", label="∝ κ")
+ax.set(xlabel="κ", ylabel="error in V_M")
+ax.legend()
+plt.show()
+# -

@@ -6,6 +6,8 @@
 # pressure then also pushes a stiffer, thicker panel, which stays off the plane.
 
 # +
+import matplotlib.pyplot as plt
+
 from shellobstacle import (
     Discretization,
     DomainSpec,
@@ -17,20 +19,38 @@ from shellobstacle import (
     solve,
 )
 from shellobstacle.post.contact import Postprocessor
+from shellobstacle.post.sections import cross_section
 
 panel = Surface.from_strings(["y1", "y2", "sqrt(1 - y1**2) - 0.9"])  # 0.1 above x3 = 0
 pressure = Load(("0", "0", "Piecewise((-3e-3, r < 0.15), (0, True))"))
 domain = DomainSpec("rectangle", corners=((-0.3, -0.4), (0.3, 0.4)), h=0.02)
 
 
-def contact(epsilon: float) -> dict:
+def press(epsilon: float):
     shell = Shell(panel, Material(epsilon, lam=0.4, mu=0.3), pressure, model="koiter")
     result = solve(shell, domain, PenaltySpec(exponent=3.0), Discretization(degree=2))
     assert result.converged
-    return Postprocessor(result.problem).summary()
+    return result
 
 
-thin, thick = contact(0.01), contact(0.02)
+results = {epsilon: press(epsilon) for epsilon in (0.01, 0.02)}
+thin, thick = (Postprocessor(r.problem).summary() for r in results.values())
 print(f"ε = 0.01: contact area {thin['contact_area']:.4e}, lowest ζ_3 {thin['zeta3_min']:.4f}")
 print(f"ε = 0.02: contact area {thick['contact_area']:.4e}, lowest ζ_3 {thick['zeta3_min']:.4f}")
+# -
+
+# Both panels across the cylinder's axis (the line y2 = 0): the thin one lies on the plane
+# under the load, the thick one stops above it.
+
+# +
+fig, ax = plt.subplots(figsize=(6.4, 3.4), constrained_layout=True)
+for i, (epsilon, result) in enumerate(results.items()):
+    section = cross_section(result.problem, axis="y1", at=0.0)
+    if i == 0:
+        ax.plot(section.reference[:, 0], section.height_reference, "--", color="0.4", label="θ")
+    ax.plot(section.deformed[:, 0], section.height_deformed, label=f"ε = {epsilon}")
+ax.axhline(0.0, color="k", lw=2)
+ax.set(xlabel="x₁", ylabel="height above the plane x·q")
+ax.legend()
+plt.show()
 # -

@@ -9,11 +9,16 @@
 # +
 from pathlib import Path
 
+import matplotlib.pyplot as plt
+
 from shellobstacle import load_config, solve_config
 from shellobstacle.post.contact import Postprocessor
+from shellobstacle.post.sections import cross_section
 
-ROOT = Path(__file__).resolve().parents[1] if "__file__" in globals() else Path.cwd()
-cfg = load_config(ROOT / "examples" / "paper.toml", ["domain.h=0.04"])
+# examples/ of the repository: beside the script's folder (or a notebook's working folder)
+HERE = (Path(__file__).parent if "__file__" in globals() else Path.cwd()).resolve()
+EXAMPLES = next(d / "examples" for d in (HERE, *HERE.parents) if (d / "examples").is_dir())
+cfg = load_config(EXAMPLES / "paper.toml", ["domain.h=0.04"])
 print(cfg.shell.surface.description)
 # -
 
@@ -33,3 +38,18 @@ print(f"h = {result.h:.4f}, κ = {result.kappa:.3e}, Newton steps {result.iterat
 summary = Postprocessor(result.problem).summary()
 for key in ("contact_area", "contact_area_projected", "max_violation", "zeta3_min"):
     print(f"{key:24s} {summary[key]:.4e}")
+
+# The shell along the line y2 = 0 near its apex: the height x·q above the plane of the
+# deformed middle surface θ + ζ_i a^i and of the reference shell θ. The deformed shell is
+# flattened on the plane where the load pushes it.
+
+# +
+section = cross_section(result.problem, axis="y1", at=0.0)
+fig, ax = plt.subplots(figsize=(6.4, 3.4), constrained_layout=True)
+ax.plot(section.reference[:, 0], section.height_reference, "--", color="0.4", label="θ")
+ax.plot(section.deformed[:, 0], section.height_deformed, label="θ + ζ_i a^i")
+ax.axhline(0.0, color="k", lw=2)
+ax.set(xlabel="x₁", ylabel="height above the plane x·q", xlim=(-0.25, 0.25))
+ax.legend()
+plt.show()
+# -

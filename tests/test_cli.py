@@ -156,11 +156,19 @@ def test_missing_config_file(capsys: pytest.CaptureFixture) -> None:
 
 
 def test_version(capsys: pytest.CaptureFixture) -> None:
-    """``--version`` prints the package version."""
+    """``--version`` prints the package version, then Python's and the key dependencies'."""
+    import dolfinx
+    import numpy
+
+    import shellobstacle
+
     with pytest.raises(SystemExit) as info:
         main(["--version"])
     assert info.value.code == 0
-    assert "shellobstacle 0." in capsys.readouterr().out
+    first, second = capsys.readouterr().out.splitlines()
+    assert first == f"shellobstacle {shellobstacle.__version__}"
+    assert f"dolfinx {dolfinx.__version__}, " in second
+    assert f"numpy {numpy.__version__}, " in second
 
 
 def test_solver_failure_writes_the_last_iterate(tmp_path: Path) -> None:

@@ -8,7 +8,11 @@ from pathlib import Path
 
 from mpi4py import MPI
 
+import matplotlib
 import pytest
+
+matplotlib.use("Agg")  # the demos' figures are drawn off screen: plt.show() returns at once
+import matplotlib.pyplot as plt
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="the demos run serially")
 
@@ -17,6 +21,7 @@ DEMOS = Path(__file__).parents[1] / "demos"
 
 def run(name: str, capsys: pytest.CaptureFixture[str]) -> tuple[dict, str]:
     namespace = runpy.run_path(str(DEMOS / name), run_name="__main__")
+    plt.close("all")
     return namespace, capsys.readouterr().out
 
 

@@ -10,6 +10,7 @@ from mpi4py import MPI
 
 import pytest
 
+from shellobstacle.dependencies import out_of_range, pinned_ranges
 from shellobstacle.doctor import coretype_warning, numpy_blas_config
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fresh processes, serially")
@@ -35,6 +36,8 @@ def test_the_doctor_shows_versions_and_the_tuning_in_force(value: str) -> None:
     assert out.returncode in (0, 1), out.stderr
     text = out.stdout
     assert "DOLFINx 0.11" in text and "PETSc" in text and "MPI:" in text
+    (deps,) = [line for line in text.splitlines() if line.startswith("dependencies: ")]
+    assert all(f" {name} " in deps for name in ("petsc4py", "numpy", "sympy", "gmsh", "rich"))
     assert f"tuning (SHELLOBSTACLE_TUNING={value}):" in text
     knobs = [line.strip() for line in text.splitlines() if line.startswith("  ")]
     assert [k.split(":")[0] for k in knobs] == ["heap", "gemmt", "threads"]
@@ -97,3 +100,30 @@ def test_unfinished_compilations_are_a_problem_with_the_files_named(tmp_path, mo
     stale = [p for p in problems if "FFCx compilation" in p]
     assert len(stale) == 1 and str(tmp_path / "killed.c") in stale[0]
     assert "compiling.c" not in stale[0] and "finished.c" not in stale[0]
+
+
+REQUIRES = [
+    "numpy<2.6,>=2.5",
+    "rich<16,>=15",
+    "packaging>=24",
+    'dolfinx-solver-real<0.12,>=0.11; extra == "dolfinx"',
+    'pytest>=8; extra == "test"',
+]
+
+
+def test_the_pinned_ranges_are_the_package_s_and_its_dolfinx_extra_s() -> None:
+    assert set(pinned_ranges(REQUIRES)) == {"numpy", "rich", "packaging", "dolfinx-solver-real"}
+
+
+def test_a_release_outside_its_pinned_range_is_named_with_the_fix() -> None:
+    """The DOLFINx wheel's range applies to the module ``dolfinx``; a module that is not
+    installed (DOLFINx from conda-forge has no such wheel, but its module is checked) is not
+    a problem."""
+    ranges = pinned_ranges(REQUIRES)
+    within = {"numpy": "2.5.5", "rich": "15.0.0", "dolfinx": "0.11.0.post0", "packaging": None}
+    assert out_of_range(within, ranges) == []
+    (numpy,) = out_of_range(within | {"numpy": "2.6.0"}, ranges)
+    assert numpy.startswith("numpy 2.6.0 is outside the range shellobstacle was tested with")
+    assert "install 'numpy<2.6,>=2.5'" in numpy
+    (dolfinx,) = out_of_range(within | {"dolfinx": "0.12.0"}, ranges)
+    assert dolfinx.startswith("dolfinx 0.12.0 is outside") and "dolfinx-solver-real" in dolfinx

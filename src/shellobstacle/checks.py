@@ -1,4 +1,5 @@
-"""The assumptions of the theory (MODEL.md §3), evaluated on the user's data and mesh.
+"""The assumptions of the theory (MODEL.md §3, listed under "The obstacle problem" of the
+model page), evaluated on the user's data and mesh.
 
 Each check reports the extreme value of its quantity, where it occurs, and
 whether it passes. The quantities are evaluated exactly (NumPy on the symbolic

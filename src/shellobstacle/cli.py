@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import platform
 import sys
 import time
 import traceback
@@ -28,6 +29,22 @@ from shellobstacle.commands import (
 __all__ = ["EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_INVALID", "EXIT_OK", "EXIT_USAGE", "main"]
 
 
+class _Version(argparse.Action):
+    """``--version``: the package's version, then Python's and the key dependencies' (imported
+    only when asked, :mod:`shellobstacle.dependencies`)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, **kwargs) -> None:
+        kwargs |= {"nargs": 0, "default": argparse.SUPPRESS}
+        super().__init__(option_strings, argparse.SUPPRESS, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None) -> None:
+        from shellobstacle.dependencies import installed_versions, summary
+
+        print(f"shellobstacle {shellobstacle.__version__}")
+        print(f"Python {platform.python_version()}; {summary(installed_versions())}")
+        parser.exit()
+
+
 def _parser() -> argparse.ArgumentParser:
     fmt = argparse.ArgumentDefaultsHelpFormatter
     p = argparse.ArgumentParser(
@@ -38,7 +55,7 @@ def _parser() -> argparse.ArgumentParser:
         formatter_class=fmt,
     )
     p.add_argument(
-        "--version", action="version", version=f"shellobstacle {shellobstacle.__version__}"
+        "--version", action=_Version, help="the versions of shellobstacle and its dependencies"
     )
     sub = p.add_subparsers(dest="command", required=True)
 

@@ -1,9 +1,10 @@
 """``shellobstacle doctor``: the environment, the versions, and what tuning is active and why.
 
-It also names known problems of an environment, with their fix: a forced OpenBLAS kernel
-family that crashed NumPy's BLAS, MUMPS' selected inverse entries out of reach (the contact
-zone's condensation then falls back to one factorization per κ), no C compiler for the
-tuning's helpers.
+It prints the versions of the key dependencies and names known problems of an environment,
+with their fix: a release outside the range pyproject.toml pins (the tested one), a forced
+OpenBLAS kernel family that crashed NumPy's BLAS, MUMPS' selected inverse entries out of
+reach (the contact zone's condensation then falls back to one factorization per κ), no C
+compiler for the tuning's helpers.
 """
 
 from __future__ import annotations
@@ -65,26 +66,27 @@ def report(installed: str) -> tuple[list[str], list[str]]:
     """
     from mpi4py import MPI
 
-    from shellobstacle import tuning
+    from shellobstacle import dependencies, tuning
     from shellobstacle.io.folders import versions
     from shellobstacle.solvers.mumps import selected_inverse_available
     from shellobstacle.tuning.build import cache_dir, compiler
 
     v = versions()
+    releases = dependencies.installed_versions()
     memory = _memory_gib()
     lines = [
         f"shellobstacle {v['shellobstacle']} on Python {v['python']} ({platform.platform()})",
         f"machine: {v['machine']}, {v['cpus']} CPUs"
         + (f", {memory:.1f} GiB" if memory is not None else ""),
-        f"DOLFINx {v['dolfinx']} ({installed}), PETSc {v['petsc']}, NumPy {v['numpy']}, "
-        f"SymPy {v['sympy']}",
+        f"DOLFINx {v['dolfinx']} ({installed}), PETSc {v['petsc']}",
+        f"dependencies: {dependencies.summary(releases)}",
         f"MPI: {MPI.Get_library_version().splitlines()[0].strip()}, {v['mpi_ranks']} rank(s)",
         f"NumPy's BLAS: {numpy_blas_config().split('  ')[0] or 'not an OpenBLAS'}",
         f"C compiler (tuning helpers): {compiler() or 'none'}; cache {cache_dir()}",
         f"tuning ({tuning.ENV}={os.environ.get(tuning.ENV, 'on')}):",
         *(f"  {name}: {policy}" for name, policy in v["tuning"].items()),
     ]
-    problems = []
+    problems = dependencies.out_of_range(releases, dependencies.pinned_ranges())
     if (warning := coretype_warning()) is not None:
         problems.append(warning)
     if (reason := selected_inverse_available()) is not None:

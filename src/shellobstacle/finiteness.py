@@ -22,7 +22,7 @@ from shellobstacle.surface import Geometry
 
 __all__ = ["SURFACE_NAMES", "Failure", "first_failure", "require_finite"]
 
-#: (group: 0 surface, 1 load; |y|²; y1; y2; the quantity's index in its group; its value)
+#: (group: 0 surface, 1 load; ``|y|²``; y1; y2; the quantity's index in its group; its value)
 Failure = tuple[int, float, float, float, int, float]
 
 _PAIRS = [(a, b) for a in range(2) for b in range(a, 2)]

@@ -1,12 +1,12 @@
 """Koiter's linear shell model: the change of curvature and its C⁰ interior-penalty energy
-(MODEL.md §8; Ciarlet 2005, ch. 4).
+(MODEL.md §8, :eq:`koiter-energy`; Ciarlet 2005, ch. 4).
 
 The change of curvature :func:`change_of_curvature` is a pure function on scalar lists, like
 :mod:`shellobstacle.membrane`, usable with UFL and SymPy. :func:`bending_energy` writes the
 bending energy of a C⁰ Lagrange ``ζ_3`` (degree ≥ 2): basix has no C¹ element, so the H²
 conformity of ``ζ_3`` and the clamped condition ``∂_ν ζ_3 = 0`` are imposed weakly, by the
 symmetric interior-penalty terms of the bending moment on the facets (Engel et al. 2002,
-Brenner & Sung 2005):
+Brenner & Sung 2005; :eq:`koiter-c0ip`):
 
     E_b(η) = ½ Σ_T ∫_T m^{αβ}(η) ρ_αβ(η) √a dy − Σ_F ∫_F {M_nn(η)} [∂_n η_3] ds
              + ½ Σ_F ∫_F (σ / h_F) C_F [∂_n η_3]² ds,
@@ -50,7 +50,8 @@ def change_of_curvature(
     grad_eta: Sequence[Sequence[Any]],
     hess_eta3: Sequence[Sequence[Any]],
 ) -> Tensor2:
-    """Linearized change of curvature ``ρ_αβ(η)`` (MODEL.md §8; Ciarlet 2005, Thm 4.2-1):
+    """Linearized change of curvature ``ρ_αβ(η)`` (:eq:`change-of-curvature`; Ciarlet 2005,
+    Thm 4.2-1):
 
     ``ρ_αβ = ∂_αβ η_3 − Γ^σ_αβ ∂_σ η_3 − b^σ_α b_σβ η_3 + b^σ_α (∂_β η_σ − Γ^τ_βσ η_τ)
     + b^τ_β (∂_α η_τ − Γ^σ_ατ η_σ) + b^τ_{β|α} η_τ``.

@@ -1,4 +1,5 @@
-"""Membrane strain, elasticity tensor, stresses and the penalty (MODEL.md §2, §4).
+"""Membrane strain, elasticity tensor, stresses and the gap (MODEL.md §2, §4; the model page's
+:eq:`membrane-strain`, :eq:`elasticity-tensor`, :eq:`strong-form`, :eq:`gap`).
 
 Pure functions on scalar lists, usable with UFL (forms) and SymPy (manufactured
 solutions). ``eta[i]`` are covariant displacement components ``η_i`` and
@@ -24,7 +25,8 @@ Tensor2 = list[list[Any]]
 
 
 def strain(G: Geometry, eta: Sequence[Any], grad_eta: Sequence[Sequence[Any]]) -> Tensor2:
-    """Linearized change of metric ``γ_αβ(η) = ½(∂_β η_α + ∂_α η_β) − Γ^σ_αβ η_σ − b_αβ η_3``."""
+    """Linearized change of metric ``γ_αβ(η) = ½(∂_β η_α + ∂_α η_β) − Γ^σ_αβ η_σ − b_αβ η_3``
+    (:eq:`membrane-strain`)."""
     return [
         [
             (grad_eta[al][be] + grad_eta[be][al]) / 2
@@ -38,7 +40,8 @@ def strain(G: Geometry, eta: Sequence[Any], grad_eta: Sequence[Sequence[Any]]) -
 
 
 def _elasticity_coefficient(G: Geometry, lam: Any, mu: Any, al: int, be: int, s: int, t: int):
-    """``a^{αβστ} = (4λμ/(λ+2μ)) a^{αβ} a^{στ} + 2μ (a^{ασ} a^{βτ} + a^{ατ} a^{βσ})`` (§2)."""
+    """``a^{αβστ} = (4λμ/(λ+2μ)) a^{αβ} a^{στ} + 2μ (a^{ασ} a^{βτ} + a^{ατ} a^{βσ})``
+    (:eq:`elasticity-tensor`)."""
     A = G.a_upper
     return (4 * lam * mu / (lam + 2 * mu)) * A[al][be] * A[s][t] + 2 * mu * (
         A[al][s] * A[be][t] + A[al][t] * A[be][s]
@@ -81,7 +84,8 @@ def elastic_product(G: Geometry, lam: Any, mu: Any, gamma_s: Tensor2, gamma_t: T
 
 
 def stress_divergence(G: Geometry, n: Tensor2, dn: Sequence[Sequence[Sequence[Any]]]) -> list[Any]:
-    """Covariant divergence ``n^{αβ}|_β = ∂_β n^{αβ} + Γ^α_βτ n^{βτ} + Γ^β_βτ n^{ατ}`` (8).
+    """Covariant divergence ``n^{αβ}|_β = ∂_β n^{αβ} + Γ^α_βτ n^{βτ} + Γ^β_βτ n^{ατ}``
+    (:eq:`strong-form`).
 
     ``dn[α][β][σ] = ∂_σ n^{αβ}``.
     """
@@ -95,7 +99,7 @@ def stress_divergence(G: Geometry, n: Tensor2, dn: Sequence[Sequence[Sequence[An
 
 
 def gap(G: Geometry, eta: Sequence[Any], q: Sequence[float]) -> Any:
-    """``g(η) = (θ + η_j a^j) · q = θ·q + η_j c_j``: signed distance-like gap to the plane (§4)."""
+    """``g(η) = (θ + η_j a^j) · q = θ·q + η_j c_j``: the gap to the plane (:eq:`gap`)."""
     c = G.c(q)
     theta_q = sum(G.theta[k] * q[k] for k in range(3))
     return theta_q + sum(eta[j] * c[j] for j in range(3))

@@ -61,7 +61,7 @@ class Load:
 
     Expressions may use ``y1, y2, r = √(y1² + y2²)``, the material constants by
     name (``epsilon``, ``lambda``, ``mu``) and the names in ``parameters``, which
-    become ``dolfinx.fem.Constant``s so a sweep over them reuses one compiled
+    become ``dolfinx.fem.Constant`` objects so a sweep over them reuses one compiled
     problem.
     """
 

@@ -1,4 +1,5 @@
-"""The penalty term of ``J_κ`` evaluated at its quadrature points (MODEL.md §4–5).
+"""The penalty term of ``J_κ`` evaluated at its quadrature points (MODEL.md §4–5;
+:eq:`penalty-sum`).
 
 The penalty ``(ε/(2κ)) ∫ ({g(ζ)}^-)² / |c| dy`` is a sum over the points ``x_k`` of its
 quadrature rule (Gauss or vertex) with weights ``w_k`` (including ``|det J|``). The gap is

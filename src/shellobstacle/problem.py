@@ -1,7 +1,7 @@
 """The discrete penalized problem P_{M,κ}^{ε,h} (MODEL.md §4–5) as compiled DOLFINx forms.
 
 One :class:`PenalizedProblem` is compiled once per mesh; ``κ`` and the load
-parameters are ``dolfinx.fem.Constant``s, so a sweep over them reuses it.
+parameters are ``dolfinx.fem.Constant`` objects, so a sweep over them reuses it.
 """
 
 from __future__ import annotations
@@ -29,16 +29,18 @@ __all__ = ["PenalizedProblem"]
 class PenalizedProblem:
     """Compiled forms of the penalized shell problem on one mesh (MODEL.md §4–5, §8).
 
-    The energy is ``J_κ(η) = (ε/2) ∫ a^{αβστ} γ_στ(η) γ_αβ(η) √a dy − ∫ p^{i,ε} η_i √a dy
-    + (ε/(2κ)) ∫ ({g(η)}^-)² / |c| dy``; its derivative is the penalized equation of §4 and its
-    (generalized) Hessian the symmetric positive definite Jacobian. For Koiter's model
-    (``shell.model == "koiter"``) the elastic part gains the bending energy of §8 in its C⁰
-    interior-penalty form (:func:`~shellobstacle.koiter.bending_energy`); the rest is shared.
+    The energy is :eq:`penalized-energy`,
+    ``J_κ(η) = (ε/2) ∫ a^{αβστ} γ_στ(η) γ_αβ(η) √a dy − ∫ p^{i,ε} η_i √a dy
+    + (ε/(2κ)) ∫ ({g(η)}^-)² / |c| dy``; its derivative is the penalized equation
+    :eq:`penalized-equation` and its (generalized) Hessian the symmetric positive definite
+    Jacobian :eq:`penalty-jacobian`. For Koiter's model (``shell.model == "koiter"``) the
+    elastic part gains the bending energy of :eq:`koiter-energy` in its C⁰ interior-penalty
+    form :eq:`koiter-c0ip` (:func:`~shellobstacle.koiter.bending_energy`); the rest is shared.
 
     Attributes:
         zeta: the unknown ``ζ_κ^h`` (covariant components), a vector Lagrange function.
         kappa: the penalty parameter, a ``Constant``.
-        parameters: the load parameters, ``Constant``s by name.
+        parameters: the load parameters, ``Constant`` objects by name.
     """
 
     def __init__(

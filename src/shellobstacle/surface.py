@@ -36,7 +36,8 @@ def cross(u: Sequence[Any], v: Sequence[Any]) -> Vec:
 
 
 class Geometry:
-    """Bases, fundamental forms, Christoffel symbols and curvature of θ (MODEL.md §1).
+    """Bases, fundamental forms, Christoffel symbols and curvature of θ (MODEL.md §1;
+    :eq:`covariant-basis`, :eq:`second-fundamental-form`).
 
     Built from ``theta`` (three scalars), ``d1[α][i] = ∂_α θ_i``,
     ``d2[α][β][i] = ∂_α ∂_β θ_i`` and, for the curvature terms of Koiter's model only,
@@ -93,7 +94,8 @@ class Geometry:
 
     @cached_property
     def b_covariant_derivative(self) -> list[list[list[Any]]]:
-        """``b^τ_{β|α} = ∂_α b^τ_β + Γ^τ_ασ b^σ_β − Γ^σ_αβ b^τ_σ`` as ``[α][τ][β]`` (MODEL.md §8).
+        """``b^τ_{β|α} = ∂_α b^τ_β + Γ^τ_ασ b^σ_β − Γ^σ_αβ b^τ_σ`` as ``[α][τ][β]``
+        (:eq:`b-covariant-derivative`).
 
         ``∂_α b^τ_β`` is taken from ``d3`` through ``∂_α a_3 = −b_α^σ a_σ`` (Weingarten) and
         ``∂_α a^{τσ} = −a^{τμ} (∂_α a_μν) a^{νσ}``: no differentiation of the backend's

@@ -43,9 +43,9 @@ def _global_min(comm: MPI.Comm, values: np.ndarray, initial: float = np.inf) -> 
 class Postprocessor:
     """Nodal gap, contact set and areas, Cartesian displacement of one :class:`PenalizedProblem`.
 
-    Built once per problem: the ``dolfinx.fem.Expression``s (gap, Cartesian displacement) and
-    the lumped masses are compiled/assembled here and reused for every ``κ`` and load
-    parameter; each method reads the current ``problem.zeta``.
+    Built once per problem: the ``dolfinx.fem.Expression`` objects (gap, Cartesian
+    displacement) and the lumped masses are compiled/assembled here and reused for every ``κ``
+    and load parameter; each method reads the current ``problem.zeta``.
 
     Attributes:
         problem: The problem.

@@ -80,7 +80,7 @@ def h1_norm(
 def vm_norm(
     e: Any, *, mesh: dolfinx.mesh.Mesh | None = None, quadrature_degree: int | None = None
 ) -> float:
-    """``‖e‖_{V_M} = (Σ_α ‖e_α‖²_{H¹(ω)} + ‖e_3‖²_{L²(ω)})^{1/2}`` (MODEL.md §2).
+    """``‖e‖_{V_M} = (Σ_α ‖e_α‖²_{H¹(ω)} + ‖e_3‖²_{L²(ω)})^{1/2}`` (:eq:`vm-norm`).
 
     Args:
         e: Vector Function or UFL expression with three covariant components.
