@@ -25,7 +25,8 @@ from shellobstacle.model import (
     PenaltySpec,
     Shell,
 )
-from shellobstacle.schema import REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
+from shellobstacle.adapt.options import AdaptOptions
+from shellobstacle.schema import OPTIONAL_SECTIONS, REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
 from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions
 from shellobstacle.surface import Surface
 from shellobstacle.toml_io import apply_overrides, read_toml, to_toml
@@ -46,6 +47,7 @@ class Config:
     output: Mapping[str, bool]
     resolved: Mapping[str, Mapping[str, Any]]
     source: str
+    adapt: AdaptOptions | None = None  # [adapt]: solve on adaptively refined meshes
 
 
 class _Origins:
@@ -163,6 +165,8 @@ def parse_config(
             raise ConfigError(f"{source}: missing section [{section}]")
     koiter = isinstance(data.get("model"), dict) and data["model"].get("kind") == "koiter"
     for section, keys in SCHEMA.items():
+        if section in OPTIONAL_SECTIONS and section not in data:
+            continue
         given = dict(data.get(section, {}))
         if section == "discretization" and koiter:
             given.setdefault("degree", 2)  # Koiter's ζ_3 ∈ H² needs P2
@@ -264,7 +268,33 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         factorization=sv["factorization"],
         contact_zone=sv["contact_zone"],
     )
-    return Config(shell, domain, disc, penalty, solver, sv["method"], dict(r["output"]), r, source)
+    adapt = _adapt(r, shell, penalty, sv["method"]) if "adapt" in r else None
+    output = dict(r["output"])
+    return Config(shell, domain, disc, penalty, solver, sv["method"], output, r, source, adapt)
+
+
+def _adapt(
+    r: Mapping[str, Any], shell: Shell, penalty: PenaltySpec | None, method: str
+) -> AdaptOptions:
+    """``[adapt]``, and the choices it cannot be combined with."""
+    adapt = AdaptOptions(**r["adapt"])
+    if shell.model != "membrane":
+        raise ConfigError(
+            "[adapt] refines by the membrane model's error indicators: remove [adapt] or set "
+            "model.kind = 'membrane'"
+        )
+    if method not in ("newton", "active-set"):
+        raise ConfigError(
+            f"[adapt] solves each mesh by Newton or the active-set method, not solver.method = "
+            f"{method!r}: remove [adapt] or change solver.method"
+        )
+    if adapt.kappa != "largest" and penalty is not None and penalty.exponent is None:
+        raise ConfigError(
+            f"adapt.kappa = {adapt.kappa!r} makes κ = h^exponent follow the mesh, which needs "
+            "penalty.exponent; with penalty.kappa the same κ is used on every mesh: remove "
+            "adapt.kappa or give penalty.exponent"
+        )
+    return adapt
 
 
 def _require_mesh_file(path: str) -> None:

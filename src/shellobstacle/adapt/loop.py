@@ -18,6 +18,7 @@ the continuation ladder; the later ones start from the transferred solution at t
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -39,7 +40,13 @@ from shellobstacle.refinement import refine_marked
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.options import NewtonOptions
 
-__all__ = ["AdaptLevel", "AdaptiveResult", "adaptive_solve", "local_kappa_scale"]
+__all__ = [
+    "AdaptLevel",
+    "AdaptiveResult",
+    "adaptive_solve",
+    "local_kappa_scale",
+    "solve_adaptively",
+]
 
 Progress = Callable[[str], Any]
 
@@ -133,6 +140,7 @@ def adaptive_solve(
     progress: Progress | None = None,
     newton_progress: Callable[[int, float], Any] | None = None,
     on_level: Callable[[AdaptLevel, PenalizedProblem], Any] | None = None,
+    start: dolfinx.fem.Function | None = None,
 ) -> AdaptiveResult:
     """Solve on ``mesh`` and its adaptive refinements until a target of ``adapt`` is met.
 
@@ -150,6 +158,8 @@ def adaptive_solve(
         newton_progress: called after every Newton iteration.
         on_level: called with each level's record and problem once it is estimated (e.g. to
             measure errors against a reference).
+        start: a solution on ``mesh`` or a coarser mesh it refines: the first level starts
+            from it (at its κ, as the later levels do) instead of from ζ = 0.
 
     Returns:
         The :class:`AdaptiveResult`; a solver failure ends the loop with ``converged =
@@ -161,9 +171,11 @@ def adaptive_solve(
         raise ValueError(f"adaptive refinement solves by 'newton' or 'active-set', not {method!r}")
     say = progress or (lambda _m: None)
     disc = discretization or Discretization()
+    if method == "active-set" and disc.degree == 1:  # the exact solver's nodal constraint
+        disc = dataclasses.replace(disc, penalty_quadrature="vertex")
     comm: MPI.Comm = mesh.comm
     levels: list[AdaptLevel] = []
-    previous: dolfinx.fem.Function | None = None
+    previous: dolfinx.fem.Function | None = start
     k = 0
     while True:
         t0 = time.perf_counter()
@@ -279,3 +291,40 @@ def _line(level: AdaptLevel, reason: str) -> str:
     if reason:
         return f"{text}; stop: {reason}"
     return f"{text}; {level.marked} cells marked"
+
+
+def solve_adaptively(
+    mesh: dolfinx.mesh.Mesh,
+    shell: Shell,
+    discretization: Discretization | None,
+    penalty: PenaltySpec | None,
+    adapt: AdaptOptions,
+    options: NewtonOptions | None,
+    method: str,
+    method_options: Any,
+    say: Progress,
+    newton_progress: Callable[[int, float], Any] | None,
+    checks: list[Any],
+    timings: dict[str, float],
+) -> Any:
+    """:func:`adaptive_solve` as a :class:`~shellobstacle.pipeline.SolveResult` (what
+    :func:`~shellobstacle.pipeline.solve` returns with ``adapt``): the last level's problem
+    and steps, the levels in ``extra["adapt"]``."""
+    from shellobstacle.pipeline import SolveResult
+
+    t = time.perf_counter()
+    r = adaptive_solve(
+        shell, mesh, discretization, penalty, adapt, options, method, method_options, say,
+        newton_progress,
+    )  # fmt: skip
+    timings["solve"] = time.perf_counter() - t
+    problem = r.problem
+    kappa = 0.0 if method == "active-set" else float(problem.kappa.value)
+    result = SolveResult(
+        problem, mesh_size(problem.mesh), kappa, r.steps, checks, timings, r.converged,
+        r.error, method,
+    )  # fmt: skip
+    result.extra["adapt"] = {"reason": r.reason, "levels": [lv.as_dict() for lv in r.levels]}
+    if "contact_pressure" in r.extra:
+        result.extra["contact_pressure"] = r.extra["contact_pressure"]
+    return result
