@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.domains import DomainSpec
 from shellobstacle.expressions import ExpressionError
 from shellobstacle.messages import ConfigError, not_one_of, suggest
@@ -25,7 +26,6 @@ from shellobstacle.model import (
     PenaltySpec,
     Shell,
 )
-from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.schema import OPTIONAL_SECTIONS, REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
 from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions
 from shellobstacle.surface import Surface

@@ -16,12 +16,13 @@ by ``h`` and ``r_3`` by 1. With the complementarity term of Braess (2005) and Ve
 ``∫ Λ |g(ζ_h)| dy`` (the contact force where the shell is off the plane, or inside it), the
 indicator of a cell is
 
-``η_T² = (h_T² ‖r_1, r_2‖²_T + ‖r_3‖²_T + ½ Σ_{E ⊂ ∂T} h_E ‖J‖²_E) / (4με)² + ∫_T Λ |g(ζ_h)| dy / (4με)``
+``η_T² = (h_T² ‖(r_1, r_2)‖²_T + ‖r_3‖²_T + ½ Σ_{E⊂∂T} h_E ‖J‖²_E) / (4με)²``
+``+ ∫_T Λ |g(ζ_h)| dy / (4με)``
 
 (``4μ`` the smallest eigenvalue of ``a^{αβστ}``: the scale that makes ``η`` comparable with
 the ``V_M`` norm of the error). ``Λ`` is the penalty's ``(ε/κ) {g(ζ_h)}^- / |c|`` for a
-penalized solution (then ``Res`` vanishes on the discrete space: the penalized equation), or the exact solver's
-contact pressure times ``√a`` for the discrete variational inequality.
+penalized solution (``Res`` then vanishes on the discrete space: the penalized equation), or
+the exact solver's contact pressure times ``√a`` for the discrete variational inequality.
 """
 
 from __future__ import annotations

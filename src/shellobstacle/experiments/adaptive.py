@@ -17,7 +17,6 @@ its solution (every coarser level, estimate and refinement included).
 from __future__ import annotations
 
 import dataclasses
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,7 +26,7 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.adapt.loop import AdaptLevel, AdaptiveResult, adaptive_solve
+from shellobstacle.adapt.loop import AdaptiveResult, AdaptLevel, adaptive_solve
 from shellobstacle.adapt.options import MAX_LEVELS, AdaptOptions
 from shellobstacle.config import Config
 from shellobstacle.domains import DomainSpec
