@@ -257,6 +257,7 @@ class ActiveSetSolver:
             self.tmp.array[self.iB[active]] = self.psi[active]
             self.fr.copy(self.r)
             self.W.zeroRowsColumns(rows, 1.0, self.tmp, self.r)
+            rhs = self.r.copy()
             self._linear_solve(self.r, self.u)
             self.u.array[self.iB[active]] = self.psi[active]  # exactly on the bound
             self.Kr.mult(self.u, self.r)
@@ -265,9 +266,27 @@ class ActiveSetSolver:
             new = lam + self.d * (self.psi - self.u.array_r[self.iB]) > 0
             history.append(self._count(new))
             if not self._differ(new, active):
+                self._refine(rhs, active)
+                rhs.destroy()
                 return step, True
+            rhs.destroy()
             active = new
         return step, False
+
+    def _refine(self, rhs: PETSc.Vec, active: np.ndarray) -> None:
+        """One step of iterative refinement of the last solve ``W u = rhs`` (the settled
+        active set's system, still factorized): ``u ← u + W⁻¹(rhs − W u)``. On meshes graded by
+        10³–10⁴ (adaptive refinement) the factorization's backward error alone leaves the
+        relative stationarity at 1e-10–1e-9; one step brings it back to round-off."""
+        residual = rhs.duplicate()
+        self.W.mult(self.u, residual)
+        residual.aypx(-1.0, rhs)
+        correction = rhs.duplicate()
+        self._linear_solve(residual, correction)
+        self.u.axpy(1.0, correction)
+        self.u.array[self.iB[active]] = self.psi[active]
+        for v in (residual, correction):
+            v.destroy()
 
     def _prediction(self) -> np.ndarray:
         """Active set predicted at the current ``u``: ``λ_b + d_b (ψ_b − u_b) > 0``."""
