@@ -55,7 +55,7 @@ import dolfinx.fem.petsc
 import numpy as np
 
 from shellobstacle.problem import PenalizedProblem
-from shellobstacle.solvers.base import ConvergenceError, direct_solver
+from shellobstacle.solvers.base import ConvergenceError, direct_solver, factorize
 from shellobstacle.solvers.line_search import piecewise_linear_root
 from shellobstacle.solvers.nodal import NodalConstraint
 from shellobstacle.solvers.options import ActiveSetOptions
@@ -181,6 +181,9 @@ class ActiveSetSolver:
     # -- linear algebra -----------------------------------------------------------------------
     def _linear_solve(self, rhs: PETSc.Vec, x: PETSc.Vec) -> None:
         t = time.perf_counter()
+        # (re)factorizes when the matrix changed, retrying with more MUMPS workspace when
+        # the analysis under-estimated it (adapted meshes of 10⁵–10⁶ dofs)
+        factorize(self.ksp, "the active-set system")
         self.ksp.solve(rhs, x)
         self.timings["solve"] += time.perf_counter() - t
         if self.ksp.getConvergedReason() < 0:
