@@ -12,6 +12,8 @@ Two exact solutions:
   n = 8, 16, 32, 64.
 """
 
+from pathlib import Path
+
 # isort: split
 from mpi4py import MPI
 
@@ -116,3 +118,27 @@ def test_indicator_is_reliable_and_efficient_on_a_manufactured_solution(manufact
     h = 2 * L / np.array(ns)
     assert np.polyfit(np.log(h), np.log(errors), 1)[0] == pytest.approx(1.0, abs=0.1)
     assert np.polyfit(np.log(h), np.log(etas), 1)[0] == pytest.approx(1.0, abs=0.1)
+
+
+@pytest.mark.mpi
+def test_indicators_on_2_ranks_equal_the_serial_ones() -> None:
+    """The paper's problem on a square with contact: every part of η on the distributed
+    (ghosted) mesh equals the serial value; the edge jumps across process boundaries are
+    counted once."""
+    from shellobstacle.config import load_config
+    from shellobstacle.solvers.continuation import continuation
+
+    shell = load_config(Path(__file__).parents[1] / "examples" / "paper.toml").shell
+    out = []
+    for comm in (COMM, MPI.COMM_SELF):
+        mesh = dolfinx.mesh.create_rectangle(
+            comm, [[-0.25, -0.25], [0.25, 0.25]], [24, 24],
+            ghost_mode=dolfinx.mesh.GhostMode.shared_facet,
+        )  # fmt: skip
+        problem = PenalizedProblem(shell, mesh, Discretization())
+        continuation(problem, NewtonSolver(problem), [1e-1, 1e-2, 1e-3])
+        parts = ErrorEstimator(problem)().part_totals()
+        assert parts["contact"] > 0  # the shell touches the plane
+        out.append(parts)
+    for key, value in out[0].items():
+        assert value == pytest.approx(out[1][key], rel=1e-8), key
