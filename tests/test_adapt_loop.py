@@ -6,6 +6,8 @@ import dataclasses
 from pathlib import Path
 
 # isort: split
+import itertools
+
 from mpi4py import MPI
 
 import dolfinx
@@ -65,10 +67,10 @@ def test_the_loop_reduces_the_error(cfg, method: str) -> None:
     norms = DifferenceNorms(V, 4)
     errors = [norms(transfer(z, V), reference)["vm"] for z in kept[:5]]
     etas = [lv.eta for lv in result.levels[:5]]
-    assert all(b < a for a, b in zip(errors, errors[1:], strict=False)), errors
-    assert all(b < a for a, b in zip(etas, etas[1:], strict=False)), etas
+    assert all(b < a for a, b in itertools.pairwise(errors)), errors
+    assert all(b < a for a, b in itertools.pairwise(etas)), etas
     dofs = [lv.dofs for lv in result.levels]
-    assert all(b > a for a, b in zip(dofs, dofs[1:], strict=False))
+    assert all(b > a for a, b in itertools.pairwise(dofs))
     assert result.reason == "max_levels = 6 reached"
     if method == "active-set":
         assert all(lv.iterations <= 4 for lv in result.levels[1:])
