@@ -32,7 +32,6 @@ import numpy as np
 from shellobstacle.adapt.estimator import ErrorEstimator, Indicators
 from shellobstacle.adapt.marking import free_boundary_cells, mark_dorfler, marked_edges
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.experiments.common import transfer
 from shellobstacle.measures import mesh_size, mesh_size_min, num_cells_global
 from shellobstacle.model import Discretization, PenaltySpec, Shell
 from shellobstacle.problem import PenalizedProblem
@@ -44,6 +43,7 @@ __all__ = [
     "AdaptLevel",
     "AdaptiveResult",
     "adaptive_solve",
+    "carry_over",
     "local_kappa_scale",
     "solve_adaptively",
 ]
@@ -141,6 +141,7 @@ def adaptive_solve(
     newton_progress: Callable[[int, float], Any] | None = None,
     on_level: Callable[[AdaptLevel, PenalizedProblem], Any] | None = None,
     start: dolfinx.fem.Function | None = None,
+    carry: list[dolfinx.fem.Function] | None = None,
 ) -> AdaptiveResult:
     """Solve on ``mesh`` and its adaptive refinements until a target of ``adapt`` is met.
 
@@ -160,6 +161,9 @@ def adaptive_solve(
             measure errors against a reference).
         start: a solution on ``mesh`` or a coarser mesh it refines: the first level starts
             from it (at its κ, as the later levels do) instead of from ζ = 0.
+        carry: Functions on the current mesh (``start``'s, if given), replaced in the list by
+            their interpolants on each refined mesh (exact: the meshes are nested), with the
+            interpolation data of the warm start; ``on_level`` may append to it.
 
     Returns:
         The :class:`AdaptiveResult`; a solver failure ends the loop with ``converged =
@@ -182,7 +186,10 @@ def adaptive_solve(
         h_ladder, scale, (kappa_min, kappa_max), h_max = _kappa(mesh, penalty, adapt.kappa)
         problem = PenalizedProblem(shell, mesh, disc, kappa_scale=scale)
         if previous is not None:
-            problem.zeta.x.array[:] = transfer(previous, problem.V).x.array
+            moved = carry_over([previous, *(carry or [])], problem.V)
+            problem.zeta.x.array[:] = moved[0].x.array
+            if carry is not None:
+                carry[:] = moved[1:]
         seconds = {"setup": time.perf_counter() - t0}
         t0 = time.perf_counter()
         try:
@@ -225,6 +232,25 @@ def adaptive_solve(
         say(_line(level, ""))
         previous = problem.zeta
         k += 1
+
+
+def carry_over(
+    functions: list[dolfinx.fem.Function], V: dolfinx.fem.FunctionSpace
+) -> list[dolfinx.fem.Function]:
+    """Interpolate ``functions`` (all in one space, on a mesh that ``V``'s refines) into
+    ``V``: exact for nested Lagrange spaces; one point location for all of them."""
+    mesh = V.mesh
+    imap = mesh.topology.index_map(mesh.topology.dim)
+    cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
+    source = functions[0].function_space
+    data = dolfinx.fem.create_interpolation_data(V, source, cells, padding=1e-12)
+    out = []
+    for f in functions:
+        g = dolfinx.fem.Function(V, name=f.name)
+        g.interpolate_nonmatching(f, cells, data)
+        g.x.scatter_forward()
+        out.append(g)
+    return out
 
 
 def _solve_level(

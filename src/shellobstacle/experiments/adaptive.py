@@ -30,7 +30,7 @@ from shellobstacle.adapt.loop import AdaptiveResult, AdaptLevel, adaptive_solve
 from shellobstacle.adapt.options import MAX_LEVELS, AdaptOptions
 from shellobstacle.config import Config
 from shellobstacle.domains import DomainSpec
-from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, transfer, write_csv
+from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.pipeline import make_mesh
@@ -116,26 +116,32 @@ def _adaptive(
     method: str,
     say: Say,
     newton_progress: NewtonProgress,
-    kept: list[dolfinx.fem.Function],
+    carried: list[dolfinx.fem.Function],
+    keep: bool,
     start: dolfinx.fem.Function | None = None,
-) -> AdaptiveResult:
-    """The adaptive loop by ``method``, keeping a copy of every level's solution."""
+) -> tuple[AdaptiveResult, dolfinx.fem.Function]:
+    """The adaptive loop by ``method``: its result and last solution. Every function in
+    ``carried`` is carried onto each refined mesh; with ``keep`` every level's solution
+    joins them."""
+    last: list[dolfinx.fem.Function] = []
 
-    def keep(level: AdaptLevel, problem: Any) -> None:
+    def on_level(level: AdaptLevel, problem: Any) -> None:
         zeta = dolfinx.fem.Function(problem.V)
         zeta.x.array[:] = problem.zeta.x.array
-        kept.append(zeta)
+        last[:] = [zeta]
+        if keep:
+            carried.append(zeta)
 
     penalty = None if method == "active-set" else cfg.penalty
     result = adaptive_solve(
         cfg.shell, mesh, cfg.discretization, penalty, adapt, cfg.solver, method, None,
-        say, newton_progress, keep, start,
+        say, newton_progress, on_level, start, carried,
     )  # fmt: skip
     if not result.converged:
         from shellobstacle.solvers.base import ConvergenceError
 
         raise ConvergenceError(f"adaptive level {len(result.levels) + 1}: {result.error}")
-    return result
+    return result, last[0]
 
 
 def adaptive_study(
@@ -150,10 +156,10 @@ def adaptive_study(
 
     The adaptive loop of the config runs to ``options.dofs``; the exact VI's adaptive loop
     continues from its last mesh and solution to ``options.reference_dofs``. Every adapted
-    mesh is refined by the last one, so the errors of the adaptive levels are those of their
-    solutions interpolated (exactly) onto the reference mesh. With ``checkpoint`` each
-    uniform level's row is recorded and not solved again on resume; the adaptive loops are
-    deterministic and run again.
+    mesh is refined by the last one: each level's solution is carried (interpolated exactly,
+    with the point location of the warm starts) onto the reference mesh. With
+    ``checkpoint`` each uniform level's row is recorded and not solved again on resume; the
+    adaptive loops are deterministic and run again.
     """
     cp = checkpoint or Checkpoint(None)
     adapt = cfg.adapt or AdaptOptions()
@@ -163,23 +169,20 @@ def adaptive_study(
     run = dataclasses.replace(adapt, max_levels=MAX_LEVELS, target_dofs=dofs, target_error=None)
     say(f"adaptive study: {cfg.method}, κ '{adapt.kappa}', adapted up to {dofs} dofs")
     solutions: list[dolfinx.fem.Function] = []
-    result = _adaptive(cfg, base, run, cfg.method, say, newton_progress, solutions)
+    result, last = _adaptive(cfg, base, run, cfg.method, say, newton_progress, solutions, True)
     study.final = result
 
     say(f"adaptive study: the reference, the exact VI adapted up to {options.reference_dofs} dofs")
-    tail: list[dolfinx.fem.Function] = []
     exact_options = dataclasses.replace(run, target_dofs=options.reference_dofs)
-    exact = _adaptive(
-        cfg, result.problem.mesh, exact_options, "active-set", say, None, tail, solutions[-1]
+    exact, reference = _adaptive(
+        cfg, result.problem.mesh, exact_options, "active-set", say, None, solutions, False, last
     )
-    reference = tail[-1]
-    last = exact.levels[-1]
-    study.reference = {"dofs": last.dofs, "eta": last.eta, "h_min": last.h_min}
-    V = reference.function_space
-    nested = DifferenceNorms(V, cfg.discretization.qdegree)
+    ref = exact.levels[-1]
+    study.reference = {"dofs": ref.dofs, "eta": ref.eta, "h_min": ref.h_min}
+    nested = DifferenceNorms(reference.function_space, cfg.discretization.qdegree)
     times = _cumulative(result.levels)
     for level, zeta, t in zip(result.levels, solutions, times, strict=True):
-        study.rows.append(_row(ADAPTIVE, level, nested(transfer(zeta, V), reference)["vm"], t))
+        study.rows.append(_row(ADAPTIVE, level, nested(zeta, reference)["vm"], t))
     solutions.clear()
 
     from shellobstacle.experiments.adaptive_uniform import uniform_sequence

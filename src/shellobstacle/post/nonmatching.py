@@ -34,7 +34,7 @@ class SampledNorms:
         quadrature_degree: degree of the Gauss rule on the reference cells.
     """
 
-    def __init__(self, reference: dolfinx.fem.Function, quadrature_degree: int = 4) -> None:
+    def __init__(self, reference: dolfinx.fem.Function, quadrature_degree: int = 2) -> None:
         self.reference = reference
         mesh = reference.function_space.mesh
         self.mesh = mesh
