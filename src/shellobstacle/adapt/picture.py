@@ -34,11 +34,11 @@ def plot_adapted_mesh(
     contact: dolfinx.fem.Function,
     path: Path,
     title: str,
-    zoom: tuple[float, float, float] | None = None,
+    zooms: list[tuple[float, float, float]] | None = None,
 ) -> Path:
     """Draw the cells of ``mesh`` and the boundary of the contact set (the 1/2 level line of
-    the P1 ``contact`` indicator), the whole domain and, with ``zoom = (y1, y2, half width)``,
-    a close-up. Collective; rank 0 writes ``path``."""
+    the P1 ``contact`` indicator): the whole domain and a close-up for each ``(y1, y2, half
+    width)`` of ``zooms``. Collective; rank 0 writes ``path``."""
     data = _gathered(mesh, contact)
     if mesh.comm.rank != 0:
         return path
@@ -54,8 +54,9 @@ def plot_adapted_mesh(
     tri = Triangulation(
         xy[:, :, 0].ravel(), xy[:, :, 1].ravel(), np.arange(xy.shape[0] * 3).reshape(-1, 3)
     )
-    panels = 1 if zoom is None else 2
-    fig, axes = plt.subplots(1, panels, figsize=(6.0 * panels, 6.0), squeeze=False)
+    zooms = list(zooms or [])
+    panels = 1 + len(zooms)
+    fig, axes = plt.subplots(1, panels, figsize=(5.5 * panels, 5.5), squeeze=False)
     for k, ax in enumerate(axes[0]):
         cells = PolyCollection(xy, facecolors="none", edgecolors="0.3", linewidths=0.15)
         ax.add_collection(cells)
@@ -67,10 +68,13 @@ def plot_adapted_mesh(
             ax.set_ylim(xy[:, :, 1].min(), xy[:, :, 1].max())
             ax.set_title(title, fontsize=9)
         else:
-            cx, cy, w = zoom  # type: ignore[misc]
+            cx, cy, w = zooms[k - 1]
             ax.set_xlim(cx - w, cx + w)
             ax.set_ylim(cy - w, cy + w)
-            ax.set_title(f"near ({cx:g}, {cy:g}); red: boundary of the contact set", fontsize=9)
+            ax.set_title(
+                f"around ({cx:.4g}, {cy:.4g}), ±{w:.2g}; red: boundary of the contact set",
+                fontsize=9,
+            )
         ax.set_xlabel("y1")
         ax.set_ylabel("y2")
     fig.tight_layout()

@@ -41,7 +41,7 @@ __all__ = ["COLUMNS", "AdaptiveStudy", "AdaptiveStudyOptions", "adaptive_study",
 
 COLUMNS = (
     "sequence", "level", "dofs", "h_min", "h_max", "kappa_min", "kappa_max", "eta",
-    "error_VM", "iterations", "seconds",
+    "error_VM", "efficiency", "iterations", "seconds",
 )  # fmt: skip
 UNIFORM, ADAPTIVE = "uniform", "adaptive"
 
@@ -96,7 +96,8 @@ class AdaptiveStudy:
 
 
 def _row(name: str, level: AdaptLevel, error: float, seconds: float) -> dict[str, Any]:
-    return {"sequence": name, **level.as_dict(), "error_VM": error, "seconds": seconds}
+    data = {"sequence": name, **level.as_dict(), "error_VM": error, "seconds": seconds}
+    return data | {"efficiency": level.eta / error if error > 0 else float("nan")}
 
 
 def _cumulative(levels: list[AdaptLevel]) -> list[float]:
@@ -250,11 +251,12 @@ def run_adaptive(
     assert final is not None
     problem = final.problem
     contact = Postprocessor(problem).indicator()
-    zoom = _zoom(problem.mesh, contact)
+    cx, cy, w = _zoom(problem.mesh, contact)
     last = final.levels[-1]
+    zooms = [(cx, cy, w)] + ([(cx, cy, 50 * last.h_min)] if 50 * last.h_min < w / 4 else [])
     plot_adapted_mesh(
         problem.mesh, contact, folder / "adaptive_mesh.png",
-        f"the last adapted mesh: {last.dofs} dofs, h_min = {last.h_min:.2g}", zoom,
+        f"the last adapted mesh: {last.dofs} dofs, h_min = {last.h_min:.2g}", zooms,
     )  # fmt: skip
     return _section(cfg, study, options)
 
@@ -287,14 +289,16 @@ def _section(cfg: Config, study: AdaptiveStudy, options: AdaptiveStudyOptions) -
         f"adaptive loop with the exact VI up to {ref['dofs']} dofs (η = {ref['eta']:.3g}, "
         f"h_min = {ref['h_min']:.3g}); errors are ‖ζ_h − ζ_ref‖_{{V_M}} (uniform meshes: "
         "sampled at the reference's Gauss points), slopes are fitted to error ∝ N^slope "
-        "(adaptive: over the levels with 2 N_0 ≤ N ≤ N_ref/8). Seconds: a uniform level's own "
-        "refinement and solve; an adaptive level's, the whole loop up to it.",
+        "(adaptive: over the levels with 2 N_0 ≤ N ≤ N_ref/8), efficiency is η / error. "
+        "Seconds: a uniform level's own refinement and solve; an adaptive level's, the whole "
+        "loop up to it.",
         "",
     ]
     for name in (UNIFORM, ADAPTIVE):
         rows = study.sequence(name)
         if rows:
-            cols = ["level", "dofs", "h_min", "eta", "error_VM", "iterations", "seconds"]
+            cols = ["level", "dofs", "h_min", "eta", "error_VM", "efficiency", "iterations"]
+            cols.append("seconds")
             text += [f"### {name}: slope {study.rate(name):.3f}", "", table(rows, cols), ""]
     uniform = study.sequence(UNIFORM)
     if uniform:

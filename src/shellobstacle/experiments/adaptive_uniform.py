@@ -63,7 +63,7 @@ def uniform_sequence(
             "sequence": "uniform", "level": k, "dofs": problem.num_dofs,
             "h_min": mesh_size_min(mesh), "h_max": mesh_size(mesh), "kappa_min": kappa,
             "kappa_max": kappa, "eta": eta, "error_VM": error, "iterations": iterations,
-            "seconds": seconds,
+            "seconds": seconds, "efficiency": eta / error if error > 0 else float("nan"),
         }  # fmt: skip
         rows.append(row)
         checkpoint.save(key, {"row": row})
