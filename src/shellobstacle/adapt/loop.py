@@ -237,17 +237,21 @@ def adaptive_solve(
 def carry_over(
     functions: list[dolfinx.fem.Function], V: dolfinx.fem.FunctionSpace
 ) -> list[dolfinx.fem.Function]:
-    """Interpolate ``functions`` (all in one space, on a mesh that ``V``'s refines) into
-    ``V``: exact for nested Lagrange spaces; one point location for all of them."""
+    """Interpolate ``functions`` into ``V``: exact for Lagrange functions of a mesh that
+    ``V``'s refines (nested meshes); one point location per distinct source space."""
     mesh = V.mesh
     imap = mesh.topology.index_map(mesh.topology.dim)
     cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
-    source = functions[0].function_space
-    data = dolfinx.fem.create_interpolation_data(V, source, cells, padding=1e-12)
+    data: dict[int, Any] = {}
     out = []
     for f in functions:
+        source = f.function_space
+        if id(source) not in data:
+            data[id(source)] = dolfinx.fem.create_interpolation_data(
+                V, source, cells, padding=1e-12
+            )
         g = dolfinx.fem.Function(V, name=f.name)
-        g.interpolate_nonmatching(f, cells, data)
+        g.interpolate_nonmatching(f, cells, data[id(source)])
         g.x.scatter_forward()
         out.append(g)
     return out

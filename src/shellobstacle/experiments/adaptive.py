@@ -41,7 +41,8 @@ __all__ = ["COLUMNS", "AdaptiveStudy", "AdaptiveStudyOptions", "adaptive_study",
 
 COLUMNS = (
     "sequence", "level", "dofs", "h_min", "h_max", "kappa_min", "kappa_max", "eta",
-    "error_VM", "efficiency", "iterations", "seconds",
+    "error_VM", "efficiency", "eta_tangential", "eta_normal", "eta_jump", "eta_contact",
+    "iterations", "seconds",
 )  # fmt: skip
 UNIFORM, ADAPTIVE = "uniform", "adaptive"
 
@@ -70,6 +71,8 @@ class AdaptiveStudy:
     rows: list[dict[str, Any]] = field(default_factory=list)
     reference: dict[str, Any] = field(default_factory=dict)
     final: AdaptiveResult | None = None
+    #: the solver failure that ended the adaptive loop early, if one did
+    failure: str | None = None
 
     def sequence(self, name: str) -> list[dict[str, Any]]:
         """The rows of one sequence."""
@@ -121,15 +124,16 @@ def _adaptive(
     keep: bool,
     start: dolfinx.fem.Function | None = None,
 ) -> tuple[AdaptiveResult, dolfinx.fem.Function]:
-    """The adaptive loop by ``method``: its result and last solution. Every function in
-    ``carried`` is carried onto each refined mesh; with ``keep`` every level's solution
-    joins them."""
-    last: list[dolfinx.fem.Function] = []
+    """The adaptive loop by ``method``: its result and last converged solution. Every
+    function in ``carried`` is carried onto each refined mesh; with ``keep`` every level's
+    solution joins them. A solver failure after the first level ends the loop (the result
+    says so); on the first level it raises."""
+    last: list[Any] = []
 
     def on_level(level: AdaptLevel, problem: Any) -> None:
         zeta = dolfinx.fem.Function(problem.V)
         zeta.x.array[:] = problem.zeta.x.array
-        last[:] = [zeta]
+        last[:] = [zeta, problem]
         if keep:
             carried.append(zeta)
 
@@ -138,10 +142,11 @@ def _adaptive(
         cfg.shell, mesh, cfg.discretization, penalty, adapt, cfg.solver, method, None,
         say, newton_progress, on_level, start, carried,
     )  # fmt: skip
-    if not result.converged:
+    if not result.converged and not last:
         from shellobstacle.solvers.base import ConvergenceError
 
-        raise ConvergenceError(f"adaptive level {len(result.levels) + 1}: {result.error}")
+        raise ConvergenceError(f"adaptive level 0: {result.error}")
+    result.problem = last[1]  # the last level solved
     return result, last[0]
 
 
@@ -172,6 +177,9 @@ def adaptive_study(
     solutions: list[dolfinx.fem.Function] = []
     result, last = _adaptive(cfg, base, run, cfg.method, say, newton_progress, solutions, True)
     study.final = result
+    if not result.converged:
+        study.failure = f"level {len(result.levels)}: {result.error}"
+        say(f"adaptive study: the adaptive loop stopped at {study.failure}")
 
     say(f"adaptive study: the reference, the exact VI adapted up to {options.reference_dofs} dofs")
     exact_options = dataclasses.replace(run, target_dofs=options.reference_dofs)
@@ -300,6 +308,12 @@ def _section(cfg: Config, study: AdaptiveStudy, options: AdaptiveStudyOptions) -
             cols = ["level", "dofs", "h_min", "eta", "error_VM", "efficiency", "iterations"]
             cols.append("seconds")
             text += [f"### {name}: slope {study.rate(name):.3f}", "", table(rows, cols), ""]
+    if study.failure:
+        text += [
+            f"The adaptive loop stopped early, the solver failing on {study.failure}; the "
+            "reference continues from its last solved level.",
+            "",
+        ]
     uniform = study.sequence(UNIFORM)
     if uniform:
         u = uniform[-1]

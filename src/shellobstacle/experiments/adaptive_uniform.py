@@ -57,13 +57,15 @@ def uniform_sequence(
             if force is None
             else ErrorEstimator.for_exact_solution(problem, force)
         )
-        eta = estimator().total
+        indicators = estimator()
+        eta = indicators.total
         error = norms(problem.zeta)["vm"]
         row = {
             "sequence": "uniform", "level": k, "dofs": problem.num_dofs,
             "h_min": mesh_size_min(mesh), "h_max": mesh_size(mesh), "kappa_min": kappa,
             "kappa_max": kappa, "eta": eta, "error_VM": error, "iterations": iterations,
             "seconds": seconds, "efficiency": eta / error if error > 0 else float("nan"),
+            **{f"eta_{k}": v for k, v in indicators.part_totals().items()},
         }  # fmt: skip
         rows.append(row)
         checkpoint.save(key, {"row": row})
