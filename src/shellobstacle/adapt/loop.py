@@ -225,7 +225,7 @@ def adaptive_solve(
         t0 = time.perf_counter()
         cells = mark_dorfler(indicators.eta2, adapt.fraction, comm)
         if adapt.free_boundary:
-            cells = np.union1d(cells, _free_boundary(problem, method, force)).astype(np.int32)
+            cells = np.union1d(cells, _free_boundary(problem)).astype(np.int32)
         level.marked = int(comm.allreduce(cells.size, op=MPI.SUM))
         mesh = refine_marked(mesh, marked_edges(mesh, cells))
         seconds["refine"] = time.perf_counter() - t0
@@ -293,8 +293,9 @@ def _solve_level(
     return steps, sum(s.iterations for s in steps), None
 
 
-def _free_boundary(problem: PenalizedProblem, method: str, force: Any) -> np.ndarray:
-    """The owned cells cut by the discrete free boundary of the current solution."""
+def _free_boundary(problem: PenalizedProblem) -> np.ndarray:
+    """The owned cells cut by the boundary of the current solution's contact set (its
+    vertices with ``g ≤ 0``, :class:`~shellobstacle.post.contact.Postprocessor`)."""
     from shellobstacle.post.contact import Postprocessor
 
     contact = Postprocessor(problem).indicator().x.array > 0.5
