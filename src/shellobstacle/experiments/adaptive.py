@@ -26,7 +26,7 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.adapt.loop import AdaptiveResult, AdaptLevel, adaptive_solve
+from shellobstacle.adapt.loop import AdaptiveResult, AdaptLevel, adaptive_solve, carry_over
 from shellobstacle.adapt.options import MAX_LEVELS, AdaptOptions
 from shellobstacle.config import Config
 from shellobstacle.domains import DomainSpec
@@ -73,6 +73,8 @@ class AdaptiveStudy:
     final: AdaptiveResult | None = None
     #: the solver failure that ended the adaptive loop early, if one did
     failure: str | None = None
+    #: why the reference is not at ``reference_dofs``, if it is not
+    reference_note: str | None = None
 
     def sequence(self, name: str) -> list[dict[str, Any]]:
         """The rows of one sequence."""
@@ -186,6 +188,13 @@ def adaptive_study(
     exact, reference = _adaptive(
         cfg, result.problem.mesh, exact_options, "active-set", say, None, solutions, False, last
     )
+    if not exact.converged:  # the last level solved is the reference
+        study.reference_note = (
+            f"the exact solver failed on the next level ({exact.error}); the reference is "
+            "its last solved level"
+        )
+        say(f"adaptive study: {study.reference_note}")
+        solutions[:] = carry_over(solutions, reference.function_space)
     ref = exact.levels[-1]
     study.reference = {"dofs": ref.dofs, "eta": ref.eta, "h_min": ref.h_min}
     nested = DifferenceNorms(reference.function_space, cfg.discretization.qdegree)
@@ -308,6 +317,11 @@ def _section(cfg: Config, study: AdaptiveStudy, options: AdaptiveStudyOptions) -
             cols = ["level", "dofs", "h_min", "eta", "error_VM", "efficiency", "iterations"]
             cols.append("seconds")
             text += [f"### {name}: slope {study.rate(name):.3f}", "", table(rows, cols), ""]
+    if study.reference_note:
+        text += [
+            f"The reference has fewer than {options.reference_dofs} dofs: {study.reference_note}.",
+            "",
+        ]
     if study.failure:
         text += [
             f"The adaptive loop stopped early, the solver failing on {study.failure}; the "

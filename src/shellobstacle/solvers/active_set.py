@@ -187,8 +187,10 @@ class ActiveSetSolver:
         self.ksp.solve(rhs, x)
         self.timings["solve"] += time.perf_counter() - t
         if self.ksp.getConvergedReason() < 0:
+            F = self.ksp.getPC().getFactorMatrix()
             raise ConvergenceError(
-                f"linear solve failed (PETSc reason {self.ksp.getConvergedReason()})"
+                f"linear solve failed (PETSc reason {self.ksp.getConvergedReason()}, MUMPS "
+                f"INFOG(1) = {F.getMumpsInfog(1)}, INFOG(2) = {F.getMumpsInfog(2)})"
             )
 
     def _gradient(self, gamma: float) -> np.ndarray:
