@@ -43,3 +43,49 @@ def test_experiment_adaptive_writes_its_results(tmp_path, method: str) -> None:
     assert "## Adaptive refinement" in report and "### uniform: slope" in report
     for png in ("adaptive.png", "adaptive_mesh.png"):
         assert (out / png).stat().st_size > 20_000
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
+def test_experiment_adaptive_resumes_its_uniform_levels(tmp_path, monkeypatch) -> None:
+    """Interrupted in its third uniform level and resumed: the recorded uniform levels are
+    not solved again (the adaptive loops are, deterministically) and the table is the
+    uninterrupted run's, seconds aside."""
+    from shellobstacle.cli import EXIT_INTERRUPTED
+    from shellobstacle.io.checkpoint import Checkpoint
+    from shellobstacle.solvers.newton import NewtonSolver
+
+    args = ["experiment", "adaptive", str(PAPER), "-q", "--set", "domain.h=0.1"]
+    args += ["--refinements", "2", "--dofs", "1500", "--reference-dofs", "6000"]
+    calls, saves, stop = [0], [], [None]
+    solve, save = NewtonSolver.solve, Checkpoint.save
+
+    def counted(solver, *a, **k):
+        calls[0] += 1
+        if calls[0] == stop[0]:
+            raise KeyboardInterrupt
+        return solve(solver, *a, **k)
+
+    def saved(cp, key, record):
+        save(cp, key, record)
+        if cp.enabled:
+            saves.append(calls[0])
+
+    monkeypatch.setattr(NewtonSolver, "solve", counted)
+    monkeypatch.setattr(Checkpoint, "save", saved)
+    assert main([*args, "-o", str(tmp_path / "full")]) == 0
+    full_calls, full_saves = calls[0], list(saves)
+    assert len(full_saves) == 3  # one record per uniform level
+    calls[0], saves[:], stop[0] = 0, [], full_saves[1] + 1  # inside uniform level 2
+    assert main([*args, "-o", str(tmp_path / "resumed")]) == EXIT_INTERRUPTED
+    calls[0], saves[:], stop[0] = 0, [], None
+    assert main([*args, "-o", str(tmp_path / "resumed"), "--resume"]) == 0
+    # a uniform level is one continuation along κ = h^0.5, h, h^1.5: three solves each
+    per_level = full_saves[1] - full_saves[0]
+    assert per_level == full_saves[2] - full_saves[1] == 3
+    assert calls[0] == full_calls - 2 * per_level  # levels 0 and 1 were read back
+
+    def table(folder):
+        with (tmp_path / folder / "adaptive.csv").open() as f:
+            return [{k: v for k, v in r.items() if k != "seconds"} for r in csv.DictReader(f)]
+
+    assert table("full") == table("resumed")
