@@ -76,11 +76,14 @@ def load_study(
     progress: Callable[[str], Any] | None = None,
     checkpoint: Checkpoint | None = None,
     newton_progress: Callable[[int, float], Any] | None = None,
+    last: Callable[[Postprocessor], Any] | None = None,
 ) -> LoadStudy:
     """Solve for each value of the load parameter (one compiled problem, warm starts).
 
     With ``checkpoint`` every finished value is recorded (its row, its cross-section and its
     solution, from which the next value starts); recorded values are not solved again.
+    ``last(post)`` is called once the last value is solved (not when it is recorded), with
+    its solution in ``post.problem.zeta`` (e.g. to draw it).
     """
     say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
@@ -138,6 +141,8 @@ def load_study(
             cp.save(key, record)
             cp.drop_vector(saved)
             saved = key
+            if last is not None and k == len(values) - 1:
+                last(post)
         else:
             restore = saved = key
             recorded_seconds += record["seconds"]
@@ -201,7 +206,21 @@ def run_load(
     """Batch 3 (load sweep); returns the report section.
 
     With ``checkpoint`` every value is recorded and recorded values are not solved again.
+    The largest load's solution is drawn in 3D (``batch3_shell_3d.png``, when
+    ``output.pictures``; a resumed run keeps the drawing of the run that solved it).
     """
+    png_shell = folder / "batch3_shell_3d.png"
+
+    def draw(post: Postprocessor) -> None:
+        from shellobstacle.post.pictures import write_picture
+
+        if not cfg.output.get("pictures", True):
+            return
+        title = f"Batch 3: the deformed shell over the plane at {parameter} = {values[-1]:g}"
+        picture = write_picture(post, png_shell, title)
+        if picture.warning is not None:
+            say(f"warning: {picture.warning}")
+
     s = load_study(
         cfg.shell,
         make_mesh(domain),
@@ -213,6 +232,7 @@ def run_load(
         say,
         (checkpoint or Checkpoint(None)).scope("batch3"),
         newton_progress,
+        draw,
     )
     write_load_study(s, folder)
     png_area = folder / "batch3_contact_area.png"
@@ -241,6 +261,8 @@ def run_load(
         "orientation within their thresholds)."
     )
     name = "ℓ" if paper_load and parameter == "ell" else parameter
+    drawn = MPI.COMM_WORLD.bcast(png_shell.is_file() if MPI.COMM_WORLD.rank == 0 else None)
+    shell_3d = [f"![the shell in 3D at {name} = {values[-1]:g}]({png_shell.name})", ""]
     return "\n".join(
         [
             "## Batch 3: the contact area as the load grows",
@@ -264,6 +286,7 @@ def run_load(
             "",
             f"![cross-sections]({png_sections.name})",
             "",
+            *(shell_3d if drawn else []),
             f"![contact area]({png_area.name})",
             "",
         ]

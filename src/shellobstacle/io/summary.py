@@ -1,4 +1,5 @@
-"""Write a solve's result folder: summary.json, ParaView files, the cross-section figure."""
+"""Write a solve's result folder: summary.json, ParaView files, the cross-section figure and
+the 3D picture."""
 
 from __future__ import annotations
 
@@ -91,6 +92,20 @@ def write_solution(
         label = f"κ = {summary['kappa']:.2e}" + ("" if result.converged else " (NOT converged)")
         plot_cross_section([(label, section)], problem.q, png)
         files.append(png.name)
+    if output.get("pictures", True):
+        from shellobstacle.post.pictures import write_picture
+
+        title = (
+            "Deformed middle surface θ + ζᵢ aⁱ over the plane x·q = 0: "
+            f"κ = {summary['kappa']:.2e}, contact area {summary['contact_area']:.4g}"
+            + ("" if result.converged else " (NOT converged)")
+        )
+        picture = write_picture(post, folder / "shell_3d.png", title)
+        if picture.path is not None:
+            files.append(picture.path.name)
+        if picture.warning is not None:
+            say(f"warning: {picture.warning}")
+            summary["warnings"].append(picture.warning)
     timings["output"] = time.perf_counter() - t
     summary["files"] = files
     write_json(folder / "summary.json", summary)
