@@ -210,7 +210,9 @@ def _lay_out(views: dict[str, np.ndarray], path: Path, title: str) -> None:
     bar = fig.colorbar(mappable, ax=axes, shrink=0.8, pad=0.01)
     bar.set_label("gap g(ζ) = (θ + ζᵢ aⁱ)·q, the height above the plane")
     handles = [
-        Line2D([], [], color=CONTACT, lw=3, label="contact zone: cells with g ≤ 0 at every vertex"),
+        Line2D([], [], color=CONTACT, lw=3, label="contact zone: cells with g ≤ 0 at every vertex")
+        if bool(views["outlined"])
+        else Line2D([], [], color=CONTACT, ls="", marker="o", label="contact vertices (g ≤ 0)"),
         Patch(facecolor=PLANE, label="the plane x·q = 0 (translucent)"),
     ]
     axes[1].legend(handles=handles, loc="lower left", fontsize=8, framealpha=0.9)

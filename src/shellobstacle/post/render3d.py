@@ -50,7 +50,7 @@ def plane_frame(q: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
-    """One off-screen view of the plane, the deformed shell (its cells with every vertex in
+    """One off-screen view of the plane, the deformed shell (its cells with a vertex in
     ``patch``, a boolean mask of the vertices) and the contact zone's boundary, with the
     camera ``elevation`` degrees above the plane; an RGB image."""
     import pyvista as pv
@@ -58,7 +58,7 @@ def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
     t1, t2, q = frame
     points = np.asarray(data["points"], dtype=float)
     triangles = np.asarray(data["triangles"], dtype=np.int64)
-    triangles = triangles[patch[triangles].all(axis=1)]
+    triangles = triangles[patch[triangles].any(axis=1)]
     contact = np.asarray(data["contact"], dtype=float)
     faces = np.hstack([np.full((len(triangles), 1), 3), triangles]).ravel()
     shell = pv.PolyData(points, faces)
@@ -94,8 +94,10 @@ def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
             outline.points += np.outer(radius - outline.points @ q, q)
             pl.add_mesh(outline.tube(radius=radius), color=CONTACT)
         else:  # no cell touches with all its vertices: mark the contact vertices
-            spots = pv.PolyData(points[np.unique(triangles[touching])])
-            pl.add_mesh(spots, color=CONTACT, point_size=12, render_points_as_spheres=True)
+            spots = points[np.unique(triangles[touching])]
+            spots += np.outer(radius - spots @ q, q)
+            pl.add_mesh(pv.PolyData(spots), color=CONTACT, point_size=14,
+                        render_points_as_spheres=True)  # fmt: skip
     el, az = np.radians(elevation), np.radians(-60.0)
     direction = np.cos(el) * (np.cos(az) * t1 + np.sin(az) * t2) + np.sin(el) * q
     focus = shell.points.mean(axis=0)
@@ -132,8 +134,9 @@ def render(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     Returns:
         ``whole`` and ``close`` (images, ``(rows, columns, 3)`` bytes), ``clim`` (the range of
         the colour scale: ``min(g, 0)``, ``max g``), ``reach`` (the close view shows the
-        shell within this distance of the zone's centre along the plane) and ``contact``
-        (whether there is a contact zone).
+        shell within this distance of the zone's centre along the plane), ``contact``
+        (whether a vertex touches) and ``outlined`` (whether a cell touches with all its
+        vertices: the zone is outlined; else its vertices are marked).
     """
     frame = plane_frame(data["q"])
     t1, t2, _ = frame
@@ -155,6 +158,7 @@ def render(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         "clim": np.array(clim),
         "reach": np.array(reach),
         "contact": np.array(contact.any()),
+        "outlined": np.array(contact[np.asarray(data["triangles"])].all(axis=1).any()),
     }
 
 
