@@ -280,3 +280,30 @@ def test_solve_draws_the_picture_and_lists_it(tmp_path: Path, fresh: None) -> No
     args = ["solve", str(SMALL), "-o", str(off), "-q", "--set", "domain.h=0.08"]
     assert main([*args, "--set", "output.pictures=false"]) == 0
     assert not (off / "shell_3d.png").exists() and (off / "cross_section.png").exists()
+
+
+def test_experiment_load_draws_the_largest_load_and_a_resumed_run_keeps_it(
+    tmp_path: Path, fresh: None
+) -> None:
+    """Batch 3 draws the last value's solution beside its cross-sections in report.md; a
+    resumed run whose values are all recorded has no solution to draw and keeps the drawing."""
+    if COMM.size > 1:
+        pytest.skip("the command line runs serially here")
+    from shellobstacle.cli import main
+
+    paraboloid = Path(__file__).parents[1] / "examples" / "paraboloid.toml"
+    out = tmp_path / "load"
+    args = ["experiment", "load", str(paraboloid), "--values", "0,40", "-o", str(out), "-q"]
+    assert main([*args, "--set", "domain.h=0.06"]) == 0
+    png = out / "batch3_shell_3d.png"
+    report = (out / "report.md").read_text()
+    assert "![the shell in 3D at ell = 40](batch3_shell_3d.png)" in report
+    assert report.index("batch3_cross_sections.png") < report.index("batch3_shell_3d.png")
+    assert _red(matplotlib.image.imread(png)).sum() > 20  # one contact vertex at this h
+    drawn = png.stat().st_mtime_ns
+    assert main([*args, "--set", "domain.h=0.06", "--resume"]) == 0
+    assert png.stat().st_mtime_ns == drawn
+    assert "batch3_shell_3d.png" in (out / "report.md").read_text()
+    png.unlink()  # a drawing that is missing is not referenced
+    assert main([*args, "--set", "domain.h=0.06", "--resume"]) == 0
+    assert "batch3_shell_3d.png" not in (out / "report.md").read_text()
