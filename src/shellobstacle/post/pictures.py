@@ -16,6 +16,7 @@ import os
 import re
 import subprocess
 import sys
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -135,6 +136,13 @@ def pictures_available() -> str | None:
     return None
 
 
+def _without_mpi(environ: Mapping[str, str]) -> dict[str, str]:
+    """``environ`` without the variables by which an MPI launcher reaches its ranks: a VTK
+    built with MPI must not join the solve's MPI job."""
+    prefixes = ("PMI_", "PMIX_", "HYDRA_", "HYDI_", "MPIR_", "OMPI_", "MPICH_")
+    return {k: v for k, v in environ.items() if not k.startswith(prefixes)}
+
+
 def _plain(line: str) -> str:
     """A line of the renderer's stderr without colours and without VTK's log prefix."""
     line = re.sub(r"\x1b\[[0-9;]*m", "", line).strip()
@@ -158,6 +166,7 @@ def _draw(data: SurfaceData, path: Path, title: str) -> str | None:
             text=True,
             timeout=TIMEOUT,
             stdin=subprocess.DEVNULL,
+            env=_without_mpi(os.environ),
         )
         if run.returncode == 0 and views.is_file():
             with np.load(views) as npz:
