@@ -27,6 +27,7 @@ from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import CrossSection
 from shellobstacle.post.validity import assess
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
@@ -114,12 +115,13 @@ def load_study(
                 restore = None
             ts = time.perf_counter()
             problem.set_parameter(parameter, value)
-            steps = continuation(
-                problem,
-                solver,
-                ladder if k == 0 else ladder[-1:],
-                newton_progress=newton_progress,
-            )
+            with phase(f"batch 3: {parameter} = {value:g} ({k + 1}/{len(values)})"):
+                steps = continuation(
+                    problem,
+                    solver,
+                    ladder if k == 0 else ladder[-1:],
+                    newton_progress=newton_progress,
+                )
             c = post.contact()
             validity = assess(post, float(problem.kappa.value))
             row = {
@@ -217,7 +219,8 @@ def run_load(
         if not cfg.output.get("pictures", True):
             return
         title = f"Batch 3: the deformed shell over the plane at {parameter} = {values[-1]:g}"
-        picture = write_picture(post, png_shell, title)
+        with phase("drawing the 3D picture"):
+            picture = write_picture(post, png_shell, title)
         if picture.warning is not None:
             say(f"warning: {picture.warning}")
 

@@ -12,6 +12,7 @@ from mpi4py import MPI
 
 from shellobstacle.checks import format_checks
 from shellobstacle.io.folders import versions, write_json
+from shellobstacle.progress import phase
 
 __all__ = ["write_solution"]
 
@@ -84,7 +85,8 @@ def write_solution(
         if pressure is not None:
             extra.append(pressure.copy())
             extra[-1].name = "contact_pressure"
-        paths = write_paraview(problem, post, folder, extra)
+        with phase("writing the ParaView files"):
+            paths = write_paraview(problem, post, folder, extra)
         files += [str(p.relative_to(folder)) for p in paths]
     if output.get("figures", True):
         section = post.cross_section()
@@ -100,7 +102,8 @@ def write_solution(
             f"κ = {summary['kappa']:.2e}, contact area {summary['contact_area']:.4g}"
             + ("" if result.converged else " (NOT converged)")
         )
-        picture = write_picture(post, folder / "shell_3d.png", title)
+        with phase("drawing the 3D picture"):
+            picture = write_picture(post, folder / "shell_3d.png", title)
         if picture.path is not None:
             files.append(picture.path.name)
         if picture.warning is not None:
