@@ -112,7 +112,8 @@ def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:
     """Mesh ω (``ghosted``: with facet-sharing ghost cells in parallel, which Koiter's facet
     terms read); a bad domain description becomes a :class:`ConfigError` naming it."""
     try:
-        with phase(f"meshing the {domain.kind} (h = {domain.h:g})"):
+        size = "" if domain.h is None else f" (h = {domain.h:g})"
+        with phase(f"meshing the {domain.kind}{size}"):
             return create_mesh(domain, ghosted=ghosted)
     except (ValueError, FileNotFoundError) as err:
         raise ConfigError(f"[domain]: {err}") from None

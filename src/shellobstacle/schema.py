@@ -143,8 +143,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "pictures": Key(
             "bool",
             True,
-            "draw the 3D picture shell_3d.png (PyVista, the extra shellobstacle[pictures]; "
-            "skipped with one warning without it)",
+            "draw the 3D picture shell_3d.png when figures are written (PyVista, the extra "
+            "shellobstacle[pictures]; skipped with one warning without it)",
         ),
     },
 }

@@ -94,7 +94,7 @@ def write_solution(
         label = f"κ = {summary['kappa']:.2e}" + ("" if result.converged else " (NOT converged)")
         plot_cross_section([(label, section)], problem.q, png)
         files.append(png.name)
-    if output.get("pictures", True):
+    if output.get("figures", True) and output.get("pictures", True):
         from shellobstacle.post.pictures import write_picture
 
         title = (
