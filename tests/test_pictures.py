@@ -307,3 +307,22 @@ def test_experiment_load_draws_the_largest_load_and_a_resumed_run_keeps_it(
     png.unlink()  # a drawing that is missing is not referenced
     assert main([*args, "--set", "domain.h=0.06", "--resume"]) == 0
     assert "batch3_shell_3d.png" not in (out / "report.md").read_text()
+
+
+def test_the_doctor_names_what_draws_the_pictures(monkeypatch: pytest.MonkeyPatch) -> None:
+    import importlib.metadata
+
+    from shellobstacle import doctor
+
+    assert doctor._pictures().startswith(f"pyvista {importlib.metadata.version('pyvista')}, vtk ")
+    version = importlib.metadata.version
+
+    def without(name: str) -> str:
+        if name == "pyvista":
+            raise importlib.metadata.PackageNotFoundError(name)
+        return version(name)
+
+    monkeypatch.setattr(importlib.metadata, "version", without)
+    assert doctor._pictures() == (
+        "off (pyvista is not installed: pip install 'shellobstacle[pictures]')"
+    )

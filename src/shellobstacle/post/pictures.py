@@ -161,7 +161,7 @@ def _draw(data: SurfaceData, path: Path, title: str) -> str | None:
         with arrays.open("wb") as f:
             np.savez(f, **data.arrays())
         run = subprocess.run(
-            [sys.executable, str(_RENDERER), str(arrays), str(views)],
+            [sys.executable, "-P", str(_RENDERER), str(arrays), str(views)],
             capture_output=True,
             text=True,
             timeout=TIMEOUT,
