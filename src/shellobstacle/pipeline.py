@@ -25,6 +25,7 @@ from shellobstacle.measures import mesh_size
 from shellobstacle.meshing import create_mesh
 from shellobstacle.model import Discretization, PenaltySpec, Shell
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import phase
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.continuation import KappaStep, continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
@@ -111,7 +112,9 @@ def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:
     """Mesh ω (``ghosted``: with facet-sharing ghost cells in parallel, which Koiter's facet
     terms read); a bad domain description becomes a :class:`ConfigError` naming it."""
     try:
-        return create_mesh(domain, ghosted=ghosted)
+        size = "" if domain.h is None else f" (h = {domain.h:g})"
+        with phase(f"meshing the {domain.kind}{size}"):
+            return create_mesh(domain, ghosted=ghosted)
     except (ValueError, FileNotFoundError) as err:
         raise ConfigError(f"[domain]: {err}") from None
 
@@ -172,7 +175,8 @@ def solve(
     timings["mesh"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    checks = check_assumptions(shell, mesh)
+    with phase("checking the assumptions"):
+        checks = check_assumptions(shell, mesh)
     timings["checks"] = time.perf_counter() - t
     if force:
         failed = [c.name for c in checks if not c.passed]
@@ -215,7 +219,8 @@ def _newton(
     """The continuation in κ; non-convergence is reported in ``result``, not raised."""
     problem = result.problem
     t = time.perf_counter()
-    solver = NewtonSolver(problem, options)
+    with phase("setting up Newton's solver"):
+        solver = NewtonSolver(problem, options)
     result.timings["setup"] = time.perf_counter() - t
     try:
         result.steps = continuation(problem, solver, kappas, say, newton_progress=newton_progress)

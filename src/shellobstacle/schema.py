@@ -140,6 +140,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "output": {
         "paraview": Key("bool", True, "write VTX (.bp) files for ParaView"),
         "figures": Key("bool", True, "write PNG figures"),
+        "pictures": Key(
+            "bool",
+            True,
+            "draw the 3D picture shell_3d.png when figures are written (PyVista, the extra "
+            "shellobstacle[pictures]; skipped with one warning without it)",
+        ),
     },
 }
 
