@@ -98,9 +98,7 @@ class LiveStatus:
             console=self.console,
             get_renderable=self._render,
             refresh_per_second=4,
-            transient=True,
-            redirect_stdout=False,
-            redirect_stderr=False,
+            transient=True,  # (what other code prints to stdout or stderr goes above it)
         )
 
     def _render(self) -> Any:

@@ -212,13 +212,15 @@ def run_load(
     ``output.pictures``; a resumed run keeps the drawing of the run that solved it).
     """
     png_shell = folder / "batch3_shell_3d.png"
+    paper_load = is_paper_load(cfg.shell.load)
+    name = "ℓ" if paper_load and parameter == "ell" else parameter
 
     def draw(post: Postprocessor) -> None:
         from shellobstacle.post.pictures import write_picture
 
         if not cfg.output.get("pictures", True):
             return
-        title = f"Batch 3: the deformed shell over the plane at {parameter} = {values[-1]:g}"
+        title = f"Batch 3: the deformed shell over the plane at {name} = {values[-1]:g}"
         with phase("drawing the 3D picture"):
             picture = write_picture(post, png_shell, title)
         if picture.warning is not None:
@@ -247,7 +249,6 @@ def run_load(
         title=f"Batch 3: cross-sections y2 = 0 for {parameter} = "
         + ", ".join(f"{v:g}" for v in values),
     )
-    paper_load = is_paper_load(cfg.shell.load)
     if MPI.COMM_WORLD.rank == 0:
         plot_contact_area(s, png_area, paper_load)
     verdict = "grows" if s.area_increases() else "does NOT grow monotonically"
@@ -263,7 +264,6 @@ def run_load(
         else "Every solution is inside the model's validity (penetration, displacement, "
         "orientation within their thresholds)."
     )
-    name = "ℓ" if paper_load and parameter == "ell" else parameter
     drawn = MPI.COMM_WORLD.bcast(png_shell.is_file() if MPI.COMM_WORLD.rank == 0 else None)
     shell_3d = [f"![the shell in 3D at {name} = {values[-1]:g}]({png_shell.name})", ""]
     return "\n".join(
