@@ -151,7 +151,11 @@ SCHEMA: dict[str, dict[str, Key]] = {
             VI_TYPES,
         ),
         "vi_line_search": Key(
-            "str", "bt", "snes-vi: PETSc's line search (bt: backtracking)", VI_LINE_SEARCHES
+            "str",
+            "l2",
+            "snes-vi: PETSc's line search (l2: secant on ‖F‖²; bt, PETSc's default: "
+            "backtracking, which stalls on Koiter's cylinder_koiter.toml; basic: full steps)",
+            VI_LINE_SEARCHES,
         ),
         "proximal_tol": Key(
             "float",

@@ -193,8 +193,12 @@ class SnesVIOptions:
         vi_type: ``"rsls"`` (reduced space: Newton on the unknowns off their bounds,
             ``SNESVINEWTONRSLS``) or ``"ssls"`` (semismooth Newton on the Fischer–Burmeister
             reformulation, ``SNESVINEWTONSSLS``).
-        line_search: PETSc's line search (``SNESLineSearchType``): ``"bt"`` (backtracking on
-            ``‖F‖``, PETSc's default for both), ``"basic"`` (full steps) or ``"l2"``.
+        line_search: PETSc's line search (``SNESLineSearchType``): ``"l2"`` (a secant
+            method on ``‖F‖²``), ``"bt"`` (backtracking on ``‖F‖``, PETSc's default for both;
+            on ``examples/cylinder_koiter.toml`` rsls with it stops with
+            ``DIVERGED_LINE_SEARCH`` or at 100 steps, and on the paper's problem it takes about
+            three times l2's steps) or ``"basic"`` (full steps: rsls cycles between active
+            sets on the paper's problem).
         rtol, atol, stol: PETSc's tolerances on the VI residual (relative to the first,
             absolute) and on the relative step length.
         max_iterations: PETSc's iteration cap.
@@ -211,7 +215,7 @@ class SnesVIOptions:
     """
 
     vi_type: str = "rsls"
-    line_search: str = "bt"
+    line_search: str = "l2"
     rtol: float = 1e-10
     atol: float = 1e-50
     stol: float = 1e-12
@@ -248,6 +252,10 @@ class ProximalGalerkinOptions:
     (``|f_i| / m_i``), so that ``α̂`` is dimensionless (a node pressed by the full load
     moves its latent variable by ``α̂`` per step). ``α̂_k`` follows the authors'
     double-exponential rule ``α̂_k = max(C r^{q^k} − α̂_{k−1}, C)``, capped at ``alpha_max``.
+    A step whose Newton iteration fails (``max_newton_iterations`` reached, or a non-finite
+    residual) is taken again from its start with ``α̂`` ten times smaller, which also becomes
+    the cap of the later steps: Newton moves a latent variable that must fall by ``Δφ`` by
+    about one per step, and ``Δφ`` grows with ``α̂`` times the contact pressure over ``P``.
 
     Attributes:
         tol: stop when ``‖u_k − u_{k−1}‖ ≤ tol ‖u_k‖`` (Euclidean norms of the nodal vectors).
@@ -258,6 +266,7 @@ class ProximalGalerkinOptions:
         newton_rtol: each step's Newton iteration stops when both parts of its residual are
             this small relative to their scales (``α ‖f'‖`` and ``‖m ψ‖``).
         max_newton_iterations: Newton steps allowed per proximal step.
+        max_rejections: failed steps (each reducing ``α̂``) before giving up.
         linear_system: ``"condensed"`` (the nodal latent variable eliminated from each Newton
             step: a symmetric positive definite matrix with ``K'``'s sparsity) or
             ``"mixed"`` (the symmetric indefinite matrix in ``(u, φ)``, as the authors'
@@ -277,6 +286,7 @@ class ProximalGalerkinOptions:
     max_iterations: int = 100
     newton_rtol: float = 1e-10
     max_newton_iterations: int = 50
+    max_rejections: int = 5
     linear_system: str = "condensed"
     factorization: str = "cholesky"
     kkt_rtol: float = 1e-6
@@ -297,6 +307,8 @@ class ProximalGalerkinOptions:
             raise ValueError("alpha_base must be > 1 and alpha_exponent >= 1")
         if self.max_iterations < 1 or self.max_newton_iterations < 1:
             raise ValueError("max_iterations and max_newton_iterations must be >= 1")
+        if self.max_rejections < 0:
+            raise ValueError(f"max_rejections must be >= 0, got {self.max_rejections}")
         if not self.newton_rtol > 0 or not self.kkt_rtol > 0:
             raise ValueError("newton_rtol and kkt_rtol must be > 0")
         if self.factorization not in FACTORIZATIONS:

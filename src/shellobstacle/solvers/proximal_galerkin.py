@@ -52,13 +52,16 @@ class ProximalGalerkinResult(NodalResult):
     ``iterations`` counts Newton steps over all proximal steps, one linear solve each).
 
     Attributes:
-        proximal_steps: proximal point steps taken.
-        newton_per_step: Newton steps of each proximal step.
-        alphas: the dimensionless ``α̂_k`` of each step.
-        increments: ``‖u_k − u_{k−1}‖ / ‖u_k‖`` of each step.
+        proximal_steps: proximal point steps taken (accepted).
+        rejected_steps: steps whose Newton iteration failed and that were taken again with
+            a smaller ``α̂``.
+        newton_per_step: Newton steps of each attempt (rejected ones included).
+        alphas: the dimensionless ``α̂`` of each attempt.
+        increments: ``‖u_k − u_{k−1}‖ / ‖u_k‖`` of each accepted step.
     """
 
     proximal_steps: int = 0
+    rejected_steps: int = 0
     newton_per_step: list[int] = field(default_factory=list)
     alphas: list[float] = field(default_factory=list)
     increments: list[float] = field(default_factory=list)
@@ -67,6 +70,7 @@ class ProximalGalerkinResult(NodalResult):
         """The summary's record: KKT measures and the proximal history."""
         return super().details() | {
             "proximal_steps": self.proximal_steps,
+            "rejected_steps": self.rejected_steps,
             "newton_per_step": self.newton_per_step,
             "alphas": self.alphas,
             "increments": self.increments,
@@ -173,20 +177,29 @@ class ProximalGalerkinSolver:
         alphas: list[float] = []
         increments: list[float] = []
         converged, reason = False, f"no convergence in {opts.max_iterations} proximal steps"
+        rejected, cap = 0, opts.alpha_max
         u_prev = self.u.duplicate()
         try:
-            for alpha_hat in opts.alphas():
+            for scheduled in opts.alphas():
+                alpha_hat = min(scheduled, cap)
                 self.u.copy(u_prev)
                 phi_prev = phi.copy()
-                steps, ok = self._proximal_step(alpha_hat / pressure, phi, phi_prev, scales)
-                newton_per_step.append(steps)
-                alphas.append(alpha_hat)
-                if not ok:
-                    reason = (
-                        f"Newton did not converge in proximal step {len(alphas)} "
-                        f"(alpha = {alpha_hat:.3g}, {steps} steps)"
-                    )
-                    break
+                while True:
+                    steps, ok = self._proximal_step(alpha_hat / pressure, phi, phi_prev, scales)
+                    newton_per_step.append(steps)
+                    alphas.append(alpha_hat)
+                    if ok:
+                        break
+                    # back to the step's start with a 10 times smaller α̂, kept as the cap
+                    rejected += 1
+                    u_prev.copy(self.u)
+                    phi[:] = phi_prev
+                    alpha_hat = cap = alpha_hat / 10
+                    if rejected > opts.max_rejections:
+                        raise ConvergenceError(
+                            f"Newton did not converge in proximal step {len(increments) + 1} "
+                            f"after {rejected} reductions of alpha (last {10 * alpha_hat:.3g})"
+                        )
                 u_prev.axpy(-1.0, self.u)
                 norm = self.u.norm()
                 increments.append(u_prev.norm() / (norm if norm > 0 else 1.0))
@@ -194,7 +207,7 @@ class ProximalGalerkinSolver:
                     converged = True
                     reason = f"increment {increments[-1]:.2e} <= tol = {opts.tol:.1e}"
                     break
-        except ConvergenceError as err:  # failed linear solve
+        except ConvergenceError as err:  # Newton or a linear solve failed
             reason = str(err)
         u_prev.destroy()
 
@@ -207,7 +220,8 @@ class ProximalGalerkinSolver:
             iterations=sum(newton_per_step),
             reason=reason,
             factor_mb=factor_mb(self.step.ksp),
-            proximal_steps=len(alphas),
+            proximal_steps=len(increments),
+            rejected_steps=rejected,
             newton_per_step=newton_per_step,
             alphas=alphas,
             increments=increments,

@@ -55,7 +55,7 @@ class SnesVIResult(NodalResult):
     """
 
     vi_type: str = "rsls"
-    line_search: str = "bt"
+    line_search: str = "l2"
     snes_reason: str = ""
     function_evaluations: int = 0
     residual_norms: list[float] = field(default_factory=list)
