@@ -253,9 +253,10 @@ class ProximalGalerkinOptions:
     moves its latent variable by ``α̂`` per step). ``α̂_k`` follows the authors'
     double-exponential rule ``α̂_k = max(C r^{q^k} − α̂_{k−1}, C)``, capped at ``alpha_max``.
     A step whose Newton iteration fails (``max_newton_iterations`` reached, or a non-finite
-    residual) is taken again from its start with ``α̂`` ten times smaller, which also becomes
-    the cap of the later steps: Newton moves a latent variable that must fall by ``Δφ`` by
-    about one per step, and ``Δφ`` grows with ``α̂`` times the contact pressure over ``P``.
+    residual) is taken again from its start with ``α̂`` ten times smaller, and from then on
+    ``α̂`` grows by at most a factor 10 per step: Newton moves a latent variable that must
+    fall by ``Δφ`` by about one per step, and ``Δφ`` grows with ``α̂`` times the contact
+    pressure over ``P``; a bounded ``α̂`` would leave the proximal point iteration sublinear.
 
     Attributes:
         tol: stop when ``‖u_k − u_{k−1}‖ ≤ tol ‖u_k‖`` (Euclidean norms of the nodal vectors).
@@ -320,8 +321,11 @@ class ProximalGalerkinOptions:
         """``α̂_0, α̂_1, …`` for ``max_iterations`` steps."""
         out: list[float] = []
         previous = self.alpha_initial  # the previous α̂ before the cap
+        log_r = math.log(self.alpha_base)
         for k in range(self.max_iterations):
-            exponent = min(self.alpha_exponent**k * math.log(self.alpha_base), 700.0)
-            previous = max(self.alpha_initial * math.exp(exponent) - previous, self.alpha_initial)
+            exponent = k * math.log(self.alpha_exponent) + math.log(log_r)  # log(q^k log r)
+            if exponent < math.log(700.0):  # beyond, C r^{q^k} overflows: α̂ stays
+                grown = self.alpha_initial * math.exp(math.exp(exponent))
+                previous = max(grown - previous, self.alpha_initial)
             out.append(min(previous, self.alpha_max))
         return out

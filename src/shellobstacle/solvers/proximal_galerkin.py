@@ -190,16 +190,18 @@ class ProximalGalerkinSolver:
                     alphas.append(alpha_hat)
                     if ok:
                         break
-                    # back to the step's start with a 10 times smaller α̂, kept as the cap
+                    # back to the step's start with a 10 times smaller α̂
                     rejected += 1
                     u_prev.copy(self.u)
                     phi[:] = phi_prev
-                    alpha_hat = cap = alpha_hat / 10
+                    alpha_hat /= 10
                     if rejected > opts.max_rejections:
                         raise ConvergenceError(
                             f"Newton did not converge in proximal step {len(increments) + 1} "
                             f"after {rejected} reductions of alpha (last {10 * alpha_hat:.3g})"
                         )
+                if rejected:  # after a failure α̂ grows by at most 10 per step
+                    cap = min(10 * alpha_hat, opts.alpha_max)
                 u_prev.axpy(-1.0, self.u)
                 norm = self.u.norm()
                 increments.append(u_prev.norm() / (norm if norm > 0 else 1.0))

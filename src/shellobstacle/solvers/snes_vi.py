@@ -127,7 +127,7 @@ class SnesVISolver:
         snes.setTolerances(
             rtol=opts.rtol, atol=opts.atol, stol=opts.stol, max_it=opts.max_iterations
         )
-        snes.setConvergenceHistory(length=opts.max_iterations + 1)
+        snes.setConvergenceHistory(length=opts.max_iterations + 1, reset=True)
         snes.getLineSearch().setType(opts.line_search)
         ksp = snes.getKSP()
         ksp.setType("preonly")
