@@ -23,6 +23,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+from mpi4py import MPI  # noqa: F401  (MPI before PETSc)
 from petsc4py import PETSc
 
 import numpy as np
