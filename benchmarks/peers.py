@@ -20,9 +20,9 @@ against h (``iterations ∝ h^slope``, fitted over the sizes).
     .venv/bin/python benchmarks/peers.py --methods active-set,snes-vi:ssls:l2 --sizes 0.01
 
 An untimed round on a coarse mesh (``--warmup``) comes first, so that no method pays for
-loading libraries or compiling forms. Methods: ``active-set``, ``newton``, ``snes-vi:<rsls|ssls>:<l2|bt|basic>``,
-``proximal-galerkin[:mixed]``. Results go to ``--out`` (default
-``docs/perf/peers/<config>.jsonl``, replaced) as well as to standard output.
+loading libraries or compiling forms. Methods: ``active-set``, ``newton``,
+``snes-vi:<rsls|ssls>:<l2|bt|basic>``, ``proximal-galerkin[:mixed]``. Results go to
+``--out`` (default ``docs/perf/peers/<config>.jsonl``, replaced) and to standard output.
 """
 
 from __future__ import annotations
