@@ -10,7 +10,9 @@ config: κ = h^0.5, h, h^1.5, the penalty at Gauss points), so its distance to t
 solution is the penalty's and the quadrature's, not a solver error. One JSON line per method
 and size on rank 0: iterations (linear solves; Newton: steps over all κ), seconds, the
 method's peak RSS (the kernel's high-water mark reset before it starts, ``VmHWM``; largest
-rank and sum), MUMPS' memory of its last factorization, dofs, the relative KKT measures and
+rank and sum) and its rise over the RSS at the start (which holds the heap of the earlier
+methods: freed objects stay in the allocator's pools), MUMPS' memory of its last
+factorization, dofs, the relative KKT measures and
 the distance to the active-set solution (Euclidean norms of the nodal vectors); the load
 average of the machine with every line. A last line per method: the slope of iterations
 against h (``iterations ∝ h^slope``, fitted over the sizes).
@@ -128,7 +130,8 @@ def run_method(
     rec["dofs"] = problem.num_dofs
     gc.collect()
     comm.barrier()
-    rec["rss_before_mb"] = comm.allreduce(memory_mb("VmRSS"), op=MPI.MAX)
+    memory_mb_before = memory_mb("VmRSS")
+    rec["rss_before_mb"] = comm.allreduce(memory_mb_before, op=MPI.MAX)
     peak_reset = reset_peak()
     t0 = time.perf_counter()
     try:
@@ -166,6 +169,7 @@ def run_method(
     peak = memory_mb("VmHWM") if peak_reset else float("nan")
     rec["peak_rss_mb_per_rank_max"] = comm.allreduce(peak, op=MPI.MAX)
     rec["peak_rss_mb_total"] = comm.allreduce(peak, op=MPI.SUM)
+    rec["peak_increase_mb_total"] = comm.allreduce(peak - memory_mb_before, op=MPI.SUM)
     z = owned(problem)
     if reference is not None:
         rec["distance_to_active_set"] = norm(z - reference, comm) / norm(reference, comm)
