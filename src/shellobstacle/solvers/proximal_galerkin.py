@@ -15,9 +15,14 @@ constrained nodes and the distance is weighted by the lumped masses ``m_b``:
 :math:`α_k (K'u − f') + E M (φ − φ_{k−1}) = 0,\\qquad M (E^T u − ψ − e^φ) = 0`,
 
 ``E`` the injection of the bounds. Newton's matrix
-``[[α_k K', E M], [M Eᵀ, −M diag(e^φ)]]`` is symmetric indefinite (one MUMPS factorization
-per Newton step); the authors' DOLFINx examples take full Newton steps, as here. At the
-limit ``λ_b = (K'u − f')_b = m_b (φ_{k−1} − φ_k)/α_k ≥ 0`` is the multiplier. The answer is
+``[[α_k K', E M], [M Eᵀ, −M diag(e^φ)]]`` is symmetric indefinite; its latent block is
+diagonal (the latent variable is nodal), so by default it is condensed out (a symmetric
+positive definite matrix with ``K'``'s sparsity, one Cholesky factorization per Newton step),
+or the mixed matrix is factorized as the authors' DOLFINx examples do
+(``linear_system = "mixed"``): the same iterates. Full Newton steps, as in those examples;
+``α_k`` follows their double-exponential rule, made dimensionless by the largest nodal load
+pressure (:class:`~shellobstacle.solvers.options.ProximalGalerkinOptions`). At the limit
+``λ_b = (K'u − f')_b = m_b (φ_{k−1} − φ_k)/α_k ≥ 0`` is the multiplier. The answer is
 measured by the same KKT check as the active-set solver's, with ``λ_b = (K'u − f')_b`` at
 every bound.
 """
@@ -81,8 +86,9 @@ class ProximalGalerkinSolver:
     """The latent-variable proximal point method on the nodal problem of one
     :class:`PenalizedProblem`.
 
-    ``K'``, the bounds and the pattern of the mixed Newton matrix are built once; each
-    :meth:`solve` re-assembles only the load.
+    ``K'``, the bounds and the Newton matrix's pattern are built once; each :meth:`solve`
+    re-assembles only the load. A warm start's gaps below ``10⁻¹² max|ψ|`` start their latent
+    variable at that floor (``log 0`` has no value).
 
     Args:
         problem: a P1 problem with ``penalty_quadrature = "vertex"``, or a P2 problem (either
@@ -118,7 +124,8 @@ class ProximalGalerkinSolver:
         Fu = self.Fu.array
         Fu[:] = alpha * self.r.array_r
         Fu[iB] += self.m * (phi - phi_prev)
-        Fphi = self.m * (self.u.array_r[iB] - qp.psi - np.exp(phi))
+        with np.errstate(over="ignore"):  # an overflow is a failed step (non-finite norm)
+            Fphi = self.m * (self.u.array_r[iB] - qp.psi - np.exp(phi))
         sq = qp.comm.allreduce(np.array([np.dot(Fu, Fu), np.dot(Fphi, Fphi)]), op=MPI.SUM)
         return Fphi, math.sqrt(sq[0]), math.sqrt(sq[1])
 
@@ -200,8 +207,8 @@ class ProximalGalerkinSolver:
                             f"Newton did not converge in proximal step {len(increments) + 1} "
                             f"after {rejected} reductions of alpha (last {10 * alpha_hat:.3g})"
                         )
-                if rejected:  # after a failure α̂ grows by at most 10 per step
-                    cap = min(10 * alpha_hat, opts.alpha_max)
+                if rejected:  # after a failure α̂ grows by at most `regrowth` per step
+                    cap = min(opts.regrowth * alpha_hat, opts.alpha_max)
                 u_prev.axpy(-1.0, self.u)
                 norm = self.u.norm()
                 increments.append(u_prev.norm() / (norm if norm > 0 else 1.0))
