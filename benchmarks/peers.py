@@ -8,7 +8,8 @@ problem (κ = 0, the constraint at the vertices); ``newton`` is the package's de
 the config's own discretization: the continuation over ``penalty.ladder(h)`` (the paper's
 config: κ = h^0.5, h, h^1.5, the penalty at Gauss points), so its distance to the nodal
 solution is the penalty's and the quadrature's, not a solver error. One JSON line per method
-and size on rank 0: iterations (linear solves; Newton: steps over all κ), seconds, the
+and size on rank 0: iterations (linear solves; Newton: steps over all κ, with its large
+factorizations and its steps on the contact zone per κ), seconds, the
 method's peak RSS (the kernel's high-water mark reset before it starts, ``VmHWM``; largest
 rank and sum) and its rise over the RSS at the start (which holds the heap of the earlier
 methods: freed objects stay in the allocator's pools), MUMPS' memory of its last
@@ -144,6 +145,8 @@ def run_method(
             steps = continuation(problem, solver, kappas)
             rec["iterations"] = sum(s.iterations for s in steps)
             rec["per_kappa"] = [s.iterations for s in steps]
+            rec["factorizations"] = [s.newton.factorizations for s in steps]
+            rec["zone_steps"] = [s.newton.zone_steps for s in steps]
             rec["kappa"] = kappas[-1]
             rec["converged"] = True
         else:
