@@ -36,6 +36,7 @@ import dolfinx.fem.petsc
 import numpy as np
 
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.nodal import NodalConstraint
 
 __all__ = ["NodalQP", "NodalResult", "factor_mb", "require_nodal"]
@@ -103,6 +104,22 @@ class NodalResult:
             "complementarity": self.kkt["complementarity"] / (force * gap),
             "stationarity": self.kkt["stationarity"],
         }
+
+    def conclude(self, kkt_rtol: float, solver: str, unit: str) -> None:
+        """Accept the answer only if the relative KKT measures are at most ``kkt_rtol``.
+
+        Raises:
+            ConvergenceError: naming ``solver``, the reason and the iterations (in ``unit``),
+                with this result, when it did not converge.
+        """
+        worst = max(self.relative_kkt.values())
+        if self.converged and not worst <= kkt_rtol:
+            self.converged = False
+            self.reason += f"; KKT conditions hold only to {worst:.2e} > kkt_rtol = {kkt_rtol:.1e}"
+        if not self.converged:
+            raise ConvergenceError(
+                f"{solver} did not converge: {self.reason} ({self.iterations} {unit})", self
+            )
 
     def details(self) -> dict[str, Any]:
         """The JSON-friendly record of a result folder's summary (``kkt`` and its scales)."""
