@@ -234,7 +234,7 @@ def experiment(args: argparse.Namespace) -> int:
     if args.batch == "load" and cfg.penalty is None:
         raise ConfigError(
             "experiment load solves penalized problems (κ = h^exponent), and solver.method = "
-            "'active-set' has no κ: set solver.method = 'newton' and penalty.exponent"
+            f"{cfg.method!r} has no κ: set solver.method = 'newton' and penalty.exponent"
         )
     if args.batch == "load" and cfg.penalty.exponent is None:
         raise ConfigError(

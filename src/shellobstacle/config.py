@@ -26,26 +26,45 @@ from shellobstacle.model import (
     Shell,
 )
 from shellobstacle.schema import REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
-from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions
+from shellobstacle.solvers.options import (
+    ActiveSetOptions,
+    BrezisSibonyOptions,
+    NewtonOptions,
+    ProximalGalerkinOptions,
+    SnesVIOptions,
+)
 from shellobstacle.surface import Surface
 from shellobstacle.toml_io import apply_overrides, read_toml, to_toml
 
-__all__ = ["Config", "ConfigError", "apply_overrides", "load_config", "parse_config", "to_toml"]
+__all__ = [
+    "NODAL_METHODS",
+    "Config",
+    "ConfigError",
+    "apply_overrides",
+    "load_config",
+    "parse_config",
+    "to_toml",
+]
+
+#: the methods that solve the exact nodal problem (κ = 0): no [penalty]
+NODAL_METHODS = ("active-set", "snes-vi", "proximal-galerkin")
 
 
 @dataclass(frozen=True)
 class Config:
-    """A validated configuration: the physical shell and every numerical choice."""
+    """A validated configuration: the physical shell and every numerical choice
+    (``method_options``: the options of ``method`` when it is not Newton's)."""
 
     shell: Shell
     domain: DomainSpec
     discretization: Discretization
-    penalty: PenaltySpec | None  # None for the exact solver (solver.method = "active-set")
+    penalty: PenaltySpec | None  # None for the nodal methods (NODAL_METHODS)
     solver: NewtonOptions
     method: str
     output: Mapping[str, bool]
     resolved: Mapping[str, Mapping[str, Any]]
     source: str
+    method_options: Any = None
 
 
 class _Origins:
@@ -239,23 +258,20 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
 
     p = r.get("penalty", {})
     penalty = None
-    if sv["method"] == "active-set":
+    if sv["method"] in NODAL_METHODS:
         if "kappa" in p or "exponent" in p:
             warnings.warn(
-                f"{source}: solver.method = 'active-set' solves the constraint exactly (κ = 0); "
-                "penalty.kappa / penalty.exponent are ignored",
+                f"{source}: solver.method = {sv['method']!r} solves the nodal constraint "
+                "exactly (κ = 0); penalty.kappa / penalty.exponent are ignored",
                 stacklevel=3,
             )
         if disc.degree == 1:
-            # the exact solver's constraint is the nodal one, which P1's vertex penalty has
+            # the nodal methods' constraint is the one P1's vertex penalty has
             disc = dataclasses.replace(disc, penalty_quadrature="vertex")
             r["discretization"]["penalty_quadrature"] = "vertex"
         r["penalty"] = {}
     else:
         penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
-    BrezisSibonyOptions(xi=sv.get("xi"), mass=sv["mass"], start=sv["start"])  # validates
-    if sv["bs_rtol"] < 0:
-        raise ConfigError(f"solver.bs_rtol must be >= 0, got {sv['bs_rtol']}")
     solver = NewtonOptions(
         rtol=sv["rtol"],
         stol=sv["stol"],
@@ -264,7 +280,58 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         factorization=sv["factorization"],
         contact_zone=sv["contact_zone"],
     )
-    return Config(shell, domain, disc, penalty, solver, sv["method"], dict(r["output"]), r, source)
+    return Config(
+        shell,
+        domain,
+        disc,
+        penalty,
+        solver,
+        sv["method"],
+        dict(r["output"]),
+        r,
+        source,
+        _method_options(sv),
+    )
+
+
+def _method_options(sv: Mapping[str, Any]) -> Any:
+    """The options of ``solver.method`` when it is not Newton's, from ``[solver]``; the keys
+    of Brezis–Sibony and proximal Galerkin are checked whichever method is chosen."""
+    if sv["bs_rtol"] < 0:
+        raise ConfigError(f"solver.bs_rtol must be >= 0, got {sv['bs_rtol']}")
+    method = sv["method"]
+    brezis_sibony = {"xi": sv.get("xi"), "mass": sv["mass"], "start": sv["start"]}
+    BrezisSibonyOptions(**brezis_sibony)
+    proximal = {"tol": sv["proximal_tol"], "alpha_max": sv["proximal_alpha_max"]}
+    ProximalGalerkinOptions(**proximal)
+    if method == "brezis-sibony":
+        return BrezisSibonyOptions(
+            **brezis_sibony, max_iterations=sv["bs_max_iterations"], rtol=sv["bs_rtol"]
+        )
+    if method == "active-set":
+        return ActiveSetOptions(max_iterations=sv["max_iterations"])
+    if method == "snes-vi":
+        return SnesVIOptions(
+            vi_type=sv["vi_type"],
+            line_search=sv["vi_line_search"],
+            rtol=sv["rtol"],
+            stol=sv["stol"],
+            max_iterations=sv["max_iterations"],
+            factorization=sv["factorization"],
+        )
+    if method == "proximal-galerkin":
+        if not sv["rtol"] > 0:
+            raise ConfigError(
+                "solver.rtol must be > 0 with solver.method = 'proximal-galerkin' (the "
+                f"Newton iteration of each proximal step stops there), got {sv['rtol']}"
+            )
+        return ProximalGalerkinOptions(
+            **proximal,
+            newton_rtol=sv["rtol"],
+            max_iterations=sv["max_iterations"],
+            factorization=sv["factorization"],
+        )
+    return None
 
 
 def _require_mesh_file(path: str) -> None:
