@@ -159,14 +159,16 @@ def _parser() -> argparse.ArgumentParser:
         "  shellobstacle experiment mesh examples/paper.toml --q 0.5,1.0 --refinements 2\n"
         "  shellobstacle experiment load my.toml --parameter ell --values 0,10,20\n"
         "  shellobstacle experiment koiter-limit examples/paper.toml --epsilons 1e-1,1e-2,1e-3\n"
+        "  shellobstacle experiment adaptive examples/paper.toml --reference-dofs 200000\n"
         "  shellobstacle experiment penalty my.toml -o b1 --resume   # after an interruption",
     )
     e.add_argument(
         "batch",
-        choices=("penalty", "mesh", "load", "solvers", "koiter-limit"),
+        choices=("penalty", "mesh", "load", "solvers", "koiter-limit", "adaptive"),
         help="penalty: κ = h^q → 0 on a fixed mesh; mesh: nested meshes with κ = h^q; "
         "load: sweep a load parameter; solvers: Newton vs Brezis–Sibony on --sizes; "
-        "koiter-limit: Koiter's model against the membrane model as ε → 0",
+        "koiter-limit: Koiter's model against the membrane model as ε → 0; adaptive: "
+        "the error against dofs of uniform and adaptive refinement ([adapt])",
     )
     common(e)
     output(e, resume=True, default="CONFIG-BATCH")
@@ -180,7 +182,22 @@ def _parser() -> argparse.ArgumentParser:
         help="penalty: penalty quadratures (gauss,vertex with P1 elements, gauss with P2)",
     )
     e.add_argument("--q", default="0.4,0.5,0.6,0.7,1.0,1.3", help="mesh: exponents q")
-    e.add_argument("--refinements", type=int, default=3, help="mesh: uniform refinements (3)")
+    e.add_argument(
+        "--refinements", type=int, default=3, help="mesh, adaptive: uniform refinements (3)"
+    )
+    e.add_argument(
+        "--reference-dofs",
+        type=int,
+        default=200_000,
+        help="adaptive: the reference is the exact VI on adapted meshes up to this many dofs",
+    )
+    e.add_argument(
+        "--dofs",
+        type=int,
+        default=None,
+        help="adaptive: the adaptive loop's last mesh has at least this many dofs (default: "
+        "adapt.target_dofs, else --reference-dofs / 8)",
+    )
     e.add_argument("--parameter", default="ell", help="load: the [load] parameter to sweep")
     e.add_argument("--values", default="0,10,20,40,80", help="load: its values")
     e.add_argument("--sizes", default="0.1,0.07", help="solvers: gmsh target sizes of ω")

@@ -221,7 +221,7 @@ def _finish(checkpoint: Any, report: Reporter) -> None:
 def experiment(args: argparse.Namespace) -> int:
     """One batch on a user's config."""
     from shellobstacle.config import ConfigError, to_toml
-    from shellobstacle.experiments import koiter_limit, load, mesh, solvers
+    from shellobstacle.experiments import adaptive, koiter_limit, load, mesh, solvers
     from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
     from shellobstacle.io.folders import atomic_write, prepare_folder
     from shellobstacle.options import (
@@ -274,6 +274,11 @@ def experiment(args: argparse.Namespace) -> int:
         text = mesh.run_mesh(
             cfg, folder, cfg.domain, args.refinements, options["--q"], report, args.tol, **kw
         )
+    elif args.batch == "adaptive":
+        study = adaptive.AdaptiveStudyOptions(
+            args.refinements, options["--reference-dofs"], options["--dofs"]
+        )
+        text = adaptive.run_adaptive(cfg, folder, cfg.domain, study, report, **kw)
     elif args.batch == "solvers":
         sizes = [dataclasses.replace(cfg.domain, h=v) for v in options["--sizes"]]
         text = solvers.run_solvers(cfg, folder, sizes, args.exponent, report, **kw)

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from shellobstacle.adapt.options import AdaptOptions
+from shellobstacle.config_options import adapt_options, method_options
 from shellobstacle.domains import DomainSpec
 from shellobstacle.expressions import ExpressionError
 from shellobstacle.messages import ConfigError, not_one_of, suggest
@@ -25,14 +27,8 @@ from shellobstacle.model import (
     PenaltySpec,
     Shell,
 )
-from shellobstacle.schema import REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
-from shellobstacle.solvers.options import (
-    ActiveSetOptions,
-    BrezisSibonyOptions,
-    NewtonOptions,
-    ProximalGalerkinOptions,
-    SnesVIOptions,
-)
+from shellobstacle.schema import OPTIONAL_SECTIONS, REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
+from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.surface import Surface
 from shellobstacle.toml_io import apply_overrides, read_toml, to_toml
 
@@ -64,7 +60,8 @@ class Config:
     output: Mapping[str, bool]
     resolved: Mapping[str, Mapping[str, Any]]
     source: str
-    method_options: Any = None
+    method_options: Any = None  # the options of solver.method when it is not Newton's
+    adapt: AdaptOptions | None = None  # [adapt]: solve on adaptively refined meshes
 
 
 class _Origins:
@@ -182,6 +179,8 @@ def parse_config(
             raise ConfigError(f"{source}: missing section [{section}]")
     koiter = isinstance(data.get("model"), dict) and data["model"].get("kind") == "koiter"
     for section, keys in SCHEMA.items():
+        if section in OPTIONAL_SECTIONS and section not in data:
+            continue
         given = dict(data.get(section, {}))
         if section == "discretization" and koiter:
             given.setdefault("degree", 2)  # Koiter's ζ_3 ∈ H² needs P2
@@ -280,6 +279,7 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         factorization=sv["factorization"],
         contact_zone=sv["contact_zone"],
     )
+    adapt = adapt_options(r, shell, penalty, sv["method"]) if "adapt" in r else None
     return Config(
         shell,
         domain,
@@ -290,48 +290,9 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         dict(r["output"]),
         r,
         source,
-        _method_options(sv),
+        method_options(sv),
+        adapt,
     )
-
-
-def _method_options(sv: Mapping[str, Any]) -> Any:
-    """The options of ``solver.method`` when it is not Newton's, from ``[solver]``; the keys
-    of Brezis–Sibony and proximal Galerkin are checked whichever method is chosen."""
-    if sv["bs_rtol"] < 0:
-        raise ConfigError(f"solver.bs_rtol must be >= 0, got {sv['bs_rtol']}")
-    method = sv["method"]
-    brezis_sibony = {"xi": sv.get("xi"), "mass": sv["mass"], "start": sv["start"]}
-    BrezisSibonyOptions(**brezis_sibony)
-    proximal = {"tol": sv["proximal_tol"], "alpha_max": sv["proximal_alpha_max"]}
-    ProximalGalerkinOptions(**proximal)
-    if method == "brezis-sibony":
-        return BrezisSibonyOptions(
-            **brezis_sibony, max_iterations=sv["bs_max_iterations"], rtol=sv["bs_rtol"]
-        )
-    if method == "active-set":
-        return ActiveSetOptions(max_iterations=sv["max_iterations"])
-    if method == "snes-vi":
-        return SnesVIOptions(
-            vi_type=sv["vi_type"],
-            line_search=sv["vi_line_search"],
-            rtol=sv["rtol"],
-            stol=sv["stol"],
-            max_iterations=sv["max_iterations"],
-            factorization=sv["factorization"],
-        )
-    if method == "proximal-galerkin":
-        if not sv["rtol"] > 0:
-            raise ConfigError(
-                "solver.rtol must be > 0 with solver.method = 'proximal-galerkin' (the "
-                f"Newton iteration of each proximal step stops there), got {sv['rtol']}"
-            )
-        return ProximalGalerkinOptions(
-            **proximal,
-            newton_rtol=sv["rtol"],
-            max_iterations=sv["max_iterations"],
-            factorization=sv["factorization"],
-        )
-    return None
 
 
 def _require_mesh_file(path: str) -> None:

@@ -114,6 +114,8 @@ def experiment_options(args: argparse.Namespace, cfg: Config) -> dict[str, Any]:
             "--refinements": args.refinements,
             "--tol": tol,
         }
+    if args.batch == "adaptive":
+        return _adaptive_options(args, cfg)
     if args.batch == "solvers":
         return {
             "--sizes": numbers(args.sizes, "--sizes", positive=True),
@@ -139,6 +141,38 @@ def experiment_options(args: argparse.Namespace, cfg: Config) -> dict[str, Any]:
     return {"--parameter": args.parameter, "--values": numbers(args.values, "--values")}
 
 
+def _adaptive_options(args: argparse.Namespace, cfg: Config) -> dict[str, Any]:
+    """``--refinements``, ``--reference-dofs``, ``--dofs`` of ``experiment adaptive``, and the
+    config choices it needs."""
+    if not 0 <= args.refinements <= MAX_REFINEMENTS:
+        raise ConfigError(
+            f"--refinements must be between 0 and {MAX_REFINEMENTS} (each quadruples the "
+            f"cells), got {args.refinements}"
+        )
+    if not args.reference_dofs > 0:
+        raise ConfigError(f"--reference-dofs must be a positive number, got {args.reference_dofs}")
+    if args.dofs is not None and not 0 < args.dofs <= args.reference_dofs:
+        raise ConfigError(
+            f"--dofs must be positive and at most --reference-dofs ({args.reference_dofs}), "
+            f"got {args.dofs}"
+        )
+    if cfg.shell.model != "membrane":
+        raise ConfigError(
+            "experiment adaptive refines by the membrane model's error indicators: set "
+            "model.kind = 'membrane'"
+        )
+    if cfg.method not in ("newton", "active-set"):
+        raise ConfigError(
+            "experiment adaptive solves by Newton or the active-set method: set "
+            "solver.method = 'newton' or 'active-set'"
+        )
+    return {
+        "--refinements": args.refinements,
+        "--reference-dofs": args.reference_dofs,
+        "--dofs": args.dofs,
+    }
+
+
 def experiment_domains(
     args: argparse.Namespace, cfg: Config, options: dict[str, Any]
 ) -> list[DomainSpec]:
@@ -150,7 +184,7 @@ def experiment_domains(
     """
     domain = cfg.domain
     try:
-        if args.batch == "mesh":
+        if args.batch in ("mesh", "adaptive"):
             finest = domain.refinements + options["--refinements"]
             domains = [dataclasses.replace(domain, refinements=finest)]
         elif args.batch == "solvers":

@@ -72,6 +72,8 @@ class QuadraturePenalty:
         u = ufl.TrialFunction(problem.V)
         eps = problem.shell.material.epsilon
         weight = eps / problem.c_norm
+        if problem.kappa_scale is not None:  # κ(x) = κ ρ(x): D_k = w_k ε / (|c| ρ)(x_k)
+            weight = weight / problem.kappa_scale
         dxq = problem.dx_penalty
         c = problem.c
         theta_q = sum(G.theta[k] * q[k] for k in range(3))

@@ -132,6 +132,7 @@ def solve(
     method: str = "newton",
     method_options: Any = None,
     newton_progress: Callable[[int, float], Any] | None = None,
+    adapt: Any = None,
 ) -> SolveResult:
     """Solve the obstacle problem for the shell on a domain (or a ready mesh).
 
@@ -152,6 +153,9 @@ def solve(
             ``ActiveSetOptions``, ``SnesVIOptions``, ``ProximalGalerkinOptions``).
         newton_progress: called as ``(iteration, relative residual)`` after every Newton
             iteration (see :func:`~shellobstacle.solvers.continuation.continuation`).
+        adapt: :class:`~shellobstacle.adapt.options.AdaptOptions`: solve on the mesh and its
+            adaptive refinements (:func:`~shellobstacle.adapt.loop.adaptive_solve`); the
+            result holds the last mesh's solution and, in ``extra["adapt"]``, every level.
 
     Raises:
         AssumptionError: the data violate MODEL.md §3 (unless ``force``).
@@ -172,7 +176,7 @@ def solve(
 
             require_fits(domain, shell.model, (discretization or Discretization()).degree)
         say(f"meshing {domain.kind} (target h = {domain.h})")
-        mesh = make_mesh(domain, ghosted=shell.model == "koiter")
+        mesh = make_mesh(domain, ghosted=shell.model == "koiter" or adapt is not None)
     else:
         mesh = domain
     h = mesh_size(mesh)
@@ -191,6 +195,13 @@ def solve(
     else:
         require(checks)
 
+    if adapt is not None:
+        from shellobstacle.adapt.loop import solve_adaptively
+
+        return solve_adaptively(
+            mesh, shell, discretization, penalty, adapt, options, method, method_options,
+            say, newton_progress, checks, timings,
+        )  # fmt: skip
     t = time.perf_counter()
     kappas = penalty.ladder(h) if penalty is not None else [0.0]
     problem = PenalizedProblem(shell, mesh, discretization, kappa=kappas[0] or 1.0)
@@ -333,6 +344,7 @@ def solve_config(
         method=config.method,
         method_options=config.method_options,
         newton_progress=newton_progress,
+        adapt=config.adapt,
     )
 
 

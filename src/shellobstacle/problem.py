@@ -41,6 +41,7 @@ class PenalizedProblem:
     Attributes:
         zeta: the unknown ``ζ_κ^h`` (covariant components), a vector Lagrange function.
         kappa: the penalty parameter, a ``Constant``.
+        kappa_scale: None, or the cellwise factor ``ρ`` of a penalty parameter ``κ ρ(x)``.
         parameters: the load parameters, ``Constant`` objects by name.
     """
 
@@ -51,9 +52,12 @@ class PenalizedProblem:
         discretization: Discretization | None = None,
         kappa: float = 1.0,
         p: Sequence[Any] | None = None,
+        kappa_scale: dolfinx.fem.Function | None = None,
     ) -> None:
         """Compile the forms; ``p``: three UFL scalars replacing the shell's load expressions
-        (e.g. Functions holding sampled or computed data)."""
+        (e.g. Functions holding sampled or computed data); ``kappa_scale``: a positive cellwise
+        (DG0) factor ``ρ`` making the penalty parameter ``κ ρ(x)`` (a κ that follows the local
+        mesh size, :func:`~shellobstacle.adapt.kappa.local_kappa_scale`; None: ``κ`` alone)."""
         self.shell = shell
         self.mesh = mesh
         self.disc = disc = discretization or Discretization()
@@ -64,6 +68,7 @@ class PenalizedProblem:
         self.V = dolfinx.fem.functionspace(mesh, ("Lagrange", disc.degree, (3,)))
         self.zeta = dolfinx.fem.Function(self.V, name="zeta")
         self.kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(kappa))
+        self.kappa_scale = kappa_scale
         self.parameters = {
             k: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v))
             for k, v in shell.load.parameters.items()
@@ -110,7 +115,8 @@ class PenalizedProblem:
                 G, eps, lam, mu, zeta, self.dx, self.sigma, ds
             )
         work = sum(self.p[i] * zeta[i] for i in range(3)) * sqrt_a * self.dx
-        penalty = (eps / (2 * self.kappa)) * g_minus**2 / self.c_norm * self.dx_penalty
+        kappa_x = self.kappa if kappa_scale is None else self.kappa * kappa_scale
+        penalty = (eps / (2 * kappa_x)) * g_minus**2 / self.c_norm * self.dx_penalty
         energy = elastic - work + penalty
         residual = ufl.derivative(energy, zeta, v)
         jacobian = ufl.derivative(residual, zeta, du)

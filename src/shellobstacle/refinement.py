@@ -1,4 +1,5 @@
-"""Uniform ("red") refinement of triangle meshes: nested meshes, h halved exactly."""
+"""Refinement of triangle meshes: uniform ("red", nested meshes with h halved exactly) and
+local (Plaza's edge bisection of marked edges, for adaptivity)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from shellobstacle.measures import boundary_facets
 if TYPE_CHECKING:
     from shellobstacle.domains import DomainSpec
 
-__all__ = ["prepare", "red_refinement", "refine_uniformly"]
+__all__ = ["prepare", "red_refinement", "refine_marked", "refine_uniformly"]
 
 
 def prepare(mesh: dolfinx.mesh.Mesh) -> None:
@@ -45,6 +46,26 @@ def refine_uniformly(mesh: dolfinx.mesh.Mesh, ghosted: bool = False) -> dolfinx.
         The refined mesh, with edges and facet-cell connectivity created.
     """
     fine = red_refinement(mesh, ghosted=ghosted)
+    prepare(fine)
+    return fine
+
+
+def refine_marked(mesh: dolfinx.mesh.Mesh, edges: np.ndarray) -> dolfinx.mesh.Mesh:
+    """Refine the cells around the marked ``edges`` (local indices) by Plaza's algorithm
+    (``dolfinx.mesh.refine``): each cell with a marked edge is bisected through its longest
+    edge, and the edges it must bisect to stay conforming are added, so the refined mesh is
+    conforming and nested (the P1 space of ``mesh`` is a subspace of the refined one) and its
+    angles stay bounded below over repeated refinements. Children stay on their parent's
+    rank, the ghost layer of a ghosted mesh is rebuilt; new boundary nodes are the midpoints
+    of boundary edges (the polygon of the first mesh is kept).
+
+    Returns:
+        The refined mesh, with edges and facet-cell connectivity created.
+    """
+    mesh.topology.create_entities(1)
+    fine, _, _ = dolfinx.mesh.refine(
+        mesh, np.asarray(edges, dtype=np.int32), option=dolfinx.mesh.RefinementOption.parent_cell
+    )
     prepare(fine)
     return fine
 

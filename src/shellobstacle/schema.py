@@ -10,11 +10,20 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
+from shellobstacle.adapt.options import KAPPA_MODES
 from shellobstacle.model import MODELS, PENALTY_QUADRATURES, TRANSVERSE
 from shellobstacle.solvers.options import VI_LINE_SEARCHES, VI_TYPES
 from shellobstacle.surface import SURFACE_KINDS
 
-__all__ = ["OPTIONAL", "REQUIRED", "REQUIRED_SECTIONS", "SCHEMA", "Key", "reference_text"]
+__all__ = [
+    "OPTIONAL",
+    "OPTIONAL_SECTIONS",
+    "REQUIRED",
+    "REQUIRED_SECTIONS",
+    "SCHEMA",
+    "Key",
+    "reference_text",
+]
 
 
 @dataclass(frozen=True)
@@ -166,6 +175,22 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "float", 1e5, "proximal-galerkin: cap of the (dimensionless) proximal parameter α̂"
         ),
     },
+    "adapt": {
+        "fraction": Key("float", 0.5, "Dörfler's θ: the marked cells hold this share of Σ η_T²"),
+        "max_levels": Key("int", 10, "the most refinements (max_levels + 1 meshes solved)"),
+        "target_error": Key("float", OPTIONAL, "stop once the estimate η is at most this"),
+        "target_dofs": Key("int", OPTIONAL, "stop after the first mesh with this many dofs"),
+        "kappa": Key(
+            "str",
+            "largest",
+            "κ = h^exponent on adapted meshes: h the largest cell, each cell's own (local), or "
+            "the smallest cell (finest)",
+            KAPPA_MODES,
+        ),
+        "free_boundary": Key(
+            "bool", True, "also refine the cells the boundary of the contact set runs through"
+        ),
+    },
     "output": {
         "paraview": Key("bool", True, "write VTX (.bp) files for ParaView"),
         "figures": Key("bool", True, "write PNG figures"),
@@ -179,6 +204,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
 }
 
 REQUIRED_SECTIONS = ("surface", "domain", "material", "load")
+#: sections that switch a feature on by being present (absent: not in the resolved config)
+OPTIONAL_SECTIONS = ("adapt",)
 
 
 def reference_text() -> str:
@@ -186,6 +213,8 @@ def reference_text() -> str:
     lines = ["# Configuration reference", ""]
     for section, keys in SCHEMA.items():
         req = " (required section)" if section in REQUIRED_SECTIONS else ""
+        if section in OPTIONAL_SECTIONS:
+            req = " (optional section: present, even empty, it switches the feature on)"
         lines += [
             f"## [{section}]{req}",
             "",

@@ -10,6 +10,7 @@ from typing import Any
 
 from shellobstacle.config import load_config
 from shellobstacle.domains import DomainSpec
+from shellobstacle.experiments.adaptive import AdaptiveStudyOptions, run_adaptive
 from shellobstacle.experiments.exact import write_batch4
 from shellobstacle.experiments.koiter_limit import run_koiter_limit
 from shellobstacle.experiments.load import batch3_config, run_load
@@ -45,6 +46,12 @@ class Sizes:
     #: Koiter's limit: ε values, mesh sizes (largest, centre r < 0.1, within edge_width of γ)
     koiter_epsilons: tuple[float, ...]
     koiter_h: tuple[float, float, float, float]
+    #: adaptive refinement: first mesh's h, its uniform refinements, the adaptive loop's and
+    #: the reference's dofs
+    adaptive_h: float = 0.0312
+    adaptive_refinements: int = 4
+    adaptive_dofs: int = 130_000
+    adaptive_reference_dofs: int = 1_000_000
 
 
 SIZES = {
@@ -60,6 +67,10 @@ SIZES = {
         solver_h=(0.1, 0.07),
         koiter_epsilons=(1e-1, 10**-1.5, 1e-2, 10**-2.5, 1e-3),
         koiter_h=(0.05, 0.015, 0.008, 0.06),
+        adaptive_h=0.0312 * 3,
+        adaptive_refinements=3,
+        adaptive_dofs=12_000,
+        adaptive_reference_dofs=100_000,
     ),
     "full": Sizes(
         batch1_h=(0.0312, 0.0078, 0.0039),
@@ -168,6 +179,12 @@ def reproduce(
     with phase("Koiter's model as ε → 0 (5/5)"):
         sections.append(run_koiter_limit(cfg, folder, graded, sizes.koiter_epsilons, say, **kw))
     times["koiter"] = time.perf_counter() - t
+    t = time.perf_counter()
+    study = AdaptiveStudyOptions(
+        sizes.adaptive_refinements, sizes.adaptive_reference_dofs, sizes.adaptive_dofs
+    )
+    sections.append(run_adaptive(cfg, folder, disk(sizes.adaptive_h), study, say, **kw))
+    times["adaptive"] = time.perf_counter() - t
     total = time.perf_counter() - t0
     v = versions()
     tuned = "; ".join(f"{k}: {p}" for k, p in v["tuning"].items())

@@ -94,6 +94,12 @@ def write_solution(
         label = f"κ = {summary['kappa']:.2e}" + ("" if result.converged else " (NOT converged)")
         plot_cross_section([(label, section)], problem.q, png)
         files.append(png.name)
+        if "adapt" in result.extra:
+            from shellobstacle.adapt.picture import plot_adapted_mesh
+
+            title = f"adapted mesh: {problem.num_dofs} dofs"
+            plot_adapted_mesh(problem.mesh, post.indicator(), folder / "mesh.png", title)
+            files.append("mesh.png")
     if output.get("figures", True) and output.get("pictures", True):
         from shellobstacle.post.pictures import write_picture
 

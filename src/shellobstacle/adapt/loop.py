@@ -1,0 +1,361 @@
+"""The adaptive loop: solve → estimate → mark → refine → transfer → solve again.
+
+Each level compiles the problem on its mesh (the forms' code is cached: only the first
+level compiles), solves it warm-started from the previous level's solution interpolated
+onto the refined mesh (exact: Plaza's meshes are nested), computes the indicators
+(:mod:`~shellobstacle.adapt.estimator`), marks by Dörfler's criterion and the discrete free
+boundary (:mod:`~shellobstacle.adapt.marking`) and refines the marked cells
+(:func:`~shellobstacle.refinement.refine_marked`). Everything is collective: on several ranks
+the marked set, hence the meshes and the numbers, are those of a serial run up to solver
+tolerance.
+
+The penalty parameter follows the mesh (``penalty.exponent = q``): ``κ = h_max^q`` with the
+largest cell diameter, as on any other mesh (``AdaptOptions.kappa = "largest"``),
+``κ(x) = h_T^q`` cell by cell (``"local"``: a Constant ``h_max^q`` times the cellwise factor
+``(h_T/h_max)^q``), or ``κ = h_min^q`` (``"finest"``). The first level reaches its κ through
+the continuation ladder; the later ones start from the transferred solution at their own κ.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from mpi4py import MPI
+
+import dolfinx
+import numpy as np
+
+from shellobstacle.adapt.estimator import ErrorEstimator, Indicators
+from shellobstacle.adapt.marking import free_boundary_cells, mark_dorfler, marked_edges
+from shellobstacle.adapt.options import AdaptOptions
+from shellobstacle.measures import mesh_size, mesh_size_min, num_cells_global
+from shellobstacle.model import Discretization, PenaltySpec, Shell
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.refinement import refine_marked
+from shellobstacle.solvers.base import ConvergenceError
+from shellobstacle.solvers.options import NewtonOptions
+
+__all__ = [
+    "AdaptLevel",
+    "AdaptiveResult",
+    "adaptive_solve",
+    "carry_over",
+    "local_kappa_scale",
+    "solve_adaptively",
+]
+
+Progress = Callable[[str], Any]
+
+
+@dataclass
+class AdaptLevel:
+    """One mesh of the adaptive sequence: its size, κ, estimate and cost."""
+
+    level: int
+    dofs: int
+    cells: int
+    h_max: float
+    h_min: float
+    kappa_min: float
+    kappa_max: float
+    eta: float
+    parts: dict[str, float]
+    iterations: int
+    marked: int = 0
+    seconds: dict[str, float] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly record (the parts of ``η`` as ``eta_<part>``)."""
+        out = {k: v for k, v in self.__dict__.items() if k not in ("parts", "seconds")}
+        out |= {f"eta_{k}": v for k, v in self.parts.items()}
+        out |= {f"seconds_{k}": v for k, v in self.seconds.items()}
+        return out
+
+
+@dataclass
+class AdaptiveResult:
+    """The levels of an adaptive solve and the last level's problem (holding ``ζ``).
+
+    Attributes:
+        levels: one record per solved mesh.
+        problem: the last level's problem.
+        steps: the last level's solver steps (``KappaStep`` or ``MethodStep``).
+        reason: why the loop stopped.
+        converged: whether every solve converged.
+        error: the solver's message when one did not.
+        indicators: the last level's indicators.
+        extra: the exact solver's multiplier and contact pressure (method ``"active-set"``).
+    """
+
+    levels: list[AdaptLevel]
+    problem: PenalizedProblem
+    steps: list[Any]
+    reason: str
+    converged: bool = True
+    error: str | None = None
+    indicators: Indicators | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+def local_kappa_scale(mesh: dolfinx.mesh.Mesh, exponent: float, h_max: float) -> Any:
+    """The DG0 factor ``(h_T / h_max)^q`` of ``κ(x) = h_max^q (h_T/h_max)^q = h_T^q``."""
+    W = dolfinx.fem.functionspace(mesh, ("DG", 0))
+    rho = dolfinx.fem.Function(W, name="kappa_scale")
+    imap = mesh.topology.index_map(mesh.topology.dim)
+    cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
+    rho.x.array[W.dofmap.list[cells, 0]] = (mesh.h(mesh.topology.dim, cells) / h_max) ** exponent
+    return rho
+
+
+def _kappa(
+    mesh: dolfinx.mesh.Mesh, penalty: PenaltySpec | None, mode: str
+) -> tuple[float, Any, tuple[float, float], float]:
+    """``(h for the ladder, the cellwise scale or None, (κ_min, κ_max), h_max)`` of a mesh."""
+    h_max, h_min = mesh_size(mesh), mesh_size_min(mesh)
+    if penalty is None:
+        return h_max, None, (0.0, 0.0), h_max
+    if penalty.exponent is None:
+        return h_max, None, (penalty.target(h_max),) * 2, h_max
+    q = float(penalty.exponent)
+    if mode == "largest":
+        return h_max, None, (h_max**q,) * 2, h_max
+    if mode == "finest":
+        return h_min, None, (h_min**q,) * 2, h_max
+    return h_max, local_kappa_scale(mesh, q, h_max), (h_min**q, h_max**q), h_max
+
+
+def adaptive_solve(
+    shell: Shell,
+    mesh: dolfinx.mesh.Mesh,
+    discretization: Discretization | None,
+    penalty: PenaltySpec | None,
+    adapt: AdaptOptions,
+    options: NewtonOptions | None = None,
+    method: str = "newton",
+    method_options: Any = None,
+    progress: Progress | None = None,
+    newton_progress: Callable[[int, float], Any] | None = None,
+    on_level: Callable[[AdaptLevel, PenalizedProblem], Any] | None = None,
+    start: dolfinx.fem.Function | None = None,
+    carry: list[dolfinx.fem.Function] | None = None,
+) -> AdaptiveResult:
+    """Solve on ``mesh`` and its adaptive refinements until a target of ``adapt`` is met.
+
+    Args:
+        shell: the membrane shell (the indicators are the membrane model's).
+        mesh: the first mesh; a ghosted one (facet-sharing ghost cells) in parallel, so that
+            the jump terms across process boundaries are integrated.
+        discretization: degree, boundary condition of ζ_3, penalty quadrature.
+        penalty: ``κ`` or ``h^exponent``; None for ``method = "active-set"``.
+        adapt: marking fraction, targets, how κ follows the mesh.
+        options: Newton's options.
+        method: ``"newton"`` (penalized) or ``"active-set"`` (the exact discrete VI).
+        method_options: ``ActiveSetOptions`` for the exact solver.
+        progress: called with one line per level.
+        newton_progress: called after every Newton iteration.
+        on_level: called with each level's record and problem once it is estimated (e.g. to
+            measure errors against a reference).
+        start: a solution on ``mesh`` or a coarser mesh it refines: the first level starts
+            from it (at its κ, as the later levels do) instead of from ζ = 0.
+        carry: Functions on the current mesh (``start``'s, if given), replaced in the list by
+            their interpolants on each refined mesh (exact: the meshes are nested), with the
+            interpolation data of the warm start; ``on_level`` may append to it.
+
+    Returns:
+        The :class:`AdaptiveResult`; a solver failure ends the loop with ``converged =
+        False`` and the failed level's iterate in ``problem.zeta``.
+    """
+    if shell.model != "membrane":
+        raise ValueError("adaptive refinement needs model.kind = 'membrane' (its indicators)")
+    if method not in ("newton", "active-set"):
+        raise ValueError(f"adaptive refinement solves by 'newton' or 'active-set', not {method!r}")
+    say = progress or (lambda _m: None)
+    disc = discretization or Discretization()
+    if method == "active-set" and disc.degree == 1:  # the exact solver's nodal constraint
+        disc = dataclasses.replace(disc, penalty_quadrature="vertex")
+    comm: MPI.Comm = mesh.comm
+    levels: list[AdaptLevel] = []
+    previous: dolfinx.fem.Function | None = start
+    k = 0
+    while True:
+        t0 = time.perf_counter()
+        h_ladder, scale, (kappa_min, kappa_max), h_max = _kappa(mesh, penalty, adapt.kappa)
+        problem = PenalizedProblem(shell, mesh, disc, kappa_scale=scale)
+        if previous is not None:
+            moved = carry_over([previous, *(carry or [])], problem.V)
+            problem.zeta.x.array[:] = moved[0].x.array
+            if carry is not None:
+                carry[:] = moved[1:]
+        seconds = {"setup": time.perf_counter() - t0}
+        t0 = time.perf_counter()
+        try:
+            steps, iterations, force = _solve_level(
+                problem, penalty, h_ladder, previous is not None, options, method,
+                method_options, newton_progress,
+            )  # fmt: skip
+        except ConvergenceError as err:
+            steps = getattr(err, "steps", [])
+            return AdaptiveResult(levels, problem, steps, "solver failure", False, str(err))
+        seconds["solve"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        estimator = (
+            ErrorEstimator(problem)
+            if force is None
+            else ErrorEstimator.for_exact_solution(problem, force)
+        )
+        indicators = estimator()
+        seconds["estimate"] = time.perf_counter() - t0
+        level = AdaptLevel(
+            k, problem.num_dofs, num_cells_global(mesh), h_max, mesh_size_min(mesh),
+            kappa_min, kappa_max, indicators.total, indicators.part_totals(), iterations,
+            seconds=seconds,
+        )  # fmt: skip
+        levels.append(level)
+        reason = _stop(level, adapt)
+        if on_level is not None:
+            on_level(level, problem)
+        if reason:
+            say(_line(level, reason))
+            extra = {} if force is None else {"contact_pressure": force}
+            return AdaptiveResult(levels, problem, steps, reason, True, None, indicators, extra)
+        t0 = time.perf_counter()
+        cells = mark_dorfler(indicators.eta2, adapt.fraction, comm)
+        if adapt.free_boundary:
+            cells = np.union1d(cells, _free_boundary(problem)).astype(np.int32)
+        level.marked = int(comm.allreduce(cells.size, op=MPI.SUM))
+        mesh = refine_marked(mesh, marked_edges(mesh, cells))
+        seconds["refine"] = time.perf_counter() - t0
+        say(_line(level, ""))
+        previous = problem.zeta
+        k += 1
+
+
+def carry_over(
+    functions: list[dolfinx.fem.Function], V: dolfinx.fem.FunctionSpace
+) -> list[dolfinx.fem.Function]:
+    """Interpolate ``functions`` into ``V``: exact for Lagrange functions of a mesh that
+    ``V``'s refines (nested meshes); one point location per distinct source space."""
+    mesh = V.mesh
+    imap = mesh.topology.index_map(mesh.topology.dim)
+    cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
+    data: dict[int, Any] = {}
+    out = []
+    for f in functions:
+        source = f.function_space
+        if id(source) not in data:
+            data[id(source)] = dolfinx.fem.create_interpolation_data(
+                V, source, cells, padding=1e-12
+            )
+        g = dolfinx.fem.Function(V, name=f.name)
+        g.interpolate_nonmatching(f, cells, data[id(source)])
+        g.x.scatter_forward()
+        out.append(g)
+    return out
+
+
+def _solve_level(
+    problem: PenalizedProblem,
+    penalty: PenaltySpec | None,
+    h: float,
+    warm: bool,
+    options: NewtonOptions | None,
+    method: str,
+    method_options: Any,
+    newton_progress: Callable[[int, float], Any] | None,
+) -> tuple[list[Any], int, Any]:
+    """Solve one level: ``(steps, iterations, contact pressure or None)``."""
+    if method == "active-set":
+        from shellobstacle.pipeline import MethodStep
+        from shellobstacle.solvers.active_set import ActiveSetSolver
+
+        t0 = time.perf_counter()
+        r = ActiveSetSolver(problem, method_options).solve()
+        rel = r.kkt.get("stationarity", float("nan"))
+        step = MethodStep(
+            "active-set", 0.0, r.iterations, r.converged, r.reason, rel,
+            time.perf_counter() - t0,
+        )  # fmt: skip
+        pressure = r.contact_pressure.copy()
+        return [step], r.iterations, pressure
+    from shellobstacle.solvers.continuation import continuation
+    from shellobstacle.solvers.newton import NewtonSolver
+
+    assert penalty is not None
+    ladder = penalty.ladder(h)
+    solver = NewtonSolver(problem, options)
+    steps = continuation(
+        problem, solver, ladder[-1:] if warm else ladder, None, True, newton_progress
+    )
+    return steps, sum(s.iterations for s in steps), None
+
+
+def _free_boundary(problem: PenalizedProblem) -> np.ndarray:
+    """The owned cells cut by the boundary of the current solution's contact set (its
+    vertices with ``g ≤ 0``, :class:`~shellobstacle.post.contact.Postprocessor`)."""
+    from shellobstacle.post.contact import Postprocessor
+
+    contact = Postprocessor(problem).indicator().x.array > 0.5
+    return free_boundary_cells(problem.mesh, contact)
+
+
+def _stop(level: AdaptLevel, adapt: AdaptOptions) -> str:
+    """Why the loop ends after ``level`` (empty: refine on)."""
+    if adapt.target_error is not None and level.eta <= adapt.target_error:
+        return f"η = {level.eta:.3e} ≤ target_error = {adapt.target_error:g}"
+    if adapt.target_dofs is not None and level.dofs >= adapt.target_dofs:
+        return f"{level.dofs} dofs ≥ target_dofs = {adapt.target_dofs}"
+    if level.level >= adapt.max_levels:
+        return f"max_levels = {adapt.max_levels} reached"
+    return ""
+
+
+def _line(level: AdaptLevel, reason: str) -> str:
+    """The progress line of a level."""
+    text = (
+        f"adapt level {level.level}: {level.dofs} dofs, h_min = {level.h_min:.3g}, "
+        f"η = {level.eta:.4e}, {level.iterations} solver steps"
+    )
+    if reason:
+        return f"{text}; stop: {reason}"
+    return f"{text}; {level.marked} cells marked"
+
+
+def solve_adaptively(
+    mesh: dolfinx.mesh.Mesh,
+    shell: Shell,
+    discretization: Discretization | None,
+    penalty: PenaltySpec | None,
+    adapt: AdaptOptions,
+    options: NewtonOptions | None,
+    method: str,
+    method_options: Any,
+    say: Progress,
+    newton_progress: Callable[[int, float], Any] | None,
+    checks: list[Any],
+    timings: dict[str, float],
+) -> Any:
+    """:func:`adaptive_solve` as a :class:`~shellobstacle.pipeline.SolveResult` (what
+    :func:`~shellobstacle.pipeline.solve` returns with ``adapt``): the last level's problem
+    and steps, the levels in ``extra["adapt"]``."""
+    from shellobstacle.pipeline import SolveResult
+
+    t = time.perf_counter()
+    r = adaptive_solve(
+        shell, mesh, discretization, penalty, adapt, options, method, method_options, say,
+        newton_progress,
+    )  # fmt: skip
+    timings["solve"] = time.perf_counter() - t
+    problem = r.problem
+    kappa = 0.0 if method == "active-set" else float(problem.kappa.value)
+    result = SolveResult(
+        problem, mesh_size(problem.mesh), kappa, r.steps, checks, timings, r.converged,
+        r.error, method,
+    )  # fmt: skip
+    result.extra["adapt"] = {"reason": r.reason, "levels": [lv.as_dict() for lv in r.levels]}
+    if "contact_pressure" in r.extra:
+        result.extra["contact_pressure"] = r.extra["contact_pressure"]
+    return result

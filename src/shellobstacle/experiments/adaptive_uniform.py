@@ -1,0 +1,99 @@
+"""The uniform sequence of the adaptive study (:mod:`shellobstacle.experiments.adaptive`):
+red refinements of the first mesh, each solved like ``solve`` solves it, estimated, and
+compared with the reference."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from mpi4py import MPI  # noqa: F401  (MPI before dolfinx)
+
+import dolfinx
+
+from shellobstacle.adapt.estimator import ErrorEstimator
+from shellobstacle.config import Config
+from shellobstacle.experiments.common import NewtonProgress, Say
+from shellobstacle.io.checkpoint import Checkpoint
+from shellobstacle.measures import mesh_size, mesh_size_min
+from shellobstacle.post.nonmatching import SampledNorms
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.refinement import refine_uniformly
+
+__all__ = ["uniform_sequence"]
+
+
+def uniform_sequence(
+    cfg: Config,
+    base: dolfinx.mesh.Mesh,
+    refinements: int,
+    norms: SampledNorms,
+    say: Say,
+    checkpoint: Checkpoint,
+    newton_progress: NewtonProgress = None,
+) -> list[dict[str, Any]]:
+    """``base`` and its ``refinements`` uniform refinements: one row per mesh (dofs, h, κ,
+    η, the error against ``norms``' reference, solver steps, seconds). Recorded rows are
+    not solved again (their meshes are still made, the next one refines them)."""
+    rows = []
+    mesh = base
+    for k in range(refinements + 1):
+        t0 = time.perf_counter()
+        if k > 0:
+            mesh = refine_uniformly(mesh, ghosted=True)
+        refine_seconds = time.perf_counter() - t0
+        key = f"uniform_level{k}"
+        checkpoint.check_mesh(mesh, f"{key}_mesh")
+        record = checkpoint.load(key)
+        if record is not None:
+            rows.append(record["row"])
+            say(f"adaptive study, uniform level {k}: {record['row']['dofs']} dofs (recorded)")
+            continue
+        t0 = time.perf_counter()
+        problem, iterations, force, kappa = _solve(cfg, mesh, newton_progress)
+        seconds = refine_seconds + time.perf_counter() - t0
+        estimator = (
+            ErrorEstimator(problem)
+            if force is None
+            else ErrorEstimator.for_exact_solution(problem, force)
+        )
+        indicators = estimator()
+        eta = indicators.total
+        error = norms(problem.zeta)["vm"]
+        row = {
+            "sequence": "uniform", "level": k, "dofs": problem.num_dofs,
+            "h_min": mesh_size_min(mesh), "h_max": mesh_size(mesh), "kappa_min": kappa,
+            "kappa_max": kappa, "eta": eta, "error_VM": error, "iterations": iterations,
+            "seconds": seconds, "efficiency": eta / error if error > 0 else float("nan"),
+            **{f"eta_{k}": v for k, v in indicators.part_totals().items()},
+        }  # fmt: skip
+        rows.append(row)
+        checkpoint.save(key, {"row": row})
+        say(
+            f"adaptive study, uniform level {k}: {row['dofs']} dofs, η = {eta:.4e}, "
+            f"error {error:.4e}, {seconds:.1f} s"
+        )
+    return rows
+
+
+def _solve(
+    cfg: Config, mesh: dolfinx.mesh.Mesh, newton_progress: NewtonProgress
+) -> tuple[PenalizedProblem, int, Any, float]:
+    """Solve on ``mesh`` by the config's method from ζ = 0: ``(problem, steps, contact
+    pressure or None, κ)``."""
+    h = mesh_size(mesh)
+    if cfg.method == "active-set":
+        from shellobstacle.solvers.active_set import ActiveSetSolver
+
+        problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization)
+        r = ActiveSetSolver(problem).solve()
+        return problem, r.iterations, r.contact_pressure.copy(), 0.0
+    from shellobstacle.solvers.continuation import continuation
+    from shellobstacle.solvers.newton import NewtonSolver
+
+    assert cfg.penalty is not None
+    kappas = cfg.penalty.ladder(h)
+    problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappas[0])
+    solver = NewtonSolver(problem, cfg.solver)
+    steps = continuation(problem, solver, kappas, newton_progress=newton_progress)
+    return problem, sum(s.iterations for s in steps), None, kappas[-1]
