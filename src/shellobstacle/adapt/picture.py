@@ -19,7 +19,7 @@ def _gathered(
     rank 0 (None elsewhere)."""
     tdim = mesh.topology.dim
     owned = mesh.topology.index_map(tdim).size_local
-    nodes = mesh.geometry.dofmap[:owned]
+    nodes = mesh.geometry.dofmaps[0][:owned]
     xy = mesh.geometry.x[nodes][:, :, :2]
     dofs = values.function_space.dofmap.list[:owned]
     local = values.x.array[dofs]
