@@ -38,7 +38,7 @@ def test_absent_and_empty() -> None:
     assert cfg.resolved["adapt"]["fraction"] == 0.5
     assert "[adapt]" in to_toml(cfg.resolved)
     full = {"fraction": 0.3, "max_levels": 4, "target_dofs": 9000, "kappa": "local"}
-    assert parse_config(_with(full)).adapt == AdaptOptions(0.3, 4, None, 9000, "local", True)
+    assert parse_config(_with(full)).adapt == AdaptOptions(0.3, 4, None, 9000, "local", False)
 
 
 @pytest.mark.parametrize(

@@ -188,7 +188,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
             KAPPA_MODES,
         ),
         "free_boundary": Key(
-            "bool", True, "also refine the cells the boundary of the contact set runs through"
+            "bool", False, "also refine the cells the boundary of the contact set runs through"
         ),
     },
     "output": {

@@ -112,11 +112,14 @@ class ActiveSetSolver:
         self.timings["setup"] = time.perf_counter() - t0
 
     # -- linear algebra -----------------------------------------------------------------------
-    def _linear_solve(self, rhs: PETSc.Vec, x: PETSc.Vec) -> None:
+    def _linear_solve(self, rhs: PETSc.Vec, x: PETSc.Vec, changed: bool = True) -> None:
+        """``x ← W⁻¹ rhs``; ``changed``: ``W`` changed since the last solve (it is
+        factorized again, with more MUMPS workspace when the analysis under-estimated it:
+        INFOG(1) = −9 on adapted meshes of 10⁶ dofs)."""
         t = time.perf_counter()
-        # (re)factorizes when the matrix changed, retrying with more MUMPS workspace when
-        # the analysis under-estimated it (adapted meshes of 10⁵–10⁶ dofs)
-        factorize(self.ksp, "the active-set system")
+        if changed:
+            self.ksp.setOperators(self.W)  # the next set-up factorizes the new values
+            factorize(self.ksp, "the active-set system")
         self.ksp.solve(rhs, x)
         self.timings["solve"] += time.perf_counter() - t
         if self.ksp.getConvergedReason() < 0:
@@ -220,7 +223,7 @@ class ActiveSetSolver:
         self.W.mult(self.u, residual)
         residual.aypx(-1.0, rhs)
         correction = rhs.duplicate()
-        self._linear_solve(residual, correction)
+        self._linear_solve(residual, correction, changed=False)
         self.u.axpy(1.0, correction)
         self.u.array[self.iB[active]] = self.psi[active]
         for v in (residual, correction):
