@@ -437,7 +437,7 @@ def test_failed_figure_keeps_the_previous_png(tmp_path, monkeypatch) -> None:
     """A figure is written to a temporary file and renamed: a failure leaves the old file."""
     import matplotlib.pyplot as plt
 
-    from shellobstacle.post.plotting import _save_atomically
+    from shellobstacle.post.plotting import save_atomically
 
     path = tmp_path / "cross_section.png"
     path.write_bytes(b"previous figure")
@@ -449,7 +449,7 @@ def test_failed_figure_keeps_the_previous_png(tmp_path, monkeypatch) -> None:
 
     monkeypatch.setattr(fig, "savefig", broken_savefig)
     with pytest.raises(OSError, match="disk full"):
-        _save_atomically(fig, path, dpi=10)
+        save_atomically(fig, path, dpi=10)
     plt.close(fig)
     assert path.read_bytes() == b"previous figure"
     assert list(tmp_path.iterdir()) == [path]

@@ -41,3 +41,42 @@ def test_elastic_rounding_is_u_times_abs_K_abs_zeta(model: str) -> None:
     assert max(values) == min(values)
     for obj in (K, zeta, product):
         obj.destroy()
+
+
+def test_the_zone_floor_counts_the_rounding_of_its_own_products(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """From ``ζ = 0`` the zone's problem is solved before any whole iterate exists, so the
+    whole system's ``u ‖|K||ζ|‖`` is 0 there: the zone's floor contains ``u ‖|K_S||ζ_Z|‖`` of
+    its current iterate (against the dense product) and is positive once
+    ``ζ_Z ≠ 0``."""
+    from shellobstacle.solvers.linear.zone import ZoneStrategy
+    from shellobstacle.solvers.newton import NewtonOptions
+    from shellobstacle.solvers.zone.reduced import ZoneModel
+    from tests.test_newton import paper_shell as membrane_shell
+    from tests.test_newton import square as p1_square
+
+    seen: list[tuple[float, float, float]] = []
+    floor = ZoneModel.floor
+
+    def recording(self: ZoneModel, load_norm: float) -> float:
+        value = floor(self, load_norm)
+        rows, cols, values = self.problem.cond.Ks.getValuesCSR()
+        Ks = np.zeros((rows.size - 1, rows.size - 1))
+        Ks[np.repeat(np.arange(rows.size - 1), np.diff(rows)), cols] = values
+        exact = np.finfo(float).eps * np.linalg.norm(np.abs(Ks) @ np.abs(self.z.array_r))
+        seen.append((value, exact, self.system.elastic_rounding()))
+        return value
+
+    problem = PenalizedProblem(membrane_shell(), p1_square(n=32))
+    problem.set_kappa(1e-2)
+    # floor_factor ≈ 0 leaves only the rounding terms in the floor
+    solver = NewtonSolver(problem, NewtonOptions(floor_factor=1e-30), ZoneStrategy(seed=True))
+    monkeypatch.setattr(ZoneModel, "floor", recording)
+    assert solver.solve().converged
+    assert seen, "the zone's problem was not used"
+    assert seen[0][2] == 0.0  # no whole iterate yet: ζ = 0
+    for value, exact, whole in seen:
+        # (Σ_j |K_S,ij|) |z_i| estimates |K_S||z|: 4 % apart here
+        assert value == pytest.approx(whole + exact, rel=0.1, abs=1e-40)
+    assert any(exact > 0 for _, exact, _ in seen)

@@ -253,22 +253,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     from shellobstacle.solvers.base import ConvergenceError
 
     try:
-        _require_text(args.argv)
-        if args.command == "config-reference":
-            from shellobstacle.schema import reference_text
-
-            print(reference_text())
-            return EXIT_OK
-        if args.command == "doctor":
-            return commands.doctor(args)
-        if args.command == "check":
-            return commands.check(args)
-        if args.command == "solve":
-            return commands.solve(args)
-        if args.command == "reproduce":
-            return commands.reproduce(args)
-        if args.command == "experiment":
-            return commands.experiment(args)
+        try:
+            return _dispatch(args)
+        finally:  # the live status line goes before the last messages are printed
+            if args.report is not None:
+                args.report.close()
     except (ConfigError, ExpressionError, AssumptionError, ResultsError) as err:
         _record(args, f"error: {_one_line(str(err))}")
         if MPI.COMM_WORLD.rank == 0:
@@ -303,6 +292,26 @@ def main(argv: Sequence[str] | None = None) -> int:
                 file=sys.stderr,
             )
         return EXIT_FAILED
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    """Run the command of ``args``; returns its exit code."""
+    _require_text(args.argv)
+    if args.command == "config-reference":
+        from shellobstacle.schema import reference_text
+
+        print(reference_text())
+        return EXIT_OK
+    if args.command == "doctor":
+        return commands.doctor(args)
+    if args.command == "check":
+        return commands.check(args)
+    if args.command == "solve":
+        return commands.solve(args)
+    if args.command == "reproduce":
+        return commands.reproduce(args)
+    if args.command == "experiment":
+        return commands.experiment(args)
     return EXIT_USAGE
 
 

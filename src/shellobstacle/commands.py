@@ -6,12 +6,14 @@ import argparse
 import dataclasses
 import sys
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from mpi4py import MPI
 
+from shellobstacle.progress import LiveStatus, on_terminal, phase
 from shellobstacle.reporter import Reporter
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
@@ -28,8 +30,10 @@ def check(args: argparse.Namespace) -> int:
     if MPI.COMM_WORLD.rank == 0:
         for message in config_warnings:
             print(f"shellobstacle: warning: {message}", file=sys.stderr)
-    mesh = make_mesh(cfg.domain)
-    checks = check_assumptions(cfg.shell, mesh)
+    with _live_status():
+        mesh = make_mesh(cfg.domain)
+        with phase("checking the assumptions"):
+            checks = check_assumptions(cfg.shell, mesh)
     if MPI.COMM_WORLD.rank == 0:
         print(
             f"{cfg.shell.surface.description}; q = {cfg.shell.obstacle.q}; "
@@ -43,6 +47,16 @@ def check(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
     return EXIT_OK if all(c.passed for c in checks) else EXIT_USAGE
+
+
+@contextmanager
+def _live_status() -> Iterator[None]:
+    """The live status line on a terminal (nothing elsewhere) while the block runs."""
+    if not on_terminal():
+        yield
+        return
+    with LiveStatus():
+        yield
 
 
 def _load(args: argparse.Namespace) -> tuple[Any, list[str]]:
@@ -220,7 +234,7 @@ def experiment(args: argparse.Namespace) -> int:
     if args.batch == "load" and cfg.penalty is None:
         raise ConfigError(
             "experiment load solves penalized problems (κ = h^exponent), and solver.method = "
-            "'active-set' has no κ: set solver.method = 'newton' and penalty.exponent"
+            f"{cfg.method!r} has no κ: set solver.method = 'newton' and penalty.exponent"
         )
     if args.batch == "load" and cfg.penalty.exponent is None:
         raise ConfigError(

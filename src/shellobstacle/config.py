@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
+from shellobstacle.config_options import adapt_options, method_options
 from shellobstacle.domains import DomainSpec
 from shellobstacle.expressions import ExpressionError
 from shellobstacle.messages import ConfigError, not_one_of, suggest
@@ -27,26 +28,39 @@ from shellobstacle.model import (
     Shell,
 )
 from shellobstacle.schema import OPTIONAL_SECTIONS, REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
-from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions
+from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.surface import Surface
 from shellobstacle.toml_io import apply_overrides, read_toml, to_toml
 
-__all__ = ["Config", "ConfigError", "apply_overrides", "load_config", "parse_config", "to_toml"]
+__all__ = [
+    "NODAL_METHODS",
+    "Config",
+    "ConfigError",
+    "apply_overrides",
+    "load_config",
+    "parse_config",
+    "to_toml",
+]
+
+#: the methods that solve the exact nodal problem (κ = 0): no [penalty]
+NODAL_METHODS = ("active-set", "snes-vi", "proximal-galerkin")
 
 
 @dataclass(frozen=True)
 class Config:
-    """A validated configuration: the physical shell and every numerical choice."""
+    """A validated configuration: the physical shell and every numerical choice
+    (``method_options``: the options of ``method`` when it is not Newton's)."""
 
     shell: Shell
     domain: DomainSpec
     discretization: Discretization
-    penalty: PenaltySpec | None  # None for the exact solver (solver.method = "active-set")
+    penalty: PenaltySpec | None  # None for the nodal methods (NODAL_METHODS)
     solver: NewtonOptions
     method: str
     output: Mapping[str, bool]
     resolved: Mapping[str, Mapping[str, Any]]
     source: str
+    method_options: Any = None  # the options of solver.method when it is not Newton's
     adapt: AdaptOptions | None = None  # [adapt]: solve on adaptively refined meshes
 
 
@@ -243,23 +257,20 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
 
     p = r.get("penalty", {})
     penalty = None
-    if sv["method"] == "active-set":
+    if sv["method"] in NODAL_METHODS:
         if "kappa" in p or "exponent" in p:
             warnings.warn(
-                f"{source}: solver.method = 'active-set' solves the constraint exactly (κ = 0); "
-                "penalty.kappa / penalty.exponent are ignored",
+                f"{source}: solver.method = {sv['method']!r} solves the nodal constraint "
+                "exactly (κ = 0); penalty.kappa / penalty.exponent are ignored",
                 stacklevel=3,
             )
         if disc.degree == 1:
-            # the exact solver's constraint is the nodal one, which P1's vertex penalty has
+            # the nodal methods' constraint is the one P1's vertex penalty has
             disc = dataclasses.replace(disc, penalty_quadrature="vertex")
             r["discretization"]["penalty_quadrature"] = "vertex"
         r["penalty"] = {}
     else:
         penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
-    BrezisSibonyOptions(xi=sv.get("xi"), mass=sv["mass"], start=sv["start"])  # validates
-    if sv["bs_rtol"] < 0:
-        raise ConfigError(f"solver.bs_rtol must be >= 0, got {sv['bs_rtol']}")
     solver = NewtonOptions(
         rtol=sv["rtol"],
         stol=sv["stol"],
@@ -268,33 +279,20 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         factorization=sv["factorization"],
         contact_zone=sv["contact_zone"],
     )
-    adapt = _adapt(r, shell, penalty, sv["method"]) if "adapt" in r else None
-    output = dict(r["output"])
-    return Config(shell, domain, disc, penalty, solver, sv["method"], output, r, source, adapt)
-
-
-def _adapt(
-    r: Mapping[str, Any], shell: Shell, penalty: PenaltySpec | None, method: str
-) -> AdaptOptions:
-    """``[adapt]``, and the choices it cannot be combined with."""
-    adapt = AdaptOptions(**r["adapt"])
-    if shell.model != "membrane":
-        raise ConfigError(
-            "[adapt] refines by the membrane model's error indicators: remove [adapt] or set "
-            "model.kind = 'membrane'"
-        )
-    if method not in ("newton", "active-set"):
-        raise ConfigError(
-            f"[adapt] solves each mesh by Newton or the active-set method, not solver.method = "
-            f"{method!r}: remove [adapt] or change solver.method"
-        )
-    if adapt.kappa != "largest" and penalty is not None and penalty.exponent is None:
-        raise ConfigError(
-            f"adapt.kappa = {adapt.kappa!r} makes κ = h^exponent follow the mesh, which needs "
-            "penalty.exponent; with penalty.kappa the same κ is used on every mesh: remove "
-            "adapt.kappa or give penalty.exponent"
-        )
-    return adapt
+    adapt = adapt_options(r, shell, penalty, sv["method"]) if "adapt" in r else None
+    return Config(
+        shell,
+        domain,
+        disc,
+        penalty,
+        solver,
+        sv["method"],
+        dict(r["output"]),
+        r,
+        source,
+        method_options(sv),
+        adapt,
+    )
 
 
 def _require_mesh_file(path: str) -> None:

@@ -59,6 +59,17 @@ def _memory_gib() -> float | None:
     return None
 
 
+def _pictures() -> str:
+    """The PyVista and VTK releases that draw the 3D pictures, or why there are none."""
+    import importlib.metadata
+
+    try:
+        found = [f"{n} {importlib.metadata.version(n)}" for n in ("pyvista", "vtk")]
+    except importlib.metadata.PackageNotFoundError as err:
+        return f"off ({err.name} is not installed: pip install 'shellobstacle[pictures]')"
+    return ", ".join(found) + " (drawn off screen in a process of their own)"
+
+
 def report(installed: str) -> tuple[list[str], list[str]]:
     """``(lines, problems)``: what the doctor prints, and the problems found with their fix.
 
@@ -83,6 +94,7 @@ def report(installed: str) -> tuple[list[str], list[str]]:
         f"MPI: {MPI.Get_library_version().splitlines()[0].strip()}, {v['mpi_ranks']} rank(s)",
         f"NumPy's BLAS: {numpy_blas_config().split('  ')[0] or 'not an OpenBLAS'}",
         f"C compiler (tuning helpers): {compiler() or 'none'}; cache {cache_dir()}",
+        f"3D pictures: {_pictures()}",
         f"tuning ({tuning.ENV}={os.environ.get(tuning.ENV, 'on')}):",
         *(f"  {name}: {policy}" for name, policy in v["tuning"].items()),
     ]

@@ -23,6 +23,7 @@ import dolfinx.mesh
 import numpy as np
 
 from shellobstacle.domains import DomainSpec, coarsening_steps, validate
+from shellobstacle.progress import phase
 from shellobstacle.refinement import prepare, red_refinement, refine_uniformly
 
 __all__ = ["create_mesh"]
@@ -211,11 +212,14 @@ def _gmsh_mesh(
     spec: DomainSpec, comm: MPI.Comm, steps: int = 0, ghosted: bool = False
 ) -> dolfinx.mesh.Mesh:
     """Build (or read) the gmsh mesh on rank 0, distribute it, refine it ``steps`` times."""
-    x, cells = _gmsh_arrays(spec, comm, steps)
-    domain = dolfinx.io.gmsh.ufl_mesh(_TRIANGLE, 2, dtype=np.float64)
-    mesh = dolfinx.mesh.create_mesh(comm, cells, domain, x, _partitioner())
-    for _ in range(steps):
-        mesh = red_refinement(mesh, spec, ghosted)
+    with phase("gmsh"):
+        x, cells = _gmsh_arrays(spec, comm, steps)
+    with phase("distributing the mesh"):
+        domain = dolfinx.io.gmsh.ufl_mesh(_TRIANGLE, 2, dtype=np.float64)
+        mesh = dolfinx.mesh.create_mesh(comm, cells, domain, x, _partitioner())
+    for k in range(steps):
+        with phase(f"refining {k + 1}/{steps}"):
+            mesh = red_refinement(mesh, spec, ghosted)
     return mesh
 
 
@@ -246,7 +250,8 @@ def create_mesh(
         )  # fmt: skip
     else:
         mesh = _gmsh_mesh(spec, comm, coarsening_steps(spec), ghosted)
-    for _ in range(spec.refinements):
-        mesh = refine_uniformly(mesh, ghosted)
+    for k in range(spec.refinements):
+        with phase(f"uniform refinement {k + 1}/{spec.refinements}"):
+            mesh = refine_uniformly(mesh, ghosted)
     prepare(mesh)
     return mesh

@@ -2,7 +2,8 @@
 
 This is what ``shellobstacle solve`` runs, and the Python API's entry point: Newton's
 continuation in κ (the default), the paper's Brezis–Sibony iteration at the target κ, or the
-exact nodal variational inequality (κ = 0, :func:`exact_solution`).
+exact nodal variational inequality (κ = 0, :func:`exact_solution`) by the active-set solver
+or by one of its peers (PETSc's VI Newton, proximal Galerkin).
 """
 
 from __future__ import annotations
@@ -19,12 +20,13 @@ from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 import dolfinx
 
 from shellobstacle.checks import Check, check_assumptions, require
-from shellobstacle.config import Config, ConfigError
+from shellobstacle.config import NODAL_METHODS, Config, ConfigError
 from shellobstacle.domains import DomainSpec
 from shellobstacle.measures import mesh_size
 from shellobstacle.meshing import create_mesh
 from shellobstacle.model import Discretization, PenaltySpec, Shell
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import phase
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.continuation import KappaStep, continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
@@ -35,18 +37,19 @@ __all__ = [
     "SolveResult",
     "exact_solution",
     "make_mesh",
+    "nodal_solver",
     "solve",
     "solve_config",
 ]
 
-METHODS = ("newton", "brezis-sibony", "active-set")
+METHODS = ("newton", "brezis-sibony", *NODAL_METHODS)
 
 Progress = Callable[[str], Any]
 
 
 @dataclass
 class MethodStep:
-    """One solve by a method other than Newton (Brezis–Sibony, the exact active-set solver)."""
+    """One solve by a method other than Newton (Brezis–Sibony, the nodal methods)."""
 
     method: str
     kappa: float | None
@@ -94,8 +97,8 @@ class SolveResult:
 
     @property
     def solved_kappa(self) -> float:
-        """The κ of the solution held (0 for the exact active-set solution)."""
-        return 0.0 if self.method == "active-set" else float(self.problem.kappa.value)
+        """The κ of the solution held (0 for the exact nodal problem's solution)."""
+        return 0.0 if self.method in NODAL_METHODS else float(self.problem.kappa.value)
 
     def validity(self, post: Any = None) -> Any:
         """The solution's :class:`~shellobstacle.post.validity.Validity` (penetration,
@@ -111,7 +114,9 @@ def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:
     """Mesh ω (``ghosted``: with facet-sharing ghost cells in parallel, which Koiter's facet
     terms read); a bad domain description becomes a :class:`ConfigError` naming it."""
     try:
-        return create_mesh(domain, ghosted=ghosted)
+        size = "" if domain.h is None else f" (h = {domain.h:g})"
+        with phase(f"meshing the {domain.kind}{size}"):
+            return create_mesh(domain, ghosted=ghosted)
     except (ValueError, FileNotFoundError) as err:
         raise ConfigError(f"[domain]: {err}") from None
 
@@ -135,15 +140,17 @@ def solve(
         shell: surface, material, load and obstacle.
         domain: a :class:`DomainSpec` to mesh, or a DOLFINx mesh.
         penalty: κ (or ``h^exponent``) and whether to continue from larger κ; None (unused)
-            for ``method = "active-set"``.
+            for the nodal methods (``"active-set"``, ``"snes-vi"``, ``"proximal-galerkin"``).
         discretization: element degree, boundary condition of ζ_3, penalty quadrature.
         options: Newton tolerances and linear solver.
         force: proceed (with a warning) when the theory's assumptions fail, and mesh even
             when the mesh looks too large for this machine (:mod:`shellobstacle.resources`).
         progress: called with one-line progress messages.
         method: ``"newton"`` (continuation in κ), ``"brezis-sibony"`` (the iteration (38) at
-            the target κ) or ``"active-set"`` (the exact nodal VI, κ = 0).
-        method_options: ``BrezisSibonyOptions`` or ``ActiveSetOptions`` for those methods.
+            the target κ), or the exact nodal VI (κ = 0) by ``"active-set"``, ``"snes-vi"``
+            (PETSc's VI Newton) or ``"proximal-galerkin"``.
+        method_options: the options of those methods (``BrezisSibonyOptions``,
+            ``ActiveSetOptions``, ``SnesVIOptions``, ``ProximalGalerkinOptions``).
         newton_progress: called as ``(iteration, relative residual)`` after every Newton
             iteration (see :func:`~shellobstacle.solvers.continuation.continuation`).
         adapt: :class:`~shellobstacle.adapt.options.AdaptOptions`: solve on the mesh and its
@@ -158,7 +165,7 @@ def solve(
     """
     if method not in METHODS:
         raise ConfigError(f"solver.method must be one of {METHODS}, got {method!r}")
-    if penalty is None and method != "active-set":
+    if penalty is None and method not in NODAL_METHODS:
         raise ConfigError(f"solver.method = {method!r} needs a penalty (kappa or exponent)")
     say = progress or (lambda _msg: None)
     timings: dict[str, float] = {}
@@ -176,7 +183,8 @@ def solve(
     timings["mesh"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    checks = check_assumptions(shell, mesh)
+    with phase("checking the assumptions"):
+        checks = check_assumptions(shell, mesh)
     timings["checks"] = time.perf_counter() - t
     if force:
         failed = [c.name for c in checks if not c.passed]
@@ -210,8 +218,8 @@ def solve(
         )
         _brezis_sibony(result, method_options, say)
     else:
-        say(f"h = {h:.4g}, {problem.num_dofs} dofs; the exact nodal problem (κ = 0)")
-        _active_set(result, method_options, say)
+        say(f"h = {h:.4g}, {problem.num_dofs} dofs; the exact nodal problem (κ = 0) by {method}")
+        _nodal(result, method_options, say)
     timings["solve"] = time.perf_counter() - t
     return result
 
@@ -226,7 +234,8 @@ def _newton(
     """The continuation in κ; non-convergence is reported in ``result``, not raised."""
     problem = result.problem
     t = time.perf_counter()
-    solver = NewtonSolver(problem, options)
+    with phase("setting up Newton's solver"):
+        solver = NewtonSolver(problem, options)
     result.timings["setup"] = time.perf_counter() - t
     try:
         result.steps = continuation(problem, solver, kappas, say, newton_progress=newton_progress)
@@ -274,37 +283,47 @@ def _brezis_sibony(result: SolveResult, options: Any, say: Progress) -> None:
         result.converged, result.error = False, f"Brezis–Sibony did not converge: {r.reason}"
 
 
-def _active_set(result: SolveResult, options: Any, say: Progress) -> None:
-    """The exact nodal variational inequality (κ = 0)."""
-    from shellobstacle.solvers.active_set import ActiveSetSolver
+def nodal_solver(problem: PenalizedProblem, method: str, options: Any = None) -> Any:
+    """The solver of the nodal problem (κ = 0) that ``method`` names, built on ``problem``."""
+    if method == "active-set":
+        from shellobstacle.solvers.active_set import ActiveSetSolver
 
+        return ActiveSetSolver(problem, options)
+    if method == "snes-vi":
+        from shellobstacle.solvers.snes_vi import SnesVISolver
+
+        return SnesVISolver(problem, options)
+    if method == "proximal-galerkin":
+        from shellobstacle.solvers.proximal_galerkin import ProximalGalerkinSolver
+
+        return ProximalGalerkinSolver(problem, options)
+    raise ValueError(f"{method!r} is not one of the nodal methods {NODAL_METHODS}")
+
+
+def _nodal(result: SolveResult, options: Any, say: Progress) -> None:
+    """The exact nodal variational inequality (κ = 0) by ``result.method``."""
     problem = result.problem
     result.kappa = 0.0
     t0 = time.perf_counter()
     try:
-        r = ActiveSetSolver(problem, options).solve()
+        r = nodal_solver(problem, result.method, options).solve()
     except ConvergenceError as err:
         r = err.result  # type: ignore[assignment]
         result.converged, result.error = False, str(err)
     seconds = time.perf_counter() - t0
     rel = r.kkt.get("stationarity", float("nan"))  # ‖Kζ − f − Bᵀλ‖ / ‖f‖
-    details = {
-        "active_nodes": r.active_nodes,
-        "kkt": r.kkt,
-        "kkt_relative": r.relative_kkt,
-        "kkt_scales": r.scales,
-        "newton_steps": r.newton_steps,
-        "pdas_steps": r.pdas_steps,
-        "active_history": r.active_history,
-    }
+    norms = list(getattr(r, "residual_norms", []))
     result.steps = [
         MethodStep(
-            "active-set", 0.0, r.iterations, r.converged, r.reason, rel, seconds, [], details
+            result.method, 0.0, r.iterations, r.converged, r.reason, rel, seconds, norms,
+            r.details(),
         )
-    ]
+    ]  # fmt: skip
     result.extra["multiplier"] = r.multiplier
     result.extra["contact_pressure"] = r.contact_pressure
-    say(f"active set: {r.iterations} steps, {r.active_nodes} active nodes, KKT {r.kkt}")
+    say(
+        f"{result.method}: {r.iterations} linear solves, {r.active_nodes} active nodes, KKT {r.kkt}"
+    )
 
 
 def solve_config(
@@ -314,22 +333,6 @@ def solve_config(
     newton_progress: Callable[[int, float], Any] | None = None,
 ) -> SolveResult:
     """:func:`solve` with everything taken from a validated :class:`Config`."""
-    sv = config.resolved["solver"]
-    method_options: Any = None
-    if config.method == "brezis-sibony":
-        from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions
-
-        method_options = BrezisSibonyOptions(
-            xi=sv.get("xi"),
-            mass=sv["mass"],
-            start=sv["start"],
-            max_iterations=sv["bs_max_iterations"],
-            rtol=sv["bs_rtol"],
-        )
-    elif config.method == "active-set":
-        from shellobstacle.solvers.active_set import ActiveSetOptions
-
-        method_options = ActiveSetOptions(max_iterations=sv["max_iterations"])
     return solve(
         config.shell,
         config.domain,
@@ -339,7 +342,7 @@ def solve_config(
         force=force,
         progress=progress,
         method=config.method,
-        method_options=method_options,
+        method_options=config.method_options,
         newton_progress=newton_progress,
         adapt=config.adapt,
     )

@@ -22,6 +22,7 @@ from shellobstacle.expressions import to_ufl, y1, y2
 from shellobstacle.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
 from shellobstacle.membrane import elastic_product, gap, strain
 from shellobstacle.model import Discretization, Shell
+from shellobstacle.progress import phase
 
 __all__ = ["PenalizedProblem"]
 
@@ -120,20 +121,21 @@ class PenalizedProblem:
         residual = ufl.derivative(energy, zeta, v)
         jacobian = ufl.derivative(residual, zeta, du)
         load = sum(self.p[i] * v[i] for i in range(3)) * sqrt_a * self.dx
-        self.forms = {
-            "residual": dolfinx.fem.form(residual),
-            "jacobian": dolfinx.fem.form(jacobian),
-            # K: the (constant) Hessian of the membrane energy; J_κ'' = K + penalty part
-            "stiffness": dolfinx.fem.form(
-                ufl.derivative(ufl.derivative(elastic, zeta, v), zeta, du)
-            ),
-            "load": dolfinx.fem.form(load),
-            "elastic_energy": dolfinx.fem.form(elastic),
-            "work": dolfinx.fem.form(work),
-            "penalty_energy": dolfinx.fem.form(penalty),
-            # (ε/κ) ∫ β(ζ)·v dy: the penalty part of the residual (= −κ ∂R/∂κ)
-            "penalty_residual": dolfinx.fem.form(ufl.derivative(penalty, zeta, v)),
-        }
+        with phase("compiling the forms"):
+            self.forms = {
+                "residual": dolfinx.fem.form(residual),
+                "jacobian": dolfinx.fem.form(jacobian),
+                # K: the (constant) Hessian of the membrane energy; J_κ'' = K + penalty part
+                "stiffness": dolfinx.fem.form(
+                    ufl.derivative(ufl.derivative(elastic, zeta, v), zeta, du)
+                ),
+                "load": dolfinx.fem.form(load),
+                "elastic_energy": dolfinx.fem.form(elastic),
+                "work": dolfinx.fem.form(work),
+                "penalty_energy": dolfinx.fem.form(penalty),
+                # (ε/κ) ∫ β(ζ)·v dy: the penalty part of the residual (= −κ ∂R/∂κ)
+                "penalty_residual": dolfinx.fem.form(ufl.derivative(penalty, zeta, v)),
+            }
         self.bcs = self._boundary_conditions()
         self._K: PETSc.Mat | None = None
 

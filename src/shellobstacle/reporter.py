@@ -1,4 +1,5 @@
-"""Progress of a command: lines on rank 0's terminal (a live status line there), and a log file."""
+"""Progress of a command: lines on rank 0's stderr and in a log file, and on a terminal the
+live status line of :mod:`shellobstacle.progress` below them."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from mpi4py import MPI
+
+from shellobstacle.progress import LiveStatus, on_terminal
 
 __all__ = ["NewtonEcho", "Reporter"]
 
@@ -26,18 +29,19 @@ class Reporter:
         self.log: Path | None = None
         self.lines: list[str] = []
         self._status: Any = None
-        if not quiet and MPI.COMM_WORLD.rank == 0 and sys.stderr.isatty():
-            # on a terminal: a live status line (spinner, elapsed time, current step) below the
-            # log lines; in files, pipes and CI only the plain lines are written
-            from rich.console import Console
+        if on_terminal(quiet):
+            # on a terminal: a live status line (the running phases and their times) below
+            # the log lines; in files, pipes and CI only the plain lines are written
+            self._status = LiveStatus().start()
 
-            self._console = Console(stderr=True)
-            self._status = self._console.status("starting", spinner="dots")
-            self._status.start()
-
-    def __del__(self) -> None:
+    def close(self) -> None:
+        """Remove the live status line (the command has ended); idempotent."""
         if self._status is not None:
             self._status.stop()
+            self._status = None
+
+    def __del__(self) -> None:
+        self.close()
 
     def __call__(self, msg: str) -> None:
         line = f"[{time.perf_counter() - self.start:7.1f}s] {msg}"
@@ -45,8 +49,7 @@ class Reporter:
         if MPI.COMM_WORLD.rank != 0:
             return
         if self._status is not None:
-            self._console.print(line, highlight=False, markup=False)
-            self._status.update(f"{time.perf_counter() - self.start:.0f} s — {msg}")
+            self._status.print(line, msg)
         elif not self.quiet:
             print(line, file=sys.stderr, flush=True)
         if self.log is not None:

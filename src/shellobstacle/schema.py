@@ -12,6 +12,7 @@ from typing import Any
 
 from shellobstacle.adapt.options import KAPPA_MODES
 from shellobstacle.model import MODELS, PENALTY_QUADRATURES, TRANSVERSE
+from shellobstacle.solvers.options import VI_LINE_SEARCHES, VI_TYPES
 from shellobstacle.surface import SURFACE_KINDS
 
 __all__ = [
@@ -115,8 +116,10 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "str",
             "newton",
             "newton: penalized problem by Newton; brezis-sibony: the paper's iteration (38); "
-            "active-set: the exact nodal variational inequality (κ = 0, no [penalty])",
-            ("newton", "brezis-sibony", "active-set"),
+            "active-set: the exact nodal variational inequality (κ = 0, no [penalty]); "
+            "snes-vi, proximal-galerkin: the same nodal problem by PETSc's VI Newton or by "
+            "Keith & Surowiec's latent-variable proximal point method",
+            ("newton", "brezis-sibony", "active-set", "snes-vi", "proximal-galerkin"),
         ),
         "linear_solver": Key(
             "str",
@@ -139,12 +142,38 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
         "rtol": Key("float", 1e-10, "relative residual tolerance"),
         "stol": Key("float", 1e-12, "relative Newton-correction tolerance"),
-        "max_iterations": Key("int", 100, "Newton (or active-set) iterations per κ"),
+        "max_iterations": Key(
+            "int",
+            100,
+            "Newton iterations per κ; active-set: linear solves; snes-vi: PETSc's Newton "
+            "steps; proximal-galerkin: proximal steps",
+        ),
         "xi": Key("float", OPTIONAL, "brezis-sibony: Ξ of (38); default: from a λ_max estimate"),
         "mass": Key("str", "consistent", "brezis-sibony: mass matrix", ("consistent", "lumped")),
         "start": Key("str", "linearized", "brezis-sibony: ψ_0", ("zero", "linearized")),
         "bs_max_iterations": Key("int", 200000, "brezis-sibony: iteration cap"),
         "bs_rtol": Key("float", 1e-9, "brezis-sibony: relative L² increment tolerance"),
+        "vi_type": Key(
+            "str",
+            "rsls",
+            "snes-vi: PETSc's reduced-space (rsls) or semismooth Fischer–Burmeister (ssls) Newton",
+            VI_TYPES,
+        ),
+        "vi_line_search": Key(
+            "str",
+            "l2",
+            "snes-vi: PETSc's line search (l2: secant on ‖F‖²; bt, PETSc's default: "
+            "backtracking, which stalls on Koiter's cylinder_koiter.toml; basic: full steps)",
+            VI_LINE_SEARCHES,
+        ),
+        "proximal_tol": Key(
+            "float",
+            1e-9,
+            "proximal-galerkin: stop at a relative increment ‖u_k − u_(k−1)‖/‖u_k‖ below this",
+        ),
+        "proximal_alpha_max": Key(
+            "float", 1e5, "proximal-galerkin: cap of the (dimensionless) proximal parameter α̂"
+        ),
     },
     "adapt": {
         "fraction": Key("float", 0.5, "Dörfler's θ: the marked cells hold this share of Σ η_T²"),
@@ -165,6 +194,12 @@ SCHEMA: dict[str, dict[str, Key]] = {
     "output": {
         "paraview": Key("bool", True, "write VTX (.bp) files for ParaView"),
         "figures": Key("bool", True, "write PNG figures"),
+        "pictures": Key(
+            "bool",
+            True,
+            "draw the 3D picture shell_3d.png when figures are written (PyVista, the extra "
+            "shellobstacle[pictures]; skipped with one warning without it)",
+        ),
     },
 }
 

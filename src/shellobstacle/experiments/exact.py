@@ -16,6 +16,7 @@ from shellobstacle.config import Config
 from shellobstacle.experiments.common import Say, finish_figure, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.pipeline import exact_solution
+from shellobstacle.progress import phase
 
 __all__ = ["exact_reference", "write_batch4"]
 
@@ -28,7 +29,8 @@ def exact_reference(cfg: Config, mesh: Any, disc: Any, say: Say, where: str) -> 
     """
 
     def make() -> Any:
-        reference, r = exact_solution(cfg.shell, mesh, disc)
+        with phase(f"batch 4: the exact discrete solution on {where}"):
+            reference, r = exact_solution(cfg.shell, mesh, disc)
         say(f"batch 4: exact VI on {where}: {r.iterations} steps, KKT {r.kkt}")
         return reference
 

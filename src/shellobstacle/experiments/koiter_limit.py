@@ -39,6 +39,7 @@ from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import vm_norm
 from shellobstacle.post.sections import line_tree, mesh_extent, sample
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
@@ -245,7 +246,8 @@ def koiter_limit(
             ts = time.perf_counter()
             koiter.set_bending_scale((value / eps) ** 2)
             koiter.zeta.x.array[:] = 0.0
-            steps = solve(koiter)
+            with phase(f"koiter-limit: ε = {value:.3g}"):
+                steps = solve(koiter)
             post = Postprocessor(koiter)
             profile = _profile(koiter, points, tree)
             error = koiter.zeta - zeta_m

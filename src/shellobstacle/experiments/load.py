@@ -27,6 +27,7 @@ from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import CrossSection
 from shellobstacle.post.validity import assess
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
@@ -76,11 +77,14 @@ def load_study(
     progress: Callable[[str], Any] | None = None,
     checkpoint: Checkpoint | None = None,
     newton_progress: Callable[[int, float], Any] | None = None,
+    last: Callable[[Postprocessor], Any] | None = None,
 ) -> LoadStudy:
     """Solve for each value of the load parameter (one compiled problem, warm starts).
 
     With ``checkpoint`` every finished value is recorded (its row, its cross-section and its
     solution, from which the next value starts); recorded values are not solved again.
+    ``last(post)`` is called once the last value is solved (not when it is recorded), with
+    its solution in ``post.problem.zeta`` (e.g. to draw it).
     """
     say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
@@ -111,12 +115,13 @@ def load_study(
                 restore = None
             ts = time.perf_counter()
             problem.set_parameter(parameter, value)
-            steps = continuation(
-                problem,
-                solver,
-                ladder if k == 0 else ladder[-1:],
-                newton_progress=newton_progress,
-            )
+            with phase(f"batch 3: {parameter} = {value:g} ({k + 1}/{len(values)})"):
+                steps = continuation(
+                    problem,
+                    solver,
+                    ladder if k == 0 else ladder[-1:],
+                    newton_progress=newton_progress,
+                )
             c = post.contact()
             validity = assess(post, float(problem.kappa.value))
             row = {
@@ -138,6 +143,8 @@ def load_study(
             cp.save(key, record)
             cp.drop_vector(saved)
             saved = key
+            if last is not None and k == len(values) - 1:
+                last(post)
         else:
             restore = saved = key
             recorded_seconds += record["seconds"]
@@ -201,7 +208,24 @@ def run_load(
     """Batch 3 (load sweep); returns the report section.
 
     With ``checkpoint`` every value is recorded and recorded values are not solved again.
+    The largest load's solution is drawn in 3D (``batch3_shell_3d.png``, when
+    ``output.pictures``; a resumed run keeps the drawing of the run that solved it).
     """
+    png_shell = folder / "batch3_shell_3d.png"
+    paper_load = is_paper_load(cfg.shell.load)
+    name = "ℓ" if paper_load and parameter == "ell" else parameter
+
+    def draw(post: Postprocessor) -> None:
+        from shellobstacle.post.pictures import write_picture
+
+        if not cfg.output.get("pictures", True):
+            return
+        title = f"Batch 3: the deformed shell over the plane at {name} = {values[-1]:g}"
+        with phase("drawing the 3D picture"):
+            picture = write_picture(post, png_shell, title)
+        if picture.warning is not None:
+            say(f"warning: {picture.warning}")
+
     s = load_study(
         cfg.shell,
         make_mesh(domain),
@@ -213,6 +237,7 @@ def run_load(
         say,
         (checkpoint or Checkpoint(None)).scope("batch3"),
         newton_progress,
+        draw,
     )
     write_load_study(s, folder)
     png_area = folder / "batch3_contact_area.png"
@@ -224,7 +249,6 @@ def run_load(
         title=f"Batch 3: cross-sections y2 = 0 for {parameter} = "
         + ", ".join(f"{v:g}" for v in values),
     )
-    paper_load = is_paper_load(cfg.shell.load)
     if MPI.COMM_WORLD.rank == 0:
         plot_contact_area(s, png_area, paper_load)
     verdict = "grows" if s.area_increases() else "does NOT grow monotonically"
@@ -240,7 +264,8 @@ def run_load(
         else "Every solution is inside the model's validity (penetration, displacement, "
         "orientation within their thresholds)."
     )
-    name = "ℓ" if paper_load and parameter == "ell" else parameter
+    drawn = MPI.COMM_WORLD.bcast(png_shell.is_file() if MPI.COMM_WORLD.rank == 0 else None)
+    shell_3d = [f"![the shell in 3D at {name} = {values[-1]:g}]({png_shell.name})", ""]
     return "\n".join(
         [
             "## Batch 3: the contact area as the load grows",
@@ -264,6 +289,7 @@ def run_load(
             "",
             f"![cross-sections]({png_sections.name})",
             "",
+            *(shell_3d if drawn else []),
             f"![contact area]({png_area.name})",
             "",
         ]

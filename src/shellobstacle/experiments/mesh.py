@@ -34,6 +34,7 @@ from shellobstacle.model import Discretization, PenaltySpec, Shell
 from shellobstacle.pipeline import make_mesh
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import phase
 from shellobstacle.refinement import refine_uniformly
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
@@ -157,7 +158,8 @@ def mesh_study(
                     cp.restore_vector(lv.restore, lv.problem.zeta)
                     cp.restore_solver(lv.restore, lv.solver)
                     lv.restore = None
-            record = _solve_level(levels, k, q, previous, reference, warm, newton_progress)
+            with phase(f"batch 2 [q = {q:g}]: level {k + 1}/{len(levels)}, h = {level.h:.4g}"):
+                record = _solve_level(levels, k, q, previous, reference, warm, newton_progress)
             cp.save_vector(key, level.problem.zeta)
             cp.save_solver(key, level.solver)
             cp.save(key, record)

@@ -35,6 +35,7 @@ from shellobstacle.model import Discretization, Shell
 from shellobstacle.pipeline import make_mesh
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import predict
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
@@ -139,9 +140,11 @@ def penalty_study(
                 previous = dolfinx.fem.Function(problem.V)
                 previous.x.array[:] = problem.zeta.x.array
                 restore = None
-            record = _solve_step(
-                problem, solver, norms, h, (q, q_prev, n + 1), previous, reference, newton_progress
-            )
+            with phase(f"batch 1 [{study.quadrature}, h = {h:.4g}]: κ = h^{q:g}"):
+                record = _solve_step(
+                    problem, solver, norms, h, (q, q_prev, n + 1), previous, reference,
+                    newton_progress,
+                )  # fmt: skip
             cp.save_vector(key, problem.zeta)
             cp.save_solver(key, solver)
             cp.save(key, record)

@@ -19,6 +19,7 @@ from shellobstacle.experiments.penalty import run_penalty
 from shellobstacle.experiments.solvers import run_solvers
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.io.folders import atomic_write, versions
+from shellobstacle.progress import phase
 
 __all__ = ["PAPER_CONFIG", "SIZES", "Sizes", "reproduce"]
 
@@ -125,39 +126,44 @@ def reproduce(
     mesh_rows: list[dict[str, Any]] = []
     t = time.perf_counter()
     batch1_meshes = [disk(h) for h in sizes.batch1_h]
-    sections.append(run_penalty(cfg, folder, batch1_meshes, say, batch4=penalty_rows, **kw))
+    with phase("batch 1 (1/5): κ → 0 on fixed meshes"):
+        sections.append(run_penalty(cfg, folder, batch1_meshes, say, batch4=penalty_rows, **kw))
     times["batch 1"] = time.perf_counter() - t
     t = time.perf_counter()
     base = disk(sizes.batch2_base_h)
-    sections.append(
-        run_mesh(
-            cfg,
-            folder,
-            base,
-            sizes.batch2_refinements,
-            sizes.batch2_q,
-            say,
-            batch4=mesh_rows,
-            **kw,
+    with phase("batch 2 (2/5): nested meshes, κ = h^q"):
+        sections.append(
+            run_mesh(
+                cfg,
+                folder,
+                base,
+                sizes.batch2_refinements,
+                sizes.batch2_q,
+                say,
+                batch4=mesh_rows,
+                **kw,
+            )
         )
-    )
     times["batch 2"] = time.perf_counter() - t
     t = time.perf_counter()
-    sections.append(
-        run_load(
-            batch3_config(cfg),
-            folder,
-            disk(sizes.batch3_h, central_h=sizes.batch3_central_h, central_radius=0.1),
-            sizes.batch3_ell,
-            sizes.batch3_exponent,
-            say,
-            **kw,
+    with phase("batch 3 (3/5): the load sweep"):
+        sections.append(
+            run_load(
+                batch3_config(cfg),
+                folder,
+                disk(sizes.batch3_h, central_h=sizes.batch3_central_h, central_radius=0.1),
+                sizes.batch3_ell,
+                sizes.batch3_exponent,
+                say,
+                **kw,
+            )
         )
-    )
     times["batch 3"] = time.perf_counter() - t
     sections.append(write_batch4(folder, penalty_rows, mesh_rows))
     t = time.perf_counter()
-    sections.append(run_solvers(cfg, folder, [disk(h) for h in sizes.solver_h], 1.5, say, **kw))
+    with phase("Newton against Brezis–Sibony (4/5)"):
+        solver_meshes = [disk(h) for h in sizes.solver_h]
+        sections.append(run_solvers(cfg, folder, solver_meshes, 1.5, say, **kw))
     times["solvers"] = time.perf_counter() - t
     t = time.perf_counter()
     h, central_h, edge_h, edge_width = sizes.koiter_h
@@ -170,7 +176,8 @@ def reproduce(
         edge_h=edge_h,
         edge_width=edge_width,
     )
-    sections.append(run_koiter_limit(cfg, folder, graded, sizes.koiter_epsilons, say, **kw))
+    with phase("Koiter's model as ε → 0 (5/5)"):
+        sections.append(run_koiter_limit(cfg, folder, graded, sizes.koiter_epsilons, say, **kw))
     times["koiter"] = time.perf_counter() - t
     t = time.perf_counter()
     study = AdaptiveStudyOptions(

@@ -34,6 +34,7 @@ from shellobstacle.model import Discretization, PenaltySpec, Shell
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import note, phase
 from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions, BrezisSibonySolver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
@@ -130,17 +131,19 @@ def compare_solvers(
         say(f"h = {h:.4g} ({problem.num_dofs} dofs), κ = h^{q:g} = {kappas[-1]:.3e}: Newton")
 
         t0 = time.perf_counter()
-        steps = continuation(
-            problem, NewtonSolver(problem, nopts), kappas, newton_progress=newton_progress
-        )
+        with phase(f"h = {h:.4g}: Newton"):
+            steps = continuation(
+                problem, NewtonSolver(problem, nopts), kappas, newton_progress=newton_progress
+            )
         newton_seconds = time.perf_counter() - t0
         newton = dolfinx.fem.Function(problem.V, name="newton")
         newton.x.array[:] = problem.zeta.x.array
         contact_nodes = Postprocessor(problem).contact()["num_contact_nodes"]
 
         say(f"h = {h:.4g}: Brezis–Sibony")
-        solver = BrezisSibonySolver(problem, h, bopts)
-        r = solver.solve()
+        with phase(f"h = {h:.4g}: Brezis–Sibony"):
+            solver = BrezisSibonySolver(problem, h, bopts)
+            r = solver.solve(lambda k, inc: note(f"step {k}, ‖ψ_k − ψ_(k−1)‖ = {inc:.1e}"))
         reference = l2_norm(newton)
         scale = reference if reference > 0 else 1.0
         rows.append(

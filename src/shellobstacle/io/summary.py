@@ -1,4 +1,5 @@
-"""Write a solve's result folder: summary.json, ParaView files, the cross-section figure."""
+"""Write a solve's result folder: summary.json, ParaView files, the cross-section figure and
+the 3D picture."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ from mpi4py import MPI
 
 from shellobstacle.checks import format_checks
 from shellobstacle.io.folders import versions, write_json
+from shellobstacle.progress import phase
 
 __all__ = ["write_solution"]
 
@@ -83,7 +85,8 @@ def write_solution(
         if pressure is not None:
             extra.append(pressure.copy())
             extra[-1].name = "contact_pressure"
-        paths = write_paraview(problem, post, folder, extra)
+        with phase("writing the ParaView files"):
+            paths = write_paraview(problem, post, folder, extra)
         files += [str(p.relative_to(folder)) for p in paths]
     if output.get("figures", True):
         section = post.cross_section()
@@ -97,6 +100,21 @@ def write_solution(
             title = f"adapted mesh: {problem.num_dofs} dofs"
             plot_adapted_mesh(problem.mesh, post.indicator(), folder / "mesh.png", title)
             files.append("mesh.png")
+    if output.get("figures", True) and output.get("pictures", True):
+        from shellobstacle.post.pictures import write_picture
+
+        title = (
+            "Deformed middle surface θ + ζᵢ aⁱ over the plane x·q = 0: "
+            f"κ = {summary['kappa']:.2e}, contact area {summary['contact_area']:.4g}"
+            + ("" if result.converged else " (NOT converged)")
+        )
+        with phase("drawing the 3D picture"):
+            picture = write_picture(post, folder / "shell_3d.png", title)
+        if picture.path is not None:
+            files.append(picture.path.name)
+        if picture.warning is not None:
+            say(f"warning: {picture.warning}")
+            summary["warnings"].append(picture.warning)
     timings["output"] = time.perf_counter() - t
     summary["files"] = files
     write_json(folder / "summary.json", summary)

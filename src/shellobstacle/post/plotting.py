@@ -21,7 +21,7 @@ import numpy as np
 
 from shellobstacle.post.sections import CrossSection, horizontal_direction
 
-__all__ = ["plot_cross_section"]
+__all__ = ["plot_cross_section", "save_atomically"]
 
 
 def _draw(ax, sections, t, ref_label: bool) -> None:
@@ -117,13 +117,13 @@ def plot_cross_section(
     fig.suptitle(title or "Deformed middle surface θ + ζᵢ aⁱ over the obstacle plane")
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
-        _save_atomically(fig, path, dpi=150)
+        save_atomically(fig, path, dpi=150)
     finally:
         plt.close(fig)
     return path
 
 
-def _save_atomically(fig, path: Path, **kwargs) -> None:
+def save_atomically(fig, path: Path, **kwargs) -> None:
     """``fig.savefig(path)`` through a temporary file in the same folder and ``os.replace``.
 
     The format comes from the suffix of ``path``, as for ``savefig`` (PNG if it has none);

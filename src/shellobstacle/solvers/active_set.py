@@ -1,21 +1,10 @@
 """Exact solver of the discrete obstacle problem with nodal constraints (MODEL.md §3, §5).
 
-With the constraint imposed at the Lagrange nodes ``x_i`` of the displacement space (P1: the
-vertices; P2: the vertices and edge midpoints), the discrete variational inequality
-(``κ = 0``) is the strictly convex quadratic program
-
-:math:`\\min_{η ∈ V_h} J(η) = \\tfrac12 η^T K η - f^T η` subject to
-:math:`g_i(η) = θ(x_i)·q + c(x_i)·η(x_i) ≥ 0` at every node :math:`x_i`,
-
-with ``K`` the (linear, ``κ``-independent) stiffness matrix of either model and ``f`` the
-load vector, both carrying the problem's homogeneous Dirichlet conditions. For P1 it is the
-limit ``κ → 0`` of the penalized problem with ``penalty_quadrature = "vertex"``; for P2 no
-quadrature has exactly these points with positive weights, so the penalized problems
-approach it only as ``h → 0``.
-
-**Bounds.** The rotations of :mod:`~shellobstacle.solvers.nodal` turn each node's
-constraint into a lower bound on one rotated unknown, ``u_b ≥ ψ_b``: with ``K' = QᵀKQ`` and
-``f' = Qᵀf`` the problem is a bound-constrained QP.
+The problem is the bound-constrained quadratic program ``min ½ uᵀK'u − f'ᵀu``, ``u_B ≥ ψ``
+of :mod:`~shellobstacle.solvers.nodal_qp` (the constraint at the Lagrange nodes, rotated
+into bounds). For P1 it is the limit ``κ → 0`` of the penalized problem with
+``penalty_quadrature = "vertex"``; for P2 no quadrature has exactly these points with
+positive weights, so the penalized problems approach it only as ``h → 0``.
 
 **Solver.** Two phases, every step one sparse direct solve (MUMPS) with the
 sparsity of ``K'`` (its symbolic factorization is reused):
@@ -33,12 +22,9 @@ sparsity of ``K'`` (its symbolic factorization is reused):
    hold exactly (up to the round-off of the linear solve). If it does not settle
    within a few steps, phase 1 continues with a larger ``γ``.
 
-**KKT.** At the solution ``(ζ^h, λ)`` (``B`` the constraint matrix: row ``i`` is
-``c(x_i)`` on the unknowns of node ``i``): ``K ζ − f − Bᵀλ = 0``, ``g_i ≥ 0``,
-``λ_i ≥ 0``, ``λ_i g_i = 0``. The multiplier ``λ_i = (K'u − f')_{i,k_i} / |c(x_i)|`` is
-the nodal contact force (``λ ≥ 0`` pushes the shell away from the plane); divided by
-a lumped mass (P1: ``∫ φ_i √a dy``) it is a contact pressure. A penalized solution
-approximates it by ``(ε/κ) m^0_i {g_i}^- / |c(x_i)|`` with ``m^0_i = ∫ φ_i dy``.
+**Multiplier.** ``λ_i = (K'u − f')_{i,k_i} / |c(x_i)|`` on the active set, 0 elsewhere. A
+penalized solution approximates it by ``(ε/κ) m^0_i {g_i}^- / |c(x_i)|`` with
+``m^0_i = ∫ φ_i dy``.
 """
 
 from __future__ import annotations
@@ -47,80 +33,54 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from mpi4py import MPI
+from mpi4py import MPI  # noqa: F401  (MPI before PETSc)
 from petsc4py import PETSc
 
-import dolfinx
-import dolfinx.fem.petsc
 import numpy as np
 
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError, direct_solver, factorize
 from shellobstacle.solvers.line_search import piecewise_linear_root
-from shellobstacle.solvers.nodal import NodalConstraint
+from shellobstacle.solvers.nodal_qp import NodalQP, NodalResult, factor_mb
 from shellobstacle.solvers.options import ActiveSetOptions
 
 __all__ = ["ActiveSetResult", "ActiveSetSolver"]
 
 
 @dataclass
-class ActiveSetResult:
-    """What an active-set solve did, and the KKT quality of its answer.
+class ActiveSetResult(NodalResult):
+    """What an active-set solve did, and the KKT quality of its answer
+    (:class:`~shellobstacle.solvers.nodal_qp.NodalResult`; ``converged`` also requires the
+    KKT measures to pass ``kkt_rtol``, ``iterations`` is ``newton_steps + pdas_steps`` and
+    ``active_nodes`` the size of the final active set).
 
     Attributes:
-        converged: whether the active set settled and the KKT measures pass ``kkt_rtol``.
-        iterations: linear solves in total (``newton_steps + pdas_steps``).
-        active_nodes: global number of nodes in the final active set.
-        reason: why the solver stopped.
-        kkt: ``primal_feasibility = max_i {g_i}^-``, ``dual_feasibility = max_i {λ_i}^-``,
-            ``complementarity = max_i |λ_i g_i|`` (absolute; see ``scales``) and
-            ``stationarity = ‖K ζ − f − Bᵀλ‖ / ‖f‖`` (relative; Euclidean norms of the nodal
-            vectors, evaluated in the original, unrotated unknowns).
-        scales: natural sizes of the KKT quantities: ``gap`` (``max_i θ(x_i)·q``), ``force``
-            (``max_i λ_i``, or ``‖f‖_∞`` without contact) and ``load`` (``‖f‖``).
         newton_steps: semismooth Newton steps of the path following (phase 1).
         pdas_steps: primal–dual active-set steps (phase 2).
         gammas: the ``γ`` of each path-following stage.
         active_history: global size of the active set after each primal–dual step.
-        timings: seconds in ``setup`` (stiffness, rotation, ``QᵀKQ``: once per solver),
-            ``assemble`` (load), ``solve`` (factorizations and solves), ``kkt`` and ``total``.
-        multiplier: ``λ`` (nodal contact forces), a scalar Function on the nodes (the
-            solver's own, refreshed by each :meth:`ActiveSetSolver.solve`: copy it to keep it).
-        contact_pressure: ``λ_i / m_i``, ``m_i`` the lumped masses of
-            :class:`~shellobstacle.solvers.nodal.NodalConstraint` (likewise refreshed).
     """
 
-    converged: bool
-    iterations: int
-    active_nodes: int
-    reason: str
-    kkt: dict[str, float] = field(default_factory=dict)
-    scales: dict[str, float] = field(default_factory=dict)
     newton_steps: int = 0
     pdas_steps: int = 0
     gammas: list[float] = field(default_factory=list)
     active_history: list[int] = field(default_factory=list)
-    timings: dict[str, float] = field(default_factory=dict)
-    multiplier: dolfinx.fem.Function | None = None
-    contact_pressure: dolfinx.fem.Function | None = None
 
-    @property
-    def relative_kkt(self) -> dict[str, float]:
-        """KKT measures over their natural scales (``gap``, ``force``, ``force·gap``, 1)."""
-        gap, force = self.scales.get("gap", 1.0) or 1.0, self.scales.get("force", 1.0) or 1.0
-        return {
-            "primal_feasibility": self.kkt["primal_feasibility"] / gap,
-            "dual_feasibility": self.kkt["dual_feasibility"] / force,
-            "complementarity": self.kkt["complementarity"] / (force * gap),
-            "stationarity": self.kkt["stationarity"],
+    def details(self) -> dict:
+        """The summary's record: KKT measures, phases and the active set's history."""
+        return super().details() | {
+            "newton_steps": self.newton_steps,
+            "pdas_steps": self.pdas_steps,
+            "active_history": self.active_history,
         }
 
 
 class ActiveSetSolver:
     """Exact solver of the discrete obstacle problem (κ = 0) of one :class:`PenalizedProblem`.
 
-    The stiffness matrix, the nodal rotation and ``K' = QᵀKQ`` are built once; each
-    :meth:`solve` re-assembles only the load, so load parameters may change between solves.
+    The stiffness matrix, the nodal rotation and ``K' = QᵀKQ`` are built once
+    (:class:`~shellobstacle.solvers.nodal_qp.NodalQP`); each :meth:`solve` re-assembles only
+    the load, so load parameters may change between solves.
 
     Args:
         problem: a P1 problem with ``penalty_quadrature = "vertex"``, or a P2 problem (its
@@ -133,50 +93,23 @@ class ActiveSetSolver:
     """
 
     def __init__(self, problem: PenalizedProblem, options: ActiveSetOptions | None = None) -> None:
-        disc = problem.disc
-        if not (disc.degree == 2 or (disc.degree == 1 and disc.penalty_quadrature == "vertex")):
-            raise ValueError(
-                "ActiveSetSolver solves the nodal constraint of P1 (vertices, as "
-                "penalty_quadrature='vertex' penalizes) or P2 (vertices and edge midpoints): "
-                f"got degree={disc.degree}, penalty_quadrature={disc.penalty_quadrature!r}"
-            )
         self.problem = problem
         self.options = options or ActiveSetOptions()
         self.timings: dict[str, float] = {"setup": 0.0, "assemble": 0.0, "solve": 0.0, "kkt": 0.0}
         t0 = time.perf_counter()
-        self.comm: MPI.Comm = problem.mesh.comm
-        self.bs = problem.V.dofmap.index_map_bs
-        self.n = problem.V.dofmap.index_map.size_local
-        self.K = problem.stiffness()
-        self.nodal = nodal = NodalConstraint(problem)
-        self.free, self.nodes, self.iB, self.psi = nodal.free, nodal.nodes, nodal.iB, nodal.psi
-        self.gap_scale = self._max(np.abs(nodal.theta_q))
-        self.Q = nodal.Q
-        self.Kr = self.K.ptap(self.Q)  # K' = Qᵀ K Q
+        self.qp = qp = NodalQP(problem, "ActiveSetSolver")
+        self.iB, self.psi, self.d = qp.iB, qp.psi, qp.d
+        self.Kr, self.fr, self.diag = qp.Kr, qp.fr, qp.diag
         self.row0 = self.Kr.getOwnershipRange()[0]
-        self.diag = self.Kr.getDiagonal()
-        self.d = self.diag.array_r[self.iB].copy()  # K'_bb > 0
+        self._sum, self._count, self._differ = qp.sum, qp.count, qp.differ
 
         # work matrix (K' modified per step, same sparsity) and the direct solver
         self.W = self.Kr.duplicate(copy=True)
         self.W.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
         self.ksp = direct_solver(self.W, "lu", "as")
-        self.u, self.fr = self.Kr.createVecs()
-        self.f, self.r, self.du, self.tmp = (self.fr.duplicate() for _ in range(4))
+        self.u = self.fr.duplicate()
+        self.r, self.du, self.tmp = (self.fr.duplicate() for _ in range(3))
         self.timings["setup"] = time.perf_counter() - t0
-
-    # -- global reductions --------------------------------------------------------------------
-    def _max(self, x: np.ndarray) -> float:
-        return float(self.comm.allreduce(float(np.max(x, initial=0.0)), op=MPI.MAX))
-
-    def _sum(self, x: float) -> float:
-        return float(self.comm.allreduce(float(x), op=MPI.SUM))
-
-    def _count(self, mask: np.ndarray) -> int:
-        return int(self.comm.allreduce(int(np.count_nonzero(mask)), op=MPI.SUM))
-
-    def _differ(self, a: np.ndarray, b: np.ndarray) -> bool:
-        return bool(self.comm.allreduce(bool(np.any(a != b)), op=MPI.LOR))
 
     # -- linear algebra -----------------------------------------------------------------------
     def _linear_solve(self, rhs: PETSc.Vec, x: PETSc.Vec, changed: bool = True) -> None:
@@ -298,9 +231,7 @@ class ActiveSetSolver:
 
     def _prediction(self) -> np.ndarray:
         """Active set predicted at the current ``u``: ``λ_b + d_b (ψ_b − u_b) > 0``."""
-        self.Kr.mult(self.u, self.r)
-        self.r.axpy(-1.0, self.fr)
-        return self.r.array_r[self.iB] + self.d * (self.psi - self.u.array_r[self.iB]) > 0
+        return self.qp.predicted_active(self.u, self.qp.bound_forces(self.u))
 
     # -- solve --------------------------------------------------------------------------------
     def solve(self) -> ActiveSetResult:
@@ -314,27 +245,13 @@ class ActiveSetSolver:
                 measures miss ``kkt_rtol``; ``problem.zeta`` then holds the last iterate and
                 ``err.result`` the :class:`ActiveSetResult`.
         """
-        opts, problem = self.options, self.problem
+        opts = self.options
         t_start = time.perf_counter()
         self.timings = {"setup": self.timings["setup"], "assemble": 0.0, "solve": 0.0, "kkt": 0.0}
-        n3 = self.n * self.bs
-
         ta = time.perf_counter()
-        b = problem.load_vector()
-        self.f.array[:] = b.array_r[:n3]
-        b.destroy()
-        self.Q.multTranspose(self.f, self.fr)
+        self.qp.assemble_load()
         self.timings["assemble"] += time.perf_counter() - ta
-
-        zeta = problem.zeta
-        warm = False
-        if opts.warm_start:
-            dolfinx.fem.petsc.set_bc(zeta.x.petsc_vec, problem.bcs)
-            zeta.x.scatter_forward()
-            self.Q.multTranspose(zeta.x.petsc_vec, self.u)
-            warm = self.u.norm(PETSc.NormType.NORM_INFINITY) > 0
-        else:
-            self.u.set(0.0)
+        warm = self.qp.start(self.u, opts.warm_start)
 
         newton_steps = pdas_steps = 0
         gammas: list[float] = []
@@ -384,62 +301,22 @@ class ActiveSetSolver:
             converged, reason = False, str(err)
         u_reg.destroy()
 
-        self.Q.mult(self.u, zeta.x.petsc_vec)  # ζ = Q u
-        zeta.x.scatter_forward()
         tk = time.perf_counter()
         result = self._kkt()
         self.timings["kkt"] += time.perf_counter() - tk
         result.iterations = newton_steps + pdas_steps
         result.newton_steps, result.pdas_steps = newton_steps, pdas_steps
         result.gammas, result.active_history = gammas, history
-        if converged:
-            worst = max(result.relative_kkt.values())
-            if not worst <= opts.kkt_rtol:
-                converged = False
-                reason = f"KKT conditions hold only to {worst:.2e} > kkt_rtol = {opts.kkt_rtol:.1e}"
         result.converged, result.reason = converged, reason or "stopped"
         result.timings = dict(self.timings) | {"total": time.perf_counter() - t_start}
-        if not converged:
-            raise ConvergenceError(
-                f"the active-set solver did not converge: {result.reason} "
-                f"({result.iterations} linear solves)",
-                result,
-            )
+        result.conclude(opts.kkt_rtol, "the active-set solver", "linear solves")
         return result
 
     def _kkt(self) -> ActiveSetResult:
         """Multiplier, active set and KKT measures of the current ``u`` (``ζ = Qu`` in place)."""
-        n, nodes = self.n, self.nodes
-        uB = self.u.array_r[self.iB]
-        self.Kr.mult(self.u, self.r)
-        self.r.axpy(-1.0, self.fr)
-        on_bound = uB <= self.psi  # PDAS puts the active unknowns exactly on the bound
-        lam = np.zeros(n)
-        lam[nodes[on_bound]] = self.r.array_r[self.iB[on_bound]] / self.nodal.cn[nodes[on_bound]]
-
-        # gap and stationarity in the original unknowns: g = θ·q + c·ζ, K ζ − f − Bᵀλ
-        g = self.nodal.gap(self.problem.zeta.x.array)
-        self.K.mult(self.problem.zeta.x.petsc_vec, self.tmp)
-        self.tmp.axpy(-1.0, self.f)
-        self.tmp.array[:] -= self.nodal.constraint_force(lam)
-        load = self.f.norm()
-        stationarity = self.tmp.norm() / (load if load > 0 else 1.0)
-        force = self._max(np.abs(lam)) or self.f.norm(PETSc.NormType.NORM_INFINITY)
-        kkt = {
-            "primal_feasibility": self._max(np.maximum(-g, 0.0)),
-            "dual_feasibility": self._max(np.maximum(-lam, 0.0)),
-            "complementarity": self._max(np.abs(lam * g)),
-            "stationarity": stationarity,
-        }
-        scales = {"gap": self.gap_scale, "force": force, "load": load}
-        self.nodal.set_multiplier(lam)
+        on_bound = self.u.array_r[self.iB] <= self.psi  # PDAS puts the active unknowns on it
+        lam_B = np.where(on_bound, self.qp.bound_forces(self.u), 0.0)
+        fields = self.qp.evaluate(self.u, lam_B, on_bound & (lam_B > 0))
         return ActiveSetResult(
-            converged=False,
-            iterations=0,
-            active_nodes=self._count(on_bound & (lam[nodes] > 0)),
-            reason="",
-            kkt=kkt,
-            scales=scales,
-            multiplier=self.nodal.multiplier,
-            contact_pressure=self.nodal.contact_pressure,
+            converged=False, iterations=0, reason="", factor_mb=factor_mb(self.ksp), **fields
         )

@@ -20,6 +20,7 @@ from petsc4py import PETSc
 import numpy as np
 
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import phase
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.newton import NewtonResult, NewtonSolver
 
@@ -114,14 +115,15 @@ def continuation(
     steps: list[KappaStep] = []
     for k, kappa in enumerate(kappas):
         t0 = time.perf_counter()
-        if predictor and k > 0:
-            predict(solver, kappa)
-        problem.set_kappa(kappa)
-        try:
-            result = solver.solve(newton_progress)
-        except ConvergenceError as err:
-            err.steps = steps  # type: ignore[attr-defined]
-            raise
+        with phase(f"κ {k + 1}/{len(kappas)} = {kappa:.2e}"):
+            if predictor and k > 0:
+                predict(solver, kappa)
+            problem.set_kappa(kappa)
+            try:
+                result = solver.solve(newton_progress)
+            except ConvergenceError as err:
+                err.steps = steps  # type: ignore[attr-defined]
+                raise
         if hasattr(newton_progress, "finished"):
             newton_progress.finished(result)
         steps.append(KappaStep(kappa, result, time.perf_counter() - t0))

@@ -35,6 +35,7 @@ import dolfinx.fem.petsc
 import numpy as np
 
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.progress import note
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.linear import LinearSolveError, LinearStrategy, make_strategy
 from shellobstacle.solvers.options import NewtonOptions
@@ -308,6 +309,7 @@ class NewtonSolver:
             result.zone_steps += 1
         rnorm = model.residual_norm()
         result.residual_norms.append(rnorm)
+        note(f"Newton step {result.iterations}, relative residual {rnorm / scale:.1e}")
         if progress is not None:
             progress(result.iterations, rnorm / scale)
         return Outcome.SMALL if small else Outcome.STEPPED

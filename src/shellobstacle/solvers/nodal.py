@@ -145,6 +145,12 @@ class NodalConstraint:
         else:
             self.mass = lumped_mass_p2(S, problem.G.sqrt_a)
 
+    def node_masses(self) -> np.ndarray:
+        """The lumped mass ``m_i`` of every owned node (:meth:`set_multiplier`'s divisor)."""
+        m = np.zeros(self.n)
+        m[self._node_of[: self._n1]] = self.mass[: self._n1]
+        return m
+
     def gap(self, zeta: np.ndarray) -> np.ndarray:
         """``g_i = θ(x_i)·q + c(x_i)·ζ(x_i)`` at the owned nodes (``zeta``: local dofs)."""
         eta = zeta[: self.n * self.bs].reshape(self.n, self.bs)

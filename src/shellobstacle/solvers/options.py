@@ -1,4 +1,5 @@
-"""Options of the solvers: Newton's method, the exact active-set solver, Brezis–Sibony.
+"""Options of the solvers: Newton's method, the exact active-set solver, Brezis–Sibony, and
+the peers on the nodal problem (PETSc's VI Newton, proximal Galerkin).
 
 Plain data with their validation, importable without DOLFINx or PETSc (the configuration
 builds them).
@@ -6,6 +7,7 @@ builds them).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 from shellobstacle.messages import not_one_of
@@ -15,12 +17,17 @@ __all__ = [
     "ActiveSetOptions",
     "BrezisSibonyOptions",
     "NewtonOptions",
+    "ProximalGalerkinOptions",
+    "SnesVIOptions",
 ]
 
 LINEAR_SOLVERS = ("direct", "iterative")
 FACTORIZATIONS = ("cholesky", "lu")
 MASSES = ("consistent", "lumped")
 STARTS = ("zero", "linearized", "current")
+VI_TYPES = ("rsls", "ssls")
+VI_LINE_SEARCHES = ("bt", "basic", "l2")
+LINEAR_SYSTEMS = ("condensed", "mixed")
 
 
 @dataclass(frozen=True)
@@ -175,3 +182,158 @@ class BrezisSibonyOptions:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if self.max_iterations < 0:
             raise ValueError(f"max_iterations must be >= 0, got {self.max_iterations}")
+
+
+@dataclass(frozen=True)
+class SnesVIOptions:
+    """PETSc's VI Newton on the nodal problem
+    (:class:`~shellobstacle.solvers.snes_vi.SnesVISolver`).
+
+    Attributes:
+        vi_type: ``"rsls"`` (reduced space: Newton on the unknowns off their bounds,
+            ``SNESVINEWTONRSLS``) or ``"ssls"`` (semismooth Newton on the Fischer–Burmeister
+            reformulation, ``SNESVINEWTONSSLS``).
+        line_search: PETSc's line search (``SNESLineSearchType``): ``"l2"`` (a secant
+            method on ``‖F‖²``), ``"bt"`` (backtracking on ``‖F‖``, PETSc's default for both;
+            on ``examples/cylinder_koiter.toml`` rsls with it stops with
+            ``DIVERGED_LINE_SEARCH`` or at 100 steps, and on the paper's problem it takes about
+            three times l2's steps) or ``"basic"`` (full steps: rsls cycles between active
+            sets on the paper's problem).
+        rtol, atol, stol: PETSc's tolerances on the VI residual (relative to the first,
+            absolute) and on the relative step length.
+        max_iterations: PETSc's iteration cap.
+        factorization: of the linear solves (MUMPS): ``"cholesky"`` (``LDLᵀ``; ``rsls``'s
+            reduced matrices are principal submatrices of ``K'``, symmetric) or ``"lu"``;
+            ``ssls``'s matrices are not symmetric and are always factorized by LU.
+        kkt_rtol: a solve whose relative KKT measures exceed this is reported as not
+            converged, whatever PETSc says.
+        warm_start: start from the current ``problem.zeta`` (projected onto the bounds by
+            PETSc) instead of from zero.
+        scaling: solve for ``v = D^{1/2} u`` (``D = diag K'``), so that ``F`` and the
+            distance to a bound have the same units (Fischer–Burmeister compares them);
+            ``False``: the rotated unknowns as they are.
+    """
+
+    vi_type: str = "rsls"
+    line_search: str = "l2"
+    rtol: float = 1e-10
+    atol: float = 1e-50
+    stol: float = 1e-12
+    max_iterations: int = 100
+    factorization: str = "cholesky"
+    kkt_rtol: float = 1e-6
+    warm_start: bool = True
+    scaling: bool = True
+
+    def __post_init__(self) -> None:
+        if self.vi_type not in VI_TYPES:
+            raise ValueError(not_one_of("solver.vi_type", self.vi_type, VI_TYPES))
+        if self.line_search not in VI_LINE_SEARCHES:
+            raise ValueError(
+                not_one_of("solver.vi_line_search", self.line_search, VI_LINE_SEARCHES)
+            )
+        if self.factorization not in FACTORIZATIONS:
+            raise ValueError(not_one_of("solver.factorization", self.factorization, FACTORIZATIONS))
+        if self.max_iterations < 1:
+            raise ValueError(f"solver.max_iterations must be >= 1, got {self.max_iterations}")
+        for name in ("rtol", "atol", "stol"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"solver.{name} must be >= 0, got {getattr(self, name)}")
+        if not self.kkt_rtol > 0:
+            raise ValueError(f"kkt_rtol must be > 0, got {self.kkt_rtol}")
+
+
+@dataclass(frozen=True)
+class ProximalGalerkinOptions:
+    """The latent-variable proximal point method on the nodal problem
+    (:class:`~shellobstacle.solvers.proximal_galerkin.ProximalGalerkinSolver`).
+
+    The proximal parameter is ``α_k = α̂_k / P`` with ``P`` the largest nodal load pressure
+    (``|f_i| / m_i``), so that ``α̂`` is dimensionless (a node pressed by the full load
+    moves its latent variable by ``α̂`` per step). ``α̂_k`` follows the authors'
+    double-exponential rule ``α̂_k = max(C r^{q^k} − α̂_{k−1}, C)``, capped at ``alpha_max``.
+    A step whose Newton iteration fails (``max_newton_iterations`` reached, or a non-finite
+    residual) is taken again from its start with ``α̂`` ten times smaller, and from then on
+    ``α̂`` grows by at most ``regrowth`` per step. Newton fails where a node leaves contact
+    after a step with a large ``α̂`` (its latent variable, driven far below zero, must rise,
+    and Newton's linearization of ``e^φ`` from below overshoots) or where ``α̂`` times the
+    contact pressure over ``P`` is large; a bounded ``α̂`` would leave the proximal point
+    iteration sublinear. On ``examples/cylinder_koiter.toml`` (bending concentrates the contact
+    force at the rim of the contact zone) the authors' rule alone fails from 8k dofs, a
+    regrowth of 10 fails six times at 8k, 2 converges at 4k, 8k and 15k dofs.
+
+    Attributes:
+        tol: stop when ``‖u_k − u_{k−1}‖ ≤ tol ‖u_k‖`` (Euclidean norms of the nodal vectors).
+        alpha_initial: ``C``.
+        alpha_base, alpha_exponent: ``r`` and ``q``.
+        alpha_max: the cap of ``α̂``.
+        max_iterations: proximal steps before giving up.
+        newton_rtol: each step's Newton iteration stops when both parts of its residual are
+            this small relative to their scales (``α ‖f'‖`` and ``‖m ψ‖``).
+        max_newton_iterations: Newton steps allowed per proximal step.
+        max_rejections: failed steps (each reducing ``α̂``) before giving up.
+        regrowth: the largest factor of ``α̂`` from one step to the next after a failure.
+        linear_system: ``"condensed"`` (the nodal latent variable eliminated from each Newton
+            step: a symmetric positive definite matrix with ``K'``'s sparsity) or
+            ``"mixed"`` (the symmetric indefinite matrix in ``(u, φ)``, as the authors'
+            examples solve it); the same Newton iterates up to round-off.
+        factorization: of the Newton matrix by MUMPS: ``"cholesky"`` (``LDLᵀ``; with
+            pivoting for the mixed matrix) or ``"lu"``.
+        kkt_rtol: a solve whose relative KKT measures exceed this is reported as not
+            converged.
+        warm_start: start from the current ``problem.zeta`` instead of from zero.
+    """
+
+    tol: float = 1e-9
+    alpha_initial: float = 1.0
+    alpha_base: float = 1.5
+    alpha_exponent: float = 1.5
+    alpha_max: float = 1e5
+    max_iterations: int = 100
+    newton_rtol: float = 1e-10
+    max_newton_iterations: int = 50
+    max_rejections: int = 5
+    regrowth: float = 2.0
+    linear_system: str = "condensed"
+    factorization: str = "cholesky"
+    kkt_rtol: float = 1e-6
+    warm_start: bool = True
+
+    def __post_init__(self) -> None:
+        if not self.tol > 0:
+            raise ValueError(
+                f"solver.proximal_tol must be > 0, got {self.tol}: the relative increment "
+                "at which the proximal iteration stops, e.g. 1e-9"
+            )
+        if not 0 < self.alpha_initial <= self.alpha_max:
+            raise ValueError(
+                f"need 0 < alpha_initial <= solver.proximal_alpha_max, got "
+                f"{self.alpha_initial}, {self.alpha_max}"
+            )
+        if not (self.alpha_base > 1 and self.alpha_exponent >= 1):
+            raise ValueError("alpha_base must be > 1 and alpha_exponent >= 1")
+        if self.max_iterations < 1 or self.max_newton_iterations < 1:
+            raise ValueError("max_iterations and max_newton_iterations must be >= 1")
+        if self.max_rejections < 0:
+            raise ValueError(f"max_rejections must be >= 0, got {self.max_rejections}")
+        if not self.regrowth > 1:
+            raise ValueError(f"regrowth must be > 1, got {self.regrowth}")
+        if not self.newton_rtol > 0 or not self.kkt_rtol > 0:
+            raise ValueError("newton_rtol and kkt_rtol must be > 0")
+        if self.factorization not in FACTORIZATIONS:
+            raise ValueError(not_one_of("solver.factorization", self.factorization, FACTORIZATIONS))
+        if self.linear_system not in LINEAR_SYSTEMS:
+            raise ValueError(not_one_of("linear_system", self.linear_system, LINEAR_SYSTEMS))
+
+    def alphas(self) -> list[float]:
+        """``α̂_0, α̂_1, …`` for ``max_iterations`` steps."""
+        out: list[float] = []
+        previous = self.alpha_initial  # the previous α̂ before the cap
+        log_r = math.log(self.alpha_base)
+        for k in range(self.max_iterations):
+            exponent = k * math.log(self.alpha_exponent) + math.log(log_r)  # log(q^k log r)
+            if exponent < math.log(700.0):  # beyond, C r^{q^k} overflows: α̂ stays
+                grown = self.alpha_initial * math.exp(math.exp(exponent))
+                previous = max(grown - previous, self.alpha_initial)
+            out.append(min(previous, self.alpha_max))
+        return out

@@ -65,6 +65,7 @@ class ZoneProblem:
         self.component = cond.Z % cond.K.getBlockSize()  # ζ_j of each zone dof
         self.S_now = cond.S.duplicate(copy=False)  # the current Jacobian when S's are reused
         self.ksp_cg: PETSc.KSP | None = None  # CG on the zone, preconditioned by S's factors
+        self._row_sums: np.ndarray | None = None  # Σ_j |K_S,ij|, made at the first rounding()
 
     def destroy(self) -> None:
         for obj in (self.MP, self.wP, self.S_now, self.ksp_cg):
@@ -108,6 +109,15 @@ class ZoneProblem:
         total = gap_scale(self.MP, self.DP, self.g0P, z.array_r.copy(), self.component, x, self.wP)
         x.destroy()
         return total
+
+    def rounding(self, z: PETSc.Vec) -> float:
+        """``u ‖|K_S| |z|‖``, the rounding of ``K_S z`` in :meth:`residual`, estimated by
+        ``(Σ_j |K_S,ij|) |z_i|`` as :meth:`PenalizedSystem.elastic_rounding` does."""
+        if self._row_sums is None:
+            rows, _, values = self.cond.Ks.getValuesCSR()
+            row_of = np.repeat(np.arange(rows.size - 1), np.diff(rows))
+            self._row_sums = np.bincount(row_of, weights=np.abs(values), minlength=rows.size - 1)
+        return float(np.finfo(PETSc.ScalarType).eps * np.linalg.norm(self._row_sums * z.array_r))
 
     def _jacobian(self, S: PETSc.Mat, g: np.ndarray, kappa: float) -> None:
         """``S ← K_S + (1/κ) M_Aᵀ diag(1/D_A) M_A`` (``A``: zone points with g < 0)."""
@@ -204,16 +214,21 @@ class ZoneModel:
         return self.r.norm()
 
     def floor(self, load_norm: float) -> float:
-        """:meth:`PenalizedSystem.floor` for the zone's problem: its active points, and the
-        rounding of ``Kζ`` at the last whole iterate (the condensed residual is made of the
-        same products)."""
+        """:meth:`PenalizedSystem.floor` for the zone's problem: its active points, the
+        rounding of ``K_S ζ_Z`` at the current iterate (:meth:`ZoneProblem.rounding`) and
+        that of ``Kζ`` at the last whole iterate (``f̃`` and ``K_S`` are made of its
+        products). The first term matters from ``ζ = 0``, where the second vanishes."""
         scale = self.problem.gap_scale(self.z)
         S = self.z.duplicate()
         S.set(0.0)
         self.problem.add_penalty(np.where(self.g < 0, scale, 0.0), self.kappa, S)
         norm = S.norm()
         S.destroy()
-        return floor_of(self.system.floor_factor, load_norm, norm) + self.system.elastic_rounding()
+        return (
+            floor_of(self.system.floor_factor, load_norm, norm)
+            + self.problem.rounding(self.z)
+            + self.system.elastic_rounding()
+        )
 
     def direction(self, floor: float) -> int:
         """``d ← S⁻¹(−∇j)``; the first step of a seeded solve goes to the minimizer of the

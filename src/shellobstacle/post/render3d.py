@@ -1,0 +1,185 @@
+"""Draw the deformed shell over the obstacle plane in 3D with PyVista, off screen.
+
+This module runs in a process of its own (``python render3d.py SURFACE.npz VIEWS.npz``, started
+by :func:`shellobstacle.post.pictures.write_picture`, which lays the views out with their
+colour bar and legend): it imports only NumPy and PyVista, not MPI, DOLFINx or the rest of the
+package. An OpenGL context that cannot be created (no X display, no EGL, no OSMesa) makes VTK
+end its process with a segmentation fault instead of an exception, and a process of its own
+keeps the solve that called it alive.
+
+The views show the deformed middle surface ``θ + ζ_i a^i`` coloured by the gap
+``g(ζ) = (θ + ζ_i a^i)·q`` (MODEL.md §4), the plane ``x·q = 0`` as a translucent grey square
+(the penalized solution's slight penetration, ``g < 0``, shows through it) and the boundary of
+the contact zone as a red tube: of the cells whose vertices all touch (``g ≤ 0``), the flat
+part of the shell on the plane, which the steep wall around it does not hide from above.
+
+Exit status: 0 written, 3 PyVista (or VTK) cannot be imported, anything else a failure
+(message on stderr).
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+__all__ = ["EXIT_NO_PYVISTA", "main", "plane_frame", "render"]
+
+EXIT_NO_PYVISTA = 3
+#: the size in pixels of each 3D view, and the camera's elevations above the plane (degrees)
+WINDOW = (1000, 800)
+ELEVATIONS = (35.0, 90.0)
+CMAP = "viridis"
+PLANE = "#b0b0b0"
+CONTACT = "#e31a1c"
+
+
+def plane_frame(q: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An orthonormal frame ``(t1, t2, q)`` of space with ``t1``, ``t2`` in the plane ``x·q = 0``.
+
+    ``t1`` is the direction of the plane closest to ``x_1`` (to ``x_2`` if ``q`` is along
+    ``x_1``), so that for ``q = (0, 0, 1)`` the frame is the Cartesian one.
+    """
+    n = np.asarray(q, dtype=float)
+    n = n / np.linalg.norm(n)
+    axis = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t1 = axis - (axis @ n) * n
+    t1 /= np.linalg.norm(t1)
+    return t1, np.cross(n, t1), n
+
+
+def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
+    """One off-screen view of the plane, the deformed shell (its cells with a vertex in
+    ``patch``, a boolean mask of the vertices) and the contact zone's boundary, with the
+    camera ``elevation`` degrees above the plane; an RGB image."""
+    import pyvista as pv
+
+    t1, t2, q = frame
+    points = np.asarray(data["points"], dtype=float)
+    triangles = np.asarray(data["triangles"], dtype=np.int64)
+    triangles = triangles[patch[triangles].any(axis=1)]
+    contact = np.asarray(data["contact"], dtype=float)
+    faces = np.hstack([np.full((len(triangles), 1), 3), triangles]).ravel()
+    shell = pv.PolyData(points, faces)
+    shell.point_data["gap"] = np.asarray(data["gap"], dtype=float)
+    shell.point_data["contact"] = contact
+    shell = shell.clean()  # drop the vertices of no cell
+
+    along = np.column_stack([shell.points @ t1, shell.points @ t2])
+    lo, hi = along.min(axis=0), along.max(axis=0)
+    width = float(max(hi - lo))
+    mid = (lo + hi) / 2
+    plane = pv.Plane(
+        center=mid[0] * t1 + mid[1] * t2, direction=q, i_size=1.5 * width, j_size=1.5 * width
+    )
+    pl = pv.Plotter(off_screen=True, window_size=list(window))
+    pl.set_background("white")
+    # translucent: the shell's penetration of the plane (the penalty's g < 0) stays visible
+    pl.add_mesh(plane, color=PLANE, opacity=0.55)
+    pl.add_mesh(
+        shell, scalars="gap", cmap=CMAP, clim=clim, smooth_shading=True, show_scalar_bar=False
+    )
+    touching = contact[triangles] > 0.5
+    if touching.any():
+        radius = 0.008 * width
+        zone = pv.PolyData(points, np.hstack([np.full((len(triangles), 1), 3), triangles]))
+        zone = zone.extract_cells(np.flatnonzero(touching.all(axis=1)))
+        outline = zone.extract_feature_edges(
+            boundary_edges=True, feature_edges=False, manifold_edges=False,
+            non_manifold_edges=False,
+        )  # fmt: skip
+        if outline.n_points:
+            # onto the plane, lifted by its radius to lie on it, not in it
+            outline.points += np.outer(radius - outline.points @ q, q)
+            pl.add_mesh(outline.tube(radius=radius), color=CONTACT)
+        else:  # no cell touches with all its vertices: mark the contact vertices
+            spots = points[np.unique(triangles[touching])]
+            spots += np.outer(radius - spots @ q, q)
+            pl.add_mesh(pv.PolyData(spots), color=CONTACT, point_size=14,
+                        render_points_as_spheres=True)  # fmt: skip
+    el, az = np.radians(elevation), np.radians(-60.0)
+    direction = np.cos(el) * (np.cos(az) * t1 + np.sin(az) * t2) + np.sin(el) * q
+    focus = shell.points.mean(axis=0)
+    pl.camera.focal_point = tuple(focus)
+    pl.camera.position = tuple(focus + 4.0 * width * direction)
+    pl.camera.up = tuple(q if elevation < 80.0 else t2)  # from above: x1 to the right
+    pl.reset_camera()
+    image = pl.screenshot(None, return_img=True)
+    pl.close()
+    return _crop(image)
+
+
+def _crop(image: np.ndarray, pad: int = 8) -> np.ndarray:
+    """``image`` without its white margins (``pad`` pixels of them kept)."""
+    drawn = np.argwhere((image[..., :3] < 250).any(axis=-1))
+    if not len(drawn):
+        return image
+    (r0, c0), (r1, c1) = drawn.min(axis=0), drawn.max(axis=0)
+    return image[max(r0 - pad, 0) : r1 + pad + 1, max(c0 - pad, 0) : c1 + pad + 1]
+
+
+def render(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The two views of the module docstring as RGB images.
+
+    The whole shell from 35° above the plane, and the part of the shell around the contact
+    zone from straight above (the zone lies at the bottom of a dimple, hidden from low views);
+    with no contact, around the lowest vertex instead.
+
+    Args:
+        data: ``points`` (deformed nodes ``θ + U``, shape ``(n, 3)``), ``triangles``
+            (``(m, 3)`` node indices), ``gap`` and ``contact`` (``(n,)``, the indicator 1 on
+            contact nodes) and ``q`` (the plane's unit normal).
+
+    Returns:
+        ``whole`` and ``close`` (images, ``(rows, columns, 3)`` bytes), ``clim`` (the range of
+        the colour scale: ``min(g, 0)``, ``max g``), ``reach`` (the close view shows the
+        shell within this distance of the zone's centre along the plane), ``contact``
+        (whether a vertex touches) and ``outlined`` (whether a cell touches with all its
+        vertices: the zone is outlined; else its vertices are marked).
+    """
+    frame = plane_frame(data["q"])
+    t1, t2, _ = frame
+    points = np.asarray(data["points"], dtype=float)
+    gap = np.asarray(data["gap"], dtype=float)
+    contact = np.asarray(data["contact"], dtype=float) > 0.5
+    clim = (float(min(gap.min(), 0.0)), float(max(gap.max(), 1e-300)))
+    along = np.column_stack([points @ t1, points @ t2])
+    extent = float(max(along.max(axis=0) - along.min(axis=0)))
+    whole = _view(data, frame, np.ones(len(points), bool), ELEVATIONS[0], clim, WINDOW)
+    near = along[contact] if contact.any() else along[[int(np.argmin(gap))]]
+    center = near.mean(axis=0)
+    reach = max(2.5 * float(np.linalg.norm(near - center, axis=1).max()), 0.12 * extent)
+    patch = np.linalg.norm(along - center, axis=1) <= reach
+    close = _view(data, frame, patch, ELEVATIONS[1], clim, WINDOW)
+    return {
+        "whole": whole,
+        "close": close,
+        "clim": np.array(clim),
+        "reach": np.array(reach),
+        "contact": np.array(contact.any()),
+        "outlined": np.array(contact[np.asarray(data["triangles"])].all(axis=1).any()),
+    }
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``render3d.py SURFACE.npz VIEWS.npz``: :func:`render` in its own process."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    if len(args) != 2:
+        print("usage: render3d.py SURFACE.npz VIEWS.npz", file=sys.stderr)
+        return 2
+    try:
+        import pyvista  # noqa: F401
+    except ImportError as err:
+        print(f"PyVista cannot be imported: {err}", file=sys.stderr)
+        return EXIT_NO_PYVISTA
+    with np.load(args[0]) as npz:
+        data = {k: npz[k] for k in npz.files}
+    views = render(data)
+    with open(args[1], "wb") as f:
+        np.savez(f, **views)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
