@@ -194,10 +194,7 @@ class PenalizedSystem:
         ``(Σ_j |K_ij|) |ζ_i|``: ``ζ`` varies little between neighbouring dofs (within 0.1 %
         for Koiter on the paper's problem)."""
         if self._row_sums is None:
-            rows, _, values = self.K.getValuesCSR()  # the owned rows, once per system
-            n = rows.size - 1
-            row_of = np.repeat(np.arange(n), np.diff(rows))
-            self._row_sums = np.bincount(row_of, weights=np.abs(values), minlength=n)
+            self._row_sums = abs_row_sums(self.K)  # the owned rows, once per system
         local = self._row_sums * np.abs(self.zeta.array_r)
         total = self.comm.allreduce(float(local @ local))
         return float(np.finfo(PETSc.ScalarType).eps) * math.sqrt(total)
@@ -247,6 +244,13 @@ class PenalizedSystem:
             self.residual()
         else:
             self._residual_after_step(t)
+
+
+def abs_row_sums(A: PETSc.Mat) -> np.ndarray:
+    """``Σ_j |A_ij|`` for the rows of ``A`` this rank owns (for ``u ‖|A| |x|‖`` estimates)."""
+    rows, _, values = A.getValuesCSR()
+    n = rows.size - 1
+    return np.bincount(np.repeat(np.arange(n), np.diff(rows)), weights=np.abs(values), minlength=n)
 
 
 def floor_of(factor: float, load_norm: float, penalty_norm: float) -> float:

@@ -28,7 +28,7 @@ import numpy as np
 from shellobstacle.penalty import QuadraturePenalty, gap_scale, penalty_hessian
 from shellobstacle.solvers.base import unique_prefix
 from shellobstacle.solvers.line_search import exact_step
-from shellobstacle.solvers.system import PenalizedSystem, floor_of
+from shellobstacle.solvers.system import PenalizedSystem, abs_row_sums, floor_of
 from shellobstacle.solvers.zone.condensation import Condensation
 
 __all__ = ["ZoneModel", "ZoneProblem"]
@@ -114,9 +114,7 @@ class ZoneProblem:
         """``u ‖|K_S| |z|‖``, the rounding of ``K_S z`` in :meth:`residual`, estimated by
         ``(Σ_j |K_S,ij|) |z_i|`` as :meth:`PenalizedSystem.elastic_rounding` does."""
         if self._row_sums is None:
-            rows, _, values = self.cond.Ks.getValuesCSR()
-            row_of = np.repeat(np.arange(rows.size - 1), np.diff(rows))
-            self._row_sums = np.bincount(row_of, weights=np.abs(values), minlength=rows.size - 1)
+            self._row_sums = abs_row_sums(self.cond.Ks)
         return float(np.finfo(PETSc.ScalarType).eps * np.linalg.norm(self._row_sums * z.array_r))
 
     def _jacobian(self, S: PETSc.Mat, g: np.ndarray, kappa: float) -> None:
