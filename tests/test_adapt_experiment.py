@@ -41,8 +41,9 @@ def test_experiment_adaptive_writes_its_results(tmp_path, method: str) -> None:
         assert 3.0 < float(row["efficiency"]) < 7.0, row
     report = (out / "report.md").read_text()
     assert "## Adaptive refinement" in report and "### uniform: slope" in report
-    for png in ("adaptive.png", "adaptive_mesh.png"):
+    for png in ("adaptive.png", "adaptive_mesh.png", "adaptive_shell_3d.png"):
         assert (out / png).stat().st_size > 20_000
+    assert "(adaptive_shell_3d.png)" in report
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")

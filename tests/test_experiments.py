@@ -106,7 +106,11 @@ def test_experiment_penalty_cli(tmp_path: Path) -> None:
     assert csv[0] == "iteration,q_n,q_m,error_VM,error_H1,reference"
     assert len(csv) >= 3
     assert next(out.glob("batch1_h*.png")).stat().st_size > 10_000
-    assert "Batch 1" in (out / "report.md").read_text()
+    report = (out / "report.md").read_text()
+    assert "Batch 1" in report
+    # the last κ's solution in 3D, referenced in the report
+    assert (out / "batch1_shell_3d.png").stat().st_size > 20_000
+    assert "(batch1_shell_3d.png)" in report
 
 
 @pytest.mark.mpi

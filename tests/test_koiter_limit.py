@@ -118,6 +118,9 @@ def test_koiter_tends_to_the_membrane_on_the_papers_problem(koiter_limit_run: Pa
     assert "## Koiter's model and the membrane limit" in report
     for name in ("koiter_limit.png", "koiter_limit_layer.png", "config.toml", "log.txt"):
         assert (koiter_limit_run / name).is_file(), name
+    # Koiter's solution at the config's ε = 1e-3 in 3D (gathered from every rank)
+    assert (koiter_limit_run / "koiter_limit_shell_3d.png").stat().st_size > 20_000
+    assert "(koiter_limit_shell_3d.png)" in report
 
 
 @pytest.mark.parametrize(

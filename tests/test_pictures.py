@@ -309,6 +309,36 @@ def test_experiment_load_draws_the_largest_load_and_a_resumed_run_keeps_it(
     assert "batch3_shell_3d.png" not in (out / "report.md").read_text()
 
 
+@pytest.mark.parametrize(
+    ("experiment", "options", "png"),
+    [
+        ("mesh", ["--q", "1", "--refinements", "1"], "batch2_shell_3d.png"),
+        ("solvers", ["--sizes", "0.1,0.07", "--exponent", "1"], "solvers_shell_3d.png"),
+    ],
+)
+def test_experiments_draw_their_finest_solution(
+    tmp_path: Path, fresh: None, experiment: str, options: list[str], png: str
+) -> None:
+    """``experiment mesh`` and ``experiment solvers`` draw their finest mesh's solution, with
+    its contact zone, and reference it in report.md; a resumed run whose steps are all
+    recorded keeps that drawing."""
+    if COMM.size > 1:
+        pytest.skip("the command line runs serially here")
+    from shellobstacle.cli import main
+
+    paper = Path(__file__).parents[1] / "examples" / "paper.toml"
+    out = tmp_path / experiment
+    args = ["experiment", experiment, str(paper), *options, "-o", str(out), "-q"]
+    args += ["--set", "domain.h=0.07"]
+    assert main(args) == 0
+    assert f"]({png})" in (out / "report.md").read_text()
+    assert _red(matplotlib.image.imread(out / png)).sum() > 20
+    drawn = (out / png).stat().st_mtime_ns
+    assert main([*args, "--resume"]) == 0
+    assert (out / png).stat().st_mtime_ns == drawn
+    assert f"]({png})" in (out / "report.md").read_text()
+
+
 def test_the_doctor_names_what_draws_the_pictures(monkeypatch: pytest.MonkeyPatch) -> None:
     import importlib.metadata
 

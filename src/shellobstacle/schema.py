@@ -197,8 +197,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "pictures": Key(
             "bool",
             True,
-            "draw the 3D picture shell_3d.png when figures are written (PyVista, the extra "
-            "shellobstacle[pictures]; skipped with one warning without it)",
+            "draw the 3D pictures: shell_3d.png of a solve (when figures are written), "
+            "*_shell_3d.png of an experiment (PyVista, the extra shellobstacle[pictures]; "
+            "skipped with one warning without it)",
         ),
     },
 }

@@ -32,6 +32,7 @@ from shellobstacle.config import Config
 from shellobstacle.domains import DomainSpec
 from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
+from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.pipeline import make_mesh
 from shellobstacle.post.nonmatching import SampledNorms
@@ -275,7 +276,11 @@ def run_adaptive(
         problem.mesh, contact, folder / "adaptive_mesh.png",
         f"the last adapted mesh: {last.dofs} dofs, h_min = {last.h_min:.2g}", zooms,
     )  # fmt: skip
-    return _section(cfg, study, options)
+    picture = SolutionPicture(cfg, folder / "adaptive_shell_3d.png", say)
+    picture.draw(problem, f"The solution on the last adapted mesh ({last.dofs} dofs)")
+    return _section(cfg, study, options) + "\n".join(
+        ["", *picture.markdown("the solution on the last adapted mesh in 3D")]
+    )
 
 
 def _zoom(mesh: dolfinx.mesh.Mesh, contact: dolfinx.fem.Function) -> tuple[float, float, float]:

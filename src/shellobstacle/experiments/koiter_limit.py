@@ -16,7 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -31,6 +31,7 @@ from shellobstacle.config import Config
 from shellobstacle.domains import GRADED_KINDS, DomainSpec
 from shellobstacle.experiments.common import NewtonProgress, Say, finish_figure, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
+from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.measures import mesh_size
 from shellobstacle.model import Discretization, Shell
@@ -191,9 +192,13 @@ def koiter_limit(
     progress: Say | None = None,
     checkpoint: Checkpoint | None = None,
     newton_progress: NewtonProgress = None,
+    draw: Callable[[Postprocessor, float], Any] | None = None,
 ) -> KoiterLimit:
     """Solve the membrane problem (ζ_3 clamped and free) and Koiter's for every ε' on
-    ``mesh`` (P2, ghosted), each by continuation along ``kappas`` from ζ = 0."""
+    ``mesh`` (P2, ghosted), each by continuation along ``kappas`` from ζ = 0.
+
+    ``draw(post, ε')`` is called with Koiter's solution for the ε' nearest the shell's own ε
+    (on a log scale), if it is solved in this run (not read back)."""
     say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
     cp.check_mesh(mesh)
@@ -237,6 +242,7 @@ def koiter_limit(
     def near(value: float) -> Any:  # 1 on the cells within EDGE_WIDTHS √ε of γ, else 0
         return ufl.conditional(ufl.lt(to_boundary, EDGE_WIDTHS * math.sqrt(value)), 1.0, 0.0)
 
+    drawn = min(epsilons, key=lambda e: abs(math.log(e / eps))) if epsilons else None
     for value in epsilons:
         key = f"eps{value:.10g}"
         record = cp.load(key)
@@ -266,6 +272,8 @@ def koiter_limit(
             }
             record = {"row": row, "profile": profile}
             cp.save(key, record)
+            if draw is not None and value == drawn:
+                draw(post, value)
         study.rows.append(record["row"])
         study.profiles[f"Koiter, ε = {value:.3g}"] = np.asarray(record["profile"], dtype=float)
         r = record["row"]
@@ -334,14 +342,20 @@ def run_koiter_limit(
     mesh = make_mesh(domain, ghosted=True)
     kappas = cfg.penalty.ladder(mesh_size(mesh))
     cp = (checkpoint or Checkpoint(None)).scope("koiter_limit")
-    s = koiter_limit(cfg.shell, mesh, epsilons, kappas, cfg.solver, say, cp, newton_progress)
+    picture = SolutionPicture(cfg, folder / "koiter_limit_shell_3d.png", say)
+
+    def draw(post: Postprocessor, value: float) -> None:
+        picture.draw(post, f"Koiter's model: the deformed shell over the plane at ε = {value:.3g}")
+
+    s = koiter_limit(cfg.shell, mesh, epsilons, kappas, cfg.solver, say, cp, newton_progress, draw)
     s.edge_h = domain.edge_h or s.h
     write_csv(folder / "koiter_limit.csv", s.rows, COLUMNS)
     png_d, png_l = folder / "koiter_limit.png", folder / "koiter_limit_layer.png"
     if MPI.COMM_WORLD.rank == 0:
         plot_distance(s, png_d)
         plot_layer(s, png_l)
-    return "\n".join([*_report(s, domain), "", f"![distance]({png_d.name})", ""])
+    drawn = picture.markdown("Koiter's solution in 3D")
+    return "\n".join([*_report(s, domain), "", f"![distance]({png_d.name})", "", *drawn])
 
 
 def _report(s: KoiterLimit, domain: DomainSpec) -> list[str]:

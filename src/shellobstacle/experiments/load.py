@@ -18,6 +18,7 @@ from shellobstacle.config import Config
 from shellobstacle.domains import DomainSpec
 from shellobstacle.experiments.common import NewtonProgress, Say, finish_figure, write_csv
 from shellobstacle.experiments.markdown import table
+from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.measures import mesh_size
 from shellobstacle.model import Discretization, Load, PenaltySpec, Shell
@@ -211,20 +212,12 @@ def run_load(
     The largest load's solution is drawn in 3D (``batch3_shell_3d.png``, when
     ``output.pictures``; a resumed run keeps the drawing of the run that solved it).
     """
-    png_shell = folder / "batch3_shell_3d.png"
+    picture = SolutionPicture(cfg, folder / "batch3_shell_3d.png", say)
     paper_load = is_paper_load(cfg.shell.load)
     name = "ℓ" if paper_load and parameter == "ell" else parameter
 
     def draw(post: Postprocessor) -> None:
-        from shellobstacle.post.pictures import write_picture
-
-        if not cfg.output.get("pictures", True):
-            return
-        title = f"Batch 3: the deformed shell over the plane at {name} = {values[-1]:g}"
-        with phase("drawing the 3D picture"):
-            picture = write_picture(post, png_shell, title)
-        if picture.warning is not None:
-            say(f"warning: {picture.warning}")
+        picture.draw(post, f"Batch 3: the deformed shell over the plane at {name} = {values[-1]:g}")
 
     s = load_study(
         cfg.shell,
@@ -264,8 +257,7 @@ def run_load(
         else "Every solution is inside the model's validity (penetration, displacement, "
         "orientation within their thresholds)."
     )
-    drawn = MPI.COMM_WORLD.bcast(png_shell.is_file() if MPI.COMM_WORLD.rank == 0 else None)
-    shell_3d = [f"![the shell in 3D at {name} = {values[-1]:g}]({png_shell.name})", ""]
+    shell_3d = picture.markdown(f"the shell in 3D at {name} = {values[-1]:g}")
     return "\n".join(
         [
             "## Batch 3: the contact area as the load grows",
@@ -289,7 +281,7 @@ def run_load(
             "",
             f"![cross-sections]({png_sections.name})",
             "",
-            *(shell_3d if drawn else []),
+            *shell_3d,
             f"![contact area]({png_area.name})",
             "",
         ]

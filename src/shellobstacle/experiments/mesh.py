@@ -28,6 +28,7 @@ from shellobstacle.experiments.common import (
 )
 from shellobstacle.experiments.exact import exact_reference
 from shellobstacle.experiments.markdown import table
+from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.measures import mesh_size
 from shellobstacle.model import Discretization, PenaltySpec, Shell
@@ -132,6 +133,7 @@ def mesh_study(
     warm: bool = True,
     checkpoint: Checkpoint | None = None,
     newton_progress: Callable[[int, float], Any] | None = None,
+    draw: Callable[[PenalizedProblem], Any] | None = None,
 ) -> MeshStudy:
     """Solve with κ = h^q on each level (continuation in κ from ζ = 0) and difference them.
 
@@ -141,6 +143,8 @@ def mesh_study(
     ``warm`` a level that already holds a solution (of a previous q) starts from it and solves
     for κ = h^q directly. With ``checkpoint`` every finished (q, level) is recorded with its
     solution (only the newest per level is kept), and recorded steps are not solved again.
+    ``draw(problem)`` is called after the sweep with the last level's problem, if that level
+    was solved in this run.
     """
     say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
@@ -148,10 +152,12 @@ def mesh_study(
     t0 = time.perf_counter()
     recorded_seconds = 0.0
     previous = None
+    last: MeshLevel | None = None  # the sweep's last level, if solved in this run
     for k, level in enumerate(levels):
         key = f"q{q:.10g}_level{k}"
         record = cp.load(key)
         tag = ""
+        last = level if record is None else None
         if record is None:
             for lv in (level, previous):
                 if lv is not None and lv.restore is not None:
@@ -186,6 +192,8 @@ def mesh_study(
         else:
             say(f"batch 2 [q = {q:g}]: h = {level.h:.4g} solved{tag}")
         previous = levels[k]
+    if draw is not None and last is not None:
+        draw(last.problem)
     study.seconds = time.perf_counter() - t0 + recorded_seconds
     return study
 
@@ -302,6 +310,15 @@ def run_mesh(
         make = exact_reference(cfg, levels[-1].mesh, cfg.discretization, say, where)
         reference = LazyReference(make)
     summary = []
+    picture = SolutionPicture(cfg, folder / "batch2_shell_3d.png", say)
+
+    def draw(problem: PenalizedProblem) -> None:
+        picture.draw(
+            problem,
+            f"Batch 2: the deformed shell over the plane, h = {mesh_size(problem.mesh):.4g}, "
+            f"κ = h^{q_values[-1]:g} = {float(problem.kappa.value):.3e}",
+        )
+
     for q in q_values:
         s = mesh_study(
             levels,
@@ -311,6 +328,7 @@ def run_mesh(
             reference,
             checkpoint=cp,
             newton_progress=newton_progress,
+            draw=draw if q == q_values[-1] else None,
         )
         if batch4 is not None:
             batch4.extend(s.reference_rows)
@@ -338,5 +356,6 @@ def run_mesh(
         ]
     for level in levels:  # the sweep is complete: no later step starts from these
         cp.drop_vector(level.saved)
+    text += picture.markdown(f"the shell in 3D on the last mesh solved for q = {q_values[-1]:g}")
     text += ["### Summary", "", table(summary, list(summary[0])), ""]
     return "\n".join(text)

@@ -29,6 +29,7 @@ from shellobstacle.experiments.common import (
 )
 from shellobstacle.experiments.exact import exact_reference
 from shellobstacle.experiments.markdown import table
+from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.measures import mesh_size
 from shellobstacle.model import Discretization, Shell
@@ -103,6 +104,7 @@ def penalty_study(
     reference: dolfinx.fem.Function | LazyReference | None = None,
     checkpoint: Checkpoint | None = None,
     newton_progress: Callable[[int, float], Any] | None = None,
+    draw: Callable[[PenalizedProblem], Any] | None = None,
 ) -> PenaltyStudy:
     """Run batch 1 on ``mesh`` (each κ warm-started from the previous one).
 
@@ -111,7 +113,8 @@ def penalty_study(
     bound). With ``checkpoint`` (scoped to this mesh and quadrature) every finished κ is
     recorded with its solution, and κ already recorded are not solved again: the sweep
     continues from the last recorded solution. ``newton_progress(it, relative_residual)`` is
-    called after every Newton iteration.
+    called after every Newton iteration; ``draw(problem)`` after the sweep, if its last κ
+    was solved in this run (e.g. to draw that solution).
     """
     opts = options or PenaltyStudyOptions()
     say = progress or (lambda _m: None)
@@ -130,9 +133,11 @@ def penalty_study(
     saved: str | None = None  # the newest saved solution of this sweep
     q = opts.start
     n = 0
+    solved = False  # the last κ was solved in this run (not read back)
     while q <= opts.q_max + 1e-12:
         key = f"q{q:.10g}"
         record = cp.load(key)
+        solved = record is None
         if record is None:
             if restore is not None:  # continue from the last recorded step
                 cp.restore_vector(restore, problem.zeta)
@@ -180,6 +185,8 @@ def penalty_study(
         q_prev = q
         q += opts.step
     cp.drop_vector(saved)  # the sweep is complete: no later step starts from it
+    if draw is not None and solved:
+        draw(problem)
     study.seconds = time.perf_counter() - t_start + recorded_seconds
     study.timings = dict(solver.timings)
     return study
@@ -312,10 +319,20 @@ def run_penalty(
     )
     text.append("")
     summary = []
+    picture = SolutionPicture(cfg, folder / "batch1_shell_3d.png", say)
     for i, spec in enumerate(meshes):
         mesh = make_mesh(spec)
         studies = []
         for quadrature in quadratures:
+            last = i == len(meshes) - 1 and quadrature == quadratures[0]
+
+            def draw(problem: PenalizedProblem, quadrature: str = quadrature) -> None:
+                picture.draw(
+                    problem,
+                    f"Batch 1: the deformed shell over the plane, h = {mesh_size(problem.mesh):.4g}"
+                    f", κ = {float(problem.kappa.value):.3e}, {quadrature} penalty",
+                )
+
             disc = dataclasses.replace(cfg.discretization, penalty_quadrature=quadrature)
             reference = None
             if batch4 is not None and quadrature == "vertex":
@@ -330,6 +347,7 @@ def run_penalty(
                 reference,
                 cp.scope(f"batch1_mesh{i}_h{spec.h:.10g}_{quadrature}"),
                 newton_progress,
+                draw if last else None,
             )
             if batch4 is not None:
                 batch4.extend(s.reference_rows)
@@ -360,6 +378,7 @@ def run_penalty(
         if MPI.COMM_WORLD.rank == 0:
             plot_penalty_study(studies, png, opts.tol)
         text += [f"![batch 1, h = {studies[0].h:.4f}]({png.name})", ""]
+    text += picture.markdown("the shell in 3D at the last κ of the finest mesh")
     text += [
         "### Summary",
         "",

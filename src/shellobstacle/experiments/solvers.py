@@ -27,6 +27,7 @@ from shellobstacle.config import Config
 from shellobstacle.domains import DomainSpec
 from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
+from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.measures import mesh_size
 from shellobstacle.meshing import create_mesh
@@ -77,6 +78,7 @@ def compare_solvers(
     progress: Callable[[str], Any] | None = None,
     checkpoint: Checkpoint | None = None,
     newton_progress: Callable[[int, float], Any] | None = None,
+    draw: Callable[[PenalizedProblem], Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Solve ``κ = h^q`` with Newton and with Brezis–Sibony on each mesh; one row per mesh.
 
@@ -94,6 +96,8 @@ def compare_solvers(
             is not meshed or solved again. Ready meshes are not recorded.
         newton_progress: called as ``(iteration, relative residual)`` after every Newton
             iteration.
+        draw: called with the problem holding the last mesh's Newton solution (if that mesh
+            is solved in this run, not read back).
 
     Returns:
         One dict per mesh with the keys of :data:`COLUMNS` (identical on every rank).
@@ -111,7 +115,7 @@ def compare_solvers(
     bopts = bs_options or BrezisSibonyOptions(start="linearized", max_iterations=200_000)
 
     rows: list[dict[str, Any]] = []
-    for item in meshes:
+    for i, item in enumerate(meshes):
         key = None
         if not isinstance(item, dolfinx.mesh.Mesh):
             key = f"h{item.h if isinstance(item, DomainSpec) else float(item):.10g}"
@@ -139,6 +143,8 @@ def compare_solvers(
         newton = dolfinx.fem.Function(problem.V, name="newton")
         newton.x.array[:] = problem.zeta.x.array
         contact_nodes = Postprocessor(problem).contact()["num_contact_nodes"]
+        if draw is not None and i == len(meshes) - 1:
+            draw(problem)
 
         say(f"h = {h:.4g}: Brezis–Sibony")
         with phase(f"h = {h:.4g}: Brezis–Sibony"):
@@ -266,6 +272,15 @@ def run_solvers(
     """
     from shellobstacle.experiments.solvers import compare_solvers, write_solver_comparison
 
+    picture = SolutionPicture(cfg, folder / "solvers_shell_3d.png", say)
+
+    def draw(problem: PenalizedProblem) -> None:
+        picture.draw(
+            problem,
+            f"Newton's solution on the finest mesh, h = {mesh_size(problem.mesh):.4g}, "
+            f"κ = h^{q:g} = {float(problem.kappa.value):.3e}",
+        )
+
     rows = compare_solvers(
         cfg,
         meshes,
@@ -273,6 +288,7 @@ def run_solvers(
         progress=say,
         checkpoint=(checkpoint or Checkpoint(None)).scope("solvers"),
         newton_progress=newton_progress,
+        draw=draw,
     )
     out = write_solver_comparison(rows, folder)
     columns = (
@@ -305,6 +321,7 @@ def run_solvers(
             "",
             f"![solvers]({Path(out['png']).name})",
             "",
+            *picture.markdown("Newton's solution on the finest mesh in 3D"),
         ]
     )
 
