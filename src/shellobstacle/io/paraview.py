@@ -132,8 +132,40 @@ def surface_mesh(mesh2d: dolfinx.mesh.Mesh, coordinates: np.ndarray) -> dolfinx.
     return SurfaceMesh(mesh2d, coordinates).mesh
 
 
+def _owned_cells(functions: list[dolfinx.fem.Function]) -> list[dolfinx.fem.Function]:
+    """``functions`` (on one mesh) on the sub-mesh of each rank's owned cells (collective).
+
+    VTX writes every local cell of a rank, ghost cells included, so a mesh ghosted for
+    interior facets (Koiter's model, adaptivity) would hold those cells twice in the file.
+    On the owned cells every cell appears once. The sub-mesh keeps each cell's vertex order,
+    so the same element has the same cell dofs there: the values are copied, cell by cell.
+    """
+    mesh = functions[0].function_space.mesh
+    tdim = mesh.topology.dim
+    cells = mesh.topology.index_map(tdim)
+    if mesh.comm.allreduce(cells.num_ghosts, op=MPI.MAX) == 0:
+        return functions
+    owned = np.arange(cells.size_local, dtype=np.int32)
+    sub, entity_map, _, _ = dolfinx.mesh.create_submesh(mesh, tdim, owned)
+    sub_map = sub.topology.index_map(tdim)
+    sub_cells = np.arange(sub_map.size_local + sub_map.num_ghosts, dtype=np.int32)
+    parent_cells = entity_map.sub_topology_to_topology(sub_cells, inverse=False)
+    spaces: dict[int, dolfinx.fem.FunctionSpace] = {}
+    out = []
+    for f in functions:
+        V = f.function_space
+        if id(V) not in spaces:
+            spaces[id(V)] = dolfinx.fem.functionspace(sub, V.ufl_element())
+        g = dolfinx.fem.Function(spaces[id(V)], name=f.name)
+        bs = V.dofmap.index_map_bs
+        target, source = g.x.array.reshape(-1, bs), f.x.array.reshape(-1, bs)
+        target[g.function_space.dofmap.list[sub_cells]] = source[V.dofmap.list[parent_cells]]
+        out.append(g)
+    return out
+
+
 def _write(comm: MPI.Comm, path: Path, functions: list[dolfinx.fem.Function]) -> Path:
-    """Write ``functions`` to the VTX folder ``path`` atomically.
+    """Write ``functions`` to the VTX folder ``path`` atomically, each cell once.
 
     All ranks write (collectively) into a hidden temporary ``.bp`` folder next to ``path``;
     once the writer is closed, rank 0 renames it into place, so ``path`` is either absent, the
@@ -144,6 +176,7 @@ def _write(comm: MPI.Comm, path: Path, functions: list[dolfinx.fem.Function]) ->
     if comm.rank == 0:  # a leftover of an interrupted run with the same process id
         shutil.rmtree(tmp, ignore_errors=True)
     comm.barrier()
+    functions = _owned_cells(functions)
     try:
         with dolfinx.io.VTXWriter(comm, tmp, functions, engine="BP4") as writer:
             writer.write(0.0)
