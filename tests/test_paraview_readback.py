@@ -28,16 +28,13 @@ import numpy as np
 import pytest
 
 from shellobstacle.io.paraview import write_paraview
-from shellobstacle.model import Discretization, Load, Material, Shell
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.active_set import ActiveSetSolver
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface
+from tests.cap_on_square import cap_on_square
 
 COMM = MPI.COMM_WORLD
 HALF, N = 0.25, 12
-LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 CASES = ("p1-newton", "p1-active-set", "p2-newton")
 ATOL = 1e-13  # the writer's U and g come from UFL expressions, the test's from NumPy
 
@@ -124,18 +121,7 @@ def _read(path: Path) -> dict[str, np.ndarray]:
 def written(request, tmp_path_factory) -> dict:
     """One solve per case, written with :func:`write_paraview` as ``solve`` writes it."""
     case = request.param
-    mesh = dolfinx.mesh.create_rectangle(
-        COMM, [np.array([-HALF, -HALF]), np.array([HALF, HALF])], [N, N]
-    )
-    shell = Shell(
-        Surface.spherical_cap(1.0, 0.85),
-        Material(epsilon=0.001, lam=0.4, mu=0.012),
-        Load(("0", "0", LOAD)),
-    )
-    degree = 2 if case.startswith("p2") else 1
-    quadrature = "vertex" if degree == 1 else "gauss"
-    disc = Discretization(degree=degree, penalty_quadrature=quadrature, quadrature_degree=4)
-    problem = PenalizedProblem(shell, mesh, disc, kappa=1e-3)
+    problem = cap_on_square(HALF, N, degree=2 if case.startswith("p2") else 1)
     extra = []
     if case.endswith("active-set"):
         result = ActiveSetSolver(problem).solve()

@@ -26,33 +26,21 @@ import numpy as np
 import pytest
 import ufl
 
-from shellobstacle.model import Discretization, Load, Material, Shell
 from shellobstacle.post import pictures
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.render3d import plane_frame
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface
+from tests.cap_on_square import cap_on_square
 
 COMM = MPI.COMM_WORLD
 HALF, N = 0.25, 16
-LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 
 
 @pytest.fixture(scope="module")
 def post() -> Postprocessor:
     """The cap pushed onto the plane, solved at κ = 1e-3."""
-    mesh = dolfinx.mesh.create_rectangle(
-        COMM, [np.array([-HALF, -HALF]), np.array([HALF, HALF])], [N, N]
-    )
-    shell = Shell(
-        Surface.spherical_cap(1.0, 0.85),
-        Material(epsilon=0.001, lam=0.4, mu=0.012),
-        Load(("0", "0", LOAD)),
-    )
-    disc = Discretization(degree=1, penalty_quadrature="vertex", quadrature_degree=4)
-    problem = PenalizedProblem(shell, mesh, disc, kappa=1e-3)
+    problem = cap_on_square(HALF, N)
     NewtonSolver(problem).solve()
     return Postprocessor(problem)
 

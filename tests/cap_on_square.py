@@ -1,0 +1,33 @@
+"""The paper's cap pushed onto the plane on a square mesh: the small problem of the output tests
+(ParaView files, 3D pictures)."""
+
+from __future__ import annotations
+
+from mpi4py import MPI
+
+import dolfinx.mesh
+import numpy as np
+
+from shellobstacle.model import Discretization, Load, Material, Shell
+from shellobstacle.problem import PenalizedProblem
+from shellobstacle.surface import Surface
+
+#: the paper's load of section 10 (a pressure on the disk r < 0.06)
+PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
+
+
+def cap_on_square(half: float, n: int, degree: int = 1, kappa: float = 1e-3) -> PenalizedProblem:
+    """The cap (R = 1, θ₃ offset 0.85) under the paper's load on ``[-half, half]²`` with ``n × n``
+    squares (each split in two), compiled at ``κ``: the vertex penalty for P1, Gauss points
+    for P2, quadrature degree 4."""
+    mesh = dolfinx.mesh.create_rectangle(
+        MPI.COMM_WORLD, [np.array([-half, -half]), np.array([half, half])], [n, n]
+    )
+    shell = Shell(
+        Surface.spherical_cap(1.0, 0.85),
+        Material(epsilon=0.001, lam=0.4, mu=0.012),
+        Load(("0", "0", PAPER_LOAD)),
+    )
+    quadrature = "vertex" if degree == 1 else "gauss"
+    disc = Discretization(degree=degree, penalty_quadrature=quadrature, quadrature_degree=4)
+    return PenalizedProblem(shell, mesh, disc, kappa=kappa)
