@@ -311,14 +311,7 @@ def run_mesh(
         reference = LazyReference(make)
     summary = []
     picture = SolutionPicture(cfg, folder / "batch2_shell_3d.png", say)
-
-    def draw(problem: PenalizedProblem) -> None:
-        picture.draw(
-            problem,
-            f"Batch 2: the deformed shell over the plane, h = {mesh_size(problem.mesh):.4g}, "
-            f"κ = h^{q_values[-1]:g} = {float(problem.kappa.value):.3e}",
-        )
-
+    draw = picture.drawer(f"Batch 2, κ = h^{q_values[-1]:g}")
     for q in q_values:
         s = mesh_study(
             levels,

@@ -325,14 +325,7 @@ def run_penalty(
         studies = []
         for quadrature in quadratures:
             last = i == len(meshes) - 1 and quadrature == quadratures[0]
-
-            def draw(problem: PenalizedProblem, quadrature: str = quadrature) -> None:
-                picture.draw(
-                    problem,
-                    f"Batch 1: the deformed shell over the plane, h = {mesh_size(problem.mesh):.4g}"
-                    f", κ = {float(problem.kappa.value):.3e}, {quadrature} penalty",
-                )
-
+            draw = picture.drawer(f"Batch 1, {quadrature} penalty") if last else None
             disc = dataclasses.replace(cfg.discretization, penalty_quadrature=quadrature)
             reference = None
             if batch4 is not None and quadrature == "vertex":
@@ -347,7 +340,7 @@ def run_penalty(
                 reference,
                 cp.scope(f"batch1_mesh{i}_h{spec.h:.10g}_{quadrature}"),
                 newton_progress,
-                draw if last else None,
+                draw,
             )
             if batch4 is not None:
                 batch4.extend(s.reference_rows)

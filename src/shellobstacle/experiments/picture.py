@@ -8,12 +8,14 @@ solution: a solution read back from a checkpoint is not drawn again.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from mpi4py import MPI
 
 from shellobstacle.config import Config
 from shellobstacle.experiments.common import Say
+from shellobstacle.measures import mesh_size
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.progress import phase
@@ -45,6 +47,16 @@ class SolutionPicture:
             picture = write_picture(post, self.path, title)
         if picture.warning is not None:
             self.say(f"warning: {picture.warning}")
+
+    def drawer(self, label: str) -> Callable[[PenalizedProblem], None]:
+        """A function drawing a problem's solution with the title ``label``, h and κ."""
+
+        def draw(problem: PenalizedProblem) -> None:
+            h, kappa = mesh_size(problem.mesh), float(problem.kappa.value)
+            title = f"{label}: the deformed shell over the plane, h = {h:.4g}, κ = {kappa:.3e}"
+            self.draw(problem, title)
+
+        return draw
 
     def markdown(self, alt: str) -> list[str]:
         """The report's image line and a blank line, if the picture exists (collective)."""

@@ -273,14 +273,6 @@ def run_solvers(
     from shellobstacle.experiments.solvers import compare_solvers, write_solver_comparison
 
     picture = SolutionPicture(cfg, folder / "solvers_shell_3d.png", say)
-
-    def draw(problem: PenalizedProblem) -> None:
-        picture.draw(
-            problem,
-            f"Newton's solution on the finest mesh, h = {mesh_size(problem.mesh):.4g}, "
-            f"κ = h^{q:g} = {float(problem.kappa.value):.3e}",
-        )
-
     rows = compare_solvers(
         cfg,
         meshes,
@@ -288,7 +280,7 @@ def run_solvers(
         progress=say,
         checkpoint=(checkpoint or Checkpoint(None)).scope("solvers"),
         newton_progress=newton_progress,
-        draw=draw,
+        draw=picture.drawer(f"Newton's solution on the finest mesh, κ = h^{q:g}"),
     )
     out = write_solver_comparison(rows, folder)
     columns = (
