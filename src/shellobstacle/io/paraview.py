@@ -140,6 +140,8 @@ def _owned_cells(functions: list[dolfinx.fem.Function]) -> list[dolfinx.fem.Func
     On the owned cells every cell appears once. The sub-mesh keeps each cell's vertex order,
     so the same element has the same cell dofs there: the values are copied, cell by cell.
     """
+    if not functions:
+        return functions
     mesh = functions[0].function_space.mesh
     tdim = mesh.topology.dim
     cells = mesh.topology.index_map(tdim)
