@@ -1,0 +1,85 @@
+"""MUMPS' Cholesky factor of the stiffness K: Koiter P2 at 2h against membrane P1 at h.
+
+The meshes, shell and load of ``koiter_cost.py`` (equal dofs). For each model and MUMPS
+ordering (ICNTL(7): 5 METIS, the default here; 3 SCOTCH; 4 PORD; 2 AMF; 0 AMD; 6 QAMD) one
+JSON line: dofs, the stiffness' nonzeros and assembly seconds, the fastest of two
+factorizations, the factor's entries (INFOG(29)) and flops (RINFOG(3)).
+
+    .venv/bin/python benchmarks/koiter_factor.py --h 0.01,0.005 --orderings 5,3,4,2
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+from mpi4py import MPI  # noqa: F401  (MPI before DOLFINx and PETSc)
+
+from koiter_cost import PAPER_LOAD
+
+
+def rows(h: float, orderings: list[int]) -> list[dict]:
+    from petsc4py import PETSc
+
+    from shellobstacle.domains import DomainSpec
+    from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
+    from shellobstacle.pipeline import make_mesh
+    from shellobstacle.problem import PenalizedProblem
+    from shellobstacle.solvers.base import direct_solver, factorize
+    from shellobstacle.surface import Surface
+
+    out = []
+    for model, degree, size in (("membrane", 1, h), ("koiter", 2, 2 * h)):
+        shell = Shell(
+            Surface.spherical_cap(1.0, 0.85),
+            Material(1e-3, 0.4, 0.012),
+            Load(("0", "0", PAPER_LOAD)),
+            Obstacle(),
+            model,
+        )
+        mesh = make_mesh(DomainSpec(kind="disk", h=size, radius=0.5), ghosted=model == "koiter")
+        problem = PenalizedProblem(shell, mesh, Discretization(degree=degree))
+        t0 = time.perf_counter()
+        K = problem.stiffness()
+        assemble = time.perf_counter() - t0
+        for ordering in orderings:
+            seconds = []
+            for _ in range(2):
+                ksp = direct_solver(K, "cholesky", "factor", icntl={7: ordering})
+                t0 = time.perf_counter()
+                factorize(ksp, "K")
+                seconds.append(time.perf_counter() - t0)
+                F = ksp.getPC().getFactorMatrix()
+                entries, flops = F.getMumpsInfog(29), F.getMumpsRinfog(3)
+                ksp.destroy()
+            out.append(
+                {
+                    "model": model,
+                    "degree": degree,
+                    "target_h": size,
+                    "dofs": problem.num_dofs,
+                    "nonzeros": int(K.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]),
+                    "assemble_seconds": round(assemble, 3),
+                    "ordering": ordering,
+                    "factor_seconds": round(min(seconds), 3),
+                    "factor_entries": int(entries),
+                    "factor_gflop": round(flops / 1e9, 3),
+                }
+            )
+            print(json.dumps(out[-1]), flush=True)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--h", default="0.01,0.005", help="membrane P1 mesh sizes")
+    parser.add_argument("--orderings", default="5", help="MUMPS ICNTL(7) values")
+    args = parser.parse_args()
+    orderings = [int(v) for v in args.orderings.split(",")]
+    for h in (float(v) for v in args.h.split(",")):
+        rows(h, orderings)
+
+
+if __name__ == "__main__":
+    main()
