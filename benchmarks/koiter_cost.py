@@ -27,17 +27,12 @@ import time
 PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 
 
-def run(model: str, degree: int, h: float, repeat: int) -> dict:
-    from mpi4py import MPI
-    from petsc4py import PETSc
-
+def paper_shell_and_mesh(model: str, h: float) -> tuple:
+    """The paper's shell (ε = 10⁻³) as ``model`` and a disk mesh of size ``h`` (ghosted for
+    Koiter's facet terms)."""
     from shellobstacle.domains import DomainSpec
-    from shellobstacle.measures import mesh_size
-    from shellobstacle.model import Discretization, Load, Material, Obstacle, PenaltySpec, Shell
+    from shellobstacle.model import Load, Material, Obstacle, Shell
     from shellobstacle.pipeline import make_mesh
-    from shellobstacle.problem import PenalizedProblem
-    from shellobstacle.solvers.continuation import continuation
-    from shellobstacle.solvers.newton import NewtonSolver
     from shellobstacle.surface import Surface
 
     shell = Shell(
@@ -48,6 +43,20 @@ def run(model: str, degree: int, h: float, repeat: int) -> dict:
         model,
     )
     mesh = make_mesh(DomainSpec(kind="disk", h=h, radius=0.5), ghosted=model == "koiter")
+    return shell, mesh
+
+
+def run(model: str, degree: int, h: float, repeat: int) -> dict:
+    from mpi4py import MPI
+    from petsc4py import PETSc
+
+    from shellobstacle.measures import mesh_size
+    from shellobstacle.model import Discretization, PenaltySpec
+    from shellobstacle.problem import PenalizedProblem
+    from shellobstacle.solvers.continuation import continuation
+    from shellobstacle.solvers.newton import NewtonSolver
+
+    shell, mesh = paper_shell_and_mesh(model, h)
     kappas = PenaltySpec(exponent=1.5).ladder(mesh_size(mesh))
     times, steps, dofs, forms = [], [], 0, []
     for k in range(repeat + 1):

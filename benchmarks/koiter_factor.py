@@ -16,29 +16,19 @@ import time
 
 from mpi4py import MPI  # noqa: F401  (MPI before DOLFINx and PETSc)
 
-from koiter_cost import PAPER_LOAD
+from koiter_cost import paper_shell_and_mesh
 
 
 def rows(h: float, orderings: list[int]) -> list[dict]:
     from petsc4py import PETSc
 
-    from shellobstacle.domains import DomainSpec
-    from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
-    from shellobstacle.pipeline import make_mesh
+    from shellobstacle.model import Discretization
     from shellobstacle.problem import PenalizedProblem
     from shellobstacle.solvers.base import direct_solver, factorize
-    from shellobstacle.surface import Surface
 
     out = []
     for model, degree, size in (("membrane", 1, h), ("koiter", 2, 2 * h)):
-        shell = Shell(
-            Surface.spherical_cap(1.0, 0.85),
-            Material(1e-3, 0.4, 0.012),
-            Load(("0", "0", PAPER_LOAD)),
-            Obstacle(),
-            model,
-        )
-        mesh = make_mesh(DomainSpec(kind="disk", h=size, radius=0.5), ghosted=model == "koiter")
+        shell, mesh = paper_shell_and_mesh(model, size)
         problem = PenalizedProblem(shell, mesh, Discretization(degree=degree))
         t0 = time.perf_counter()
         K = problem.stiffness()
