@@ -268,7 +268,8 @@ def run_adaptive(
     final = study.final
     assert final is not None
     problem = final.problem
-    contact = Postprocessor(problem).indicator()
+    post = Postprocessor(problem)
+    contact = post.indicator()
     cx, cy, w = _zoom(problem.mesh, contact)
     last = final.levels[-1]
     zooms = [(cx, cy, w)] + ([(cx, cy, 50 * last.h_min)] if 50 * last.h_min < w / 4 else [])
@@ -277,7 +278,7 @@ def run_adaptive(
         f"the last adapted mesh: {last.dofs} dofs, h_min = {last.h_min:.2g}", zooms,
     )  # fmt: skip
     picture = SolutionPicture(cfg, folder / "adaptive_shell_3d.png", say)
-    picture.draw(problem, f"The solution on the last adapted mesh ({last.dofs} dofs)")
+    picture.draw(post, f"The solution on the last adapted mesh ({last.dofs} dofs)")
     return _section(cfg, study, options) + "\n".join(
         ["", *picture.markdown("the solution on the last adapted mesh in 3D")]
     )
