@@ -1,9 +1,12 @@
-"""MUMPS' Cholesky factor of the stiffness K: Koiter P2 at 2h against membrane P1 at h.
+"""MUMPS' Cholesky factor of the stiffness: Koiter P2 at 2h against membrane P1 at h.
 
-The meshes, shell and load of ``koiter_cost.py`` (equal dofs). For each model and MUMPS
-ordering (ICNTL(7): 5 METIS, the default here; 3 SCOTCH; 4 PORD; 2 AMF; 0 AMD; 6 QAMD) one
-JSON line: dofs, the stiffness' nonzeros and assembly seconds, the fastest of two
-factorizations, the factor's entries (INFOG(29)) and flops (RINFOG(3)).
+The meshes, shell and load of ``koiter_cost.py`` (equal dofs). Factorized: membrane P1's
+``K``; Koiter's ``K`` with the C⁰ interior penalty; for the hybrid bending form, the block
+matrix in ``(ζ, t)`` (as the contact zone factorizes it; ``unknowns`` counts the
+multipliers too). For each and each MUMPS ordering (ICNTL(7): 5 METIS, the default here;
+3 SCOTCH; 4 PORD; 2 AMF; 0 AMD; 6 QAMD) one JSON line: dofs, the matrix' nonzeros and
+assembly seconds, the fastest of two factorizations (analysis included), the factor's
+entries (INFOG(29)) and flops (RINFOG(3)).
 
     .venv/bin/python benchmarks/koiter_factor.py --h 0.01,0.005 --orderings 5,3,4,2
 """
@@ -25,13 +28,23 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
     from shellobstacle.model import Discretization
     from shellobstacle.problem import PenalizedProblem
     from shellobstacle.solvers.base import direct_solver, factorize
+    from shellobstacle.solvers.zone.interior import block_matrix
 
     out = []
-    for model, degree, size in (("membrane", 1, h), ("koiter", 2, 2 * h)):
+    for model, degree, size, bending in (
+        ("membrane", 1, h, None),
+        ("koiter", 2, 2 * h, "c0ip"),
+        ("koiter", 2, 2 * h, "hybrid"),
+    ):
         shell, mesh = paper_shell_and_mesh(model, size)
-        problem = PenalizedProblem(shell, mesh, Discretization(degree=degree))
+        disc = Discretization(degree=degree, bending=bending or "hybrid")
+        problem = PenalizedProblem(shell, mesh, disc)
         t0 = time.perf_counter()
         K = problem.stiffness()
+        if bending == "hybrid":  # the block matrix in (ζ, t), as the contact zone has it
+            r0, r1 = K.getOwnershipRange()
+            every = PETSc.IS().createStride(r1 - r0, r0, 1, comm=K.getComm())
+            K, _ = block_matrix(problem.condensed, every)
         assemble = time.perf_counter() - t0
         for ordering in orderings:
             seconds = []
@@ -47,6 +60,8 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
                 {
                     "model": model,
                     "degree": degree,
+                    "bending": bending,
+                    "unknowns": K.getSize()[0],
                     "target_h": size,
                     "dofs": problem.num_dofs,
                     "nonzeros": int(K.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]),

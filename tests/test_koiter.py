@@ -25,9 +25,10 @@ import ufl
 from shellobstacle.config import ConfigError, parse_config
 from shellobstacle.domains import DomainSpec
 from shellobstacle.expressions import to_ufl, y1, y2
-from shellobstacle.koiter import bending_moment, change_of_curvature
+from shellobstacle.hybrid_bending import DEFAULT_HYBRID_PENALTY
+from shellobstacle.koiter import DEFAULT_INTERIOR_PENALTY, bending_moment, change_of_curvature
 from shellobstacle.membrane import membrane_stress, strain
-from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
+from shellobstacle.model import BENDING_FORMS, Discretization, Load, Material, Obstacle, Shell
 from shellobstacle.pipeline import make_mesh
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
@@ -113,14 +114,14 @@ def plate_shell() -> Shell:
 
 
 def plate_deflection_error(
-    comm, h: float, refinements: int = 0
+    comm, h: float, refinements: int = 0, bending: str = "hybrid"
 ) -> tuple[float, float, PenalizedProblem]:
     """Largest nodal error of ζ_3 relative to the centre deflection, and the largest |ζ_α|."""
     eps, lam, mu = PLATE_EPS, PLATE_LAM, PLATE_MU
     D = eps**3 / 3 * (4 * lam * mu / (lam + 2 * mu) + 4 * mu)  # = 2E(ε)³/(3(1 − ν²))
     spec = DomainSpec(kind="disk", h=h, radius=PLATE_R, refinements=refinements)
     mesh = make_mesh(spec, ghosted=True) if comm is COMM else _serial_mesh(spec)
-    problem = PenalizedProblem(plate_shell(), mesh, Discretization(degree=2))
+    problem = PenalizedProblem(plate_shell(), mesh, Discretization(degree=2, bending=bending))
     NewtonSolver(problem).solve()
     x = problem.V.tabulate_dof_coordinates()
     n = problem.V.dofmap.index_map.size_local
@@ -138,14 +139,15 @@ def _serial_mesh(spec: DomainSpec) -> dolfinx.mesh.Mesh:
     return create_mesh(spec, MPI.COMM_SELF)
 
 
-def test_clamped_plate_matches_the_closed_form_deflection() -> None:
+@pytest.mark.parametrize("bending", BENDING_FORMS)
+def test_clamped_plate_matches_the_closed_form_deflection(bending: str) -> None:
     """A flat shell (K = 0, refused by the membrane model) clamped on a disk under uniform
     pressure: ζ_α = 0 and ζ_3 → p (R² − r²)² / (64 D), D = (ε³/3)(4λμ/(λ+2μ) + 4μ); the nodal
-    error falls as h² (the P2 interior-penalty method and the polygonal disk both give h²)."""
+    error falls as h² (both P2 bending forms and the polygonal disk give h²)."""
     hs = [0.1, 0.05, 0.025]
     errors = []
     for h in hs:
-        error, tangential, _ = plate_deflection_error(COMM, h)
+        error, tangential, _ = plate_deflection_error(COMM, h, bending=bending)
         assert tangential == 0.0  # the membrane part decouples: no in-plane displacement
         errors.append(error)
     rate = np.polyfit(np.log(hs), np.log(errors), 1)[0]
@@ -243,14 +245,17 @@ def _exact():
     return [5 * bubble * (1 + y2), 5 * bubble * (1 - 2 * y1), 100 * bubble**2 * sp.cos(y1 + 2 * y2)]
 
 
-def manufactured_errors(surface: Surface, n: int, sigma: float | None = None):
+def manufactured_errors(
+    surface: Surface, n: int, sigma: float | None = None, bending: str = "hybrid"
+):
     """Solve on the n × n mesh of [-L, L]²; errors (energy, H¹ of ζ_α, broken H² of ζ_3)."""
     shell = Shell(surface, Material(EPS, LAM, MU), Load(("0", "0", "0")), Obstacle(), "koiter")
     mesh = dolfinx.mesh.create_rectangle(COMM, [[-L, -L], [L, L]], [n, n])
     x = ufl.SpatialCoordinate(mesh)
     exact = [to_ufl(z, {y1: x[0], y2: x[1]}) for z in _exact()]
     p = strong_load(surface.geometry_ufl(mesh), exact)
-    problem = PenalizedProblem(shell, mesh, Discretization(degree=2, interior_penalty=sigma), p=p)
+    disc = Discretization(degree=2, interior_penalty=sigma, bending=bending)
+    problem = PenalizedProblem(shell, mesh, disc, p=p)
     NewtonSolver(problem).solve()
     e = [problem.zeta[i] - exact[i] for i in range(3)]
     dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 8})
@@ -275,16 +280,20 @@ def manufactured_errors(surface: Surface, n: int, sigma: float | None = None):
     }
 
 
-@pytest.fixture(scope="module", params=sorted(MANUFACTURED))
+@pytest.fixture(
+    scope="module", params=[(name, b) for name in sorted(MANUFACTURED) for b in BENDING_FORMS]
+)
 def convergence(request):
-    surface = MANUFACTURED[request.param]
+    name, bending = request.param
     ns = [4, 8, 16, 32]
-    return request.param, ns, [manufactured_errors(surface, n) for n in ns]
+    errors = [manufactured_errors(MANUFACTURED[name], n, bending=bending) for n in ns]
+    return (name, bending), ns, errors
 
 
 def test_manufactured_energy_norm_rate(convergence) -> None:
     """P2: the energy-norm error (H¹ of ζ_α, broken H² and facet jumps of ζ_3) falls as h,
-    on an elliptic surface and on a saddle (which the membrane model refuses)."""
+    on an elliptic surface and on a saddle (which the membrane model refuses), with either
+    bending form."""
     name, ns, errors = convergence
     hs = [2 * L / n for n in ns]
     rate = np.polyfit(np.log(hs), np.log([e["energy"] for e in errors]), 1)[0]
@@ -295,9 +304,11 @@ def test_manufactured_energy_norm_rate(convergence) -> None:
 
 
 def test_interior_penalty_changes_less_than_the_error(convergence) -> None:
-    """σ = 8 (default) and σ = 32 give solutions closer to each other than to the exact one."""
-    name, ns, errors = convergence
-    other = manufactured_errors(MANUFACTURED[name], ns[2], sigma=32.0)
+    """σ at its default (16 hybrid, 8 C⁰-IP) and at 4 times it give solutions closer to each
+    other than to the exact one."""
+    (name, bending), ns, errors = convergence
+    sigma = 4 * (DEFAULT_HYBRID_PENALTY if bending == "hybrid" else DEFAULT_INTERIOR_PENALTY)
+    other = manufactured_errors(MANUFACTURED[name], ns[2], sigma=sigma, bending=bending)
     assert other["energy"] < 2 * errors[2]["energy"]
     a, b = errors[2]["zeta"], other["zeta"]
     diff = np.sqrt(COMM.allreduce(np.sum((a.x.array - b.x.array) ** 2)))

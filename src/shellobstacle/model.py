@@ -145,6 +145,7 @@ class Shell:
 
 TRANSVERSE = ("clamped", "free")
 PENALTY_QUADRATURES = ("gauss", "vertex")
+BENDING_FORMS = ("hybrid", "c0ip")
 
 
 @dataclass(frozen=True)
@@ -157,7 +158,11 @@ class Discretization:
         penalty_quadrature: ``"gauss"`` (the paper's) or ``"vertex"`` (nodal, mass-lumped; P1).
         quadrature_degree: for the membrane and load integrals (default ``2 * degree + 2``).
         interior_penalty: ``σ`` of the facet terms of Koiter's bending energy (default
+            :data:`~shellobstacle.hybrid_bending.DEFAULT_HYBRID_PENALTY` or
             :data:`~shellobstacle.koiter.DEFAULT_INTERIOR_PENALTY`); unused by the membrane.
+        bending: Koiter's bending form, ``"hybrid"`` (a multiplier per facet,
+            :mod:`~shellobstacle.hybrid_bending`) or ``"c0ip"`` (the C⁰ interior penalty,
+            :mod:`~shellobstacle.koiter`); unused by the membrane.
     """
 
     degree: int = 1
@@ -165,6 +170,7 @@ class Discretization:
     penalty_quadrature: str = "gauss"
     quadrature_degree: int | None = None
     interior_penalty: float | None = None
+    bending: str = "hybrid"
 
     def __post_init__(self) -> None:
         if self.degree not in (1, 2):
@@ -183,6 +189,8 @@ class Discretization:
             raise ValueError(
                 f"discretization.quadrature_degree must be in 1..20, got {self.quadrature_degree}"
             )
+        if self.bending not in BENDING_FORMS:
+            raise ValueError(not_one_of("discretization.bending", self.bending, BENDING_FORMS))
         if self.interior_penalty is not None and not self.interior_penalty > 0:
             raise ValueError(
                 f"discretization.interior_penalty must be > 0, got {self.interior_penalty}"
@@ -192,6 +200,12 @@ class Discretization:
     def qdegree(self) -> int:
         """Quadrature degree actually used for the membrane and load integrals."""
         return self.quadrature_degree or 2 * self.degree + 2
+
+    @property
+    def bending_qdegree(self) -> int:
+        """Quadrature degree of the hybrid bending form's cell integrals (``2 · degree``
+        unless ``quadrature_degree`` is given)."""
+        return self.quadrature_degree or 2 * self.degree
 
 
 @dataclass(frozen=True)

@@ -19,6 +19,13 @@ import sympy as sp
 import ufl
 
 from shellobstacle.expressions import to_ufl, y1, y2
+from shellobstacle.hybrid_bending import (
+    DEFAULT_HYBRID_PENALTY,
+    CondensedStiffness,
+    cell_boundaries,
+    facet_normals,
+    hybrid_bending_energy,
+)
 from shellobstacle.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
 from shellobstacle.membrane import elastic_product, gap, strain
 from shellobstacle.model import Discretization, Shell
@@ -103,32 +110,40 @@ class PenalizedProblem:
         sqrt_a = G.sqrt_a
 
         elastic = 0.5 * eps * elastic_product(G, lam, mu, gam, gam) * sqrt_a * self.dx
+        self.t: dolfinx.fem.Function | None = None  # the hybrid form's facet multiplier
         if shell.model == "koiter":
+            hybrid = disc.bending == "hybrid"
+            default = DEFAULT_HYBRID_PENALTY if hybrid else DEFAULT_INTERIOR_PENALTY
             # σ is a Constant: changing it reuses the compiled forms
             self.sigma = dolfinx.fem.Constant(
-                mesh, PETSc.ScalarType(disc.interior_penalty or DEFAULT_INTERIOR_PENALTY)
+                mesh, PETSc.ScalarType(disc.interior_penalty or default)
             )
             # s multiplies the bending energy (set_bending_scale): a Constant, as σ
             self.bending_scale = dolfinx.fem.Constant(mesh, PETSc.ScalarType(1.0))
-            ds = ufl.Measure("ds", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
-            elastic += self.bending_scale * bending_energy(
-                G, eps, lam, mu, zeta, self.dx, self.sigma, ds
-            )
+            if hybrid:
+                T = dolfinx.fem.functionspace(mesh, ("CR", 1))
+                self.t = dolfinx.fem.Function(T, name="t")
+                # ρ(ζ)·ρ(η) of P_k functions: degree 2k but for the geometry's coefficients
+                dx_bending = ufl.Measure(
+                    "dx", domain=mesh, metadata={"quadrature_degree": disc.bending_qdegree}
+                )
+                bending = hybrid_bending_energy(
+                    G, eps, lam, mu, zeta, self.t, facet_normals(mesh), dx_bending,
+                    cell_boundaries(mesh), self.sigma,
+                )  # fmt: skip
+            else:
+                ds = ufl.Measure("ds", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
+                bending = bending_energy(G, eps, lam, mu, zeta, self.dx, self.sigma, ds)
+            elastic += self.bending_scale * bending
         work = sum(self.p[i] * zeta[i] for i in range(3)) * sqrt_a * self.dx
         kappa_x = self.kappa if kappa_scale is None else self.kappa * kappa_scale
         penalty = (eps / (2 * kappa_x)) * g_minus**2 / self.c_norm * self.dx_penalty
         energy = elastic - work + penalty
         residual = ufl.derivative(energy, zeta, v)
-        jacobian = ufl.derivative(residual, zeta, du)
         load = sum(self.p[i] * v[i] for i in range(3)) * sqrt_a * self.dx
         with phase("compiling the forms"):
             self.forms = {
                 "residual": dolfinx.fem.form(residual),
-                "jacobian": dolfinx.fem.form(jacobian),
-                # K: the (constant) Hessian of the membrane energy; J_κ'' = K + penalty part
-                "stiffness": dolfinx.fem.form(
-                    ufl.derivative(ufl.derivative(elastic, zeta, v), zeta, du)
-                ),
                 "load": dolfinx.fem.form(load),
                 "elastic_energy": dolfinx.fem.form(elastic),
                 "work": dolfinx.fem.form(work),
@@ -136,8 +151,25 @@ class PenalizedProblem:
                 # (ε/κ) ∫ β(ζ)·v dy: the penalty part of the residual (= −κ ∂R/∂κ)
                 "penalty_residual": dolfinx.fem.form(ufl.derivative(penalty, zeta, v)),
             }
+            dz = ufl.derivative(elastic, zeta, v)
+            if self.t is None:
+                self.forms["jacobian"] = dolfinx.fem.form(ufl.derivative(residual, zeta, du))
+                # K: the (constant) Hessian of the elastic energy; J_κ'' = K + penalty part
+                self.forms["stiffness"] = dolfinx.fem.form(ufl.derivative(dz, zeta, du))
+            else:
+                # the hybrid stiffness' blocks in (ζ, t), K their Schur complement in ζ; the
+                # forms above read t: they hold at ζ once update_multiplier() has run
+                T = self.t.function_space
+                s_, dt = ufl.TestFunction(T), ufl.TrialFunction(T)
+                blocks = {
+                    "a_zz": ufl.derivative(dz, zeta, du),
+                    "a_zt": ufl.derivative(dz, self.t, dt),
+                    "a_tt": ufl.derivative(ufl.derivative(elastic, self.t, s_), self.t, dt),
+                }
+                self.forms["stiffness_blocks"] = {k: dolfinx.fem.form(f) for k, f in blocks.items()}
         self.bcs = self._boundary_conditions()
         self._K: PETSc.Mat | None = None
+        self.condensed: CondensedStiffness | None = None
 
     @property
     def model(self) -> str:
@@ -188,9 +220,12 @@ class PenalizedProblem:
         if not s > 0:
             raise ValueError(f"the bending scale must be > 0, got {s}")
         self.bending_scale.value = s
-        if self._K is not None:
+        if self.condensed is not None:
+            self.condensed.destroy()
+            self.condensed = None
+        elif self._K is not None:
             self._K.destroy()
-            self._K = None
+        self._K = None
 
     def set_parameter(self, name: str, value: float) -> None:
         """Change a load parameter without recompiling."""
@@ -203,9 +238,32 @@ class PenalizedProblem:
         bending for Koiter's model; Dirichlet rows and columns identity), assembled at the
         first call and shared by every solver of this problem: read it, never change it."""
         if self._K is None:
-            self._K = dolfinx.fem.petsc.assemble_matrix(self.forms["stiffness"], bcs=self.bcs)
-            self._K.assemble()
+            if self.t is not None:
+                self.condensed = CondensedStiffness(
+                    self.forms["stiffness_blocks"], self.bcs, self._multiplier_bcs()
+                )
+                self._K = self.condensed.K
+            else:
+                self._K = dolfinx.fem.petsc.assemble_matrix(self.forms["stiffness"], bcs=self.bcs)
+                self._K.assemble()
         return self._K
+
+    def _multiplier_bcs(self) -> list[dolfinx.fem.DirichletBC]:
+        """``t = 0`` on the boundary's facets (where no cell pair meets it)."""
+        tdim = self.mesh.topology.dim
+        facets = dolfinx.mesh.exterior_facet_indices(self.mesh.topology)
+        T = self.t.function_space
+        dofs = dolfinx.fem.locate_dofs_topological(T, tdim - 1, facets)
+        return [dolfinx.fem.dirichletbc(PETSc.ScalarType(0), dofs, T)]
+
+    def update_multiplier(self) -> None:
+        """``t ← t(ζ)``, the hybrid form's multiplier that minimizes the energy at ``ζ``
+        (nothing for the other forms): the forms that read ``t`` then hold at ``ζ``."""
+        if self.t is None:
+            return
+        self.stiffness()
+        self.condensed.multiplier(self.zeta.x.petsc_vec, self.t.x.petsc_vec)
+        self.t.x.scatter_forward()
 
     def load_vector(self, b: PETSc.Vec | None = None) -> PETSc.Vec:
         """The load vector ``(p√a, v)`` with zero Dirichlet rows, assembled into ``b`` (its
@@ -226,6 +284,7 @@ class PenalizedProblem:
 
     def energies(self) -> dict[str, float]:
         """``J(ζ)``, the penalty term and ``J_κ(ζ)`` at the current ``ζ``."""
+        self.update_multiplier()
         el, w, pen = (self.scalar(k) for k in ("elastic_energy", "work", "penalty_energy"))
         return {"energy": el - w, "penalty_energy": pen, "penalized_energy": el - w + pen}
 

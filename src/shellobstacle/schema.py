@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from shellobstacle.adapt.options import KAPPA_MODES
-from shellobstacle.model import MODELS, PENALTY_QUADRATURES, TRANSVERSE
+from shellobstacle.model import BENDING_FORMS, MODELS, PENALTY_QUADRATURES, TRANSVERSE
 from shellobstacle.solvers.options import VI_LINE_SEARCHES, VI_TYPES
 from shellobstacle.surface import SURFACE_KINDS
 
@@ -108,7 +108,14 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
         "quadrature_degree": Key("int", OPTIONAL, "quadrature degree (default 2·degree + 2)"),
         "interior_penalty": Key(
-            "float", OPTIONAL, "koiter: σ of the facet penalty of ∂_n ζ_3 (default 8)"
+            "float", OPTIONAL, "koiter: σ of the facet penalty of ∂_n ζ_3 (default 16; c0ip: 8)"
+        ),
+        "bending": Key(
+            "str",
+            "hybrid",
+            "koiter: the bending form, hybrid (a multiplier per facet) or c0ip (C⁰ interior "
+            "penalty)",
+            BENDING_FORMS,
         ),
     },
     "solver": {

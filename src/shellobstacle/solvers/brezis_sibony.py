@@ -229,6 +229,7 @@ class BrezisSibonySolver:
     def _form_residual(self) -> PETSc.Vec:
         """The residual form assembled at ``problem.zeta`` (a new vector; what
         :meth:`_residual` computes, up to round-off)."""
+        self.problem.update_multiplier()
         b = dolfinx.fem.petsc.assemble_vector(self.problem.forms["residual"])
         b.ghostUpdate(addv=PETSc.InsertMode.ADD, mode=PETSc.ScatterMode.REVERSE)
         dolfinx.fem.petsc.set_bc(b, self.problem.bcs)

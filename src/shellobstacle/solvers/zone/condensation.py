@@ -30,9 +30,10 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.solvers.base import direct_solver, factorize
-from shellobstacle.solvers.mumps import ReplicatedFactor, inverse_block
+from shellobstacle.hybrid_bending import CondensedStiffness
+from shellobstacle.solvers.mumps import ReplicatedFactor
 from shellobstacle.solvers.zone.graph import union, unique
+from shellobstacle.solvers.zone.interior import InteriorFactor
 
 __all__ = ["Condensation"]
 
@@ -48,7 +49,12 @@ class Condensation:
     """
 
     def __init__(
-        self, K: PETSc.Mat, Z: np.ndarray, factorization: str, timings: dict[str, float]
+        self,
+        K: PETSc.Mat,
+        Z: np.ndarray,
+        factorization: str,
+        timings: dict[str, float],
+        hybrid: CondensedStiffness | None = None,
     ) -> None:
         self.K, self.Z, self.timings = K, Z, timings
         self.Jzz: PETSc.Mat | None = None  # J_ZZ on every rank (set_up)
@@ -59,26 +65,14 @@ class Condensation:
         in_z = np.isin(owned, Z, assume_unique=True)
         self.isI = PETSc.IS().createGeneral(owned[~in_z], comm=petsc_comm)
         self.isZ = PETSc.IS().createGeneral(owned[in_z], comm=petsc_comm)
-        KII = K.createSubMatrix(self.isI, self.isI)
         t0 = time.perf_counter()
-        ksp = direct_solver(KII, factorization, "zone")
-        factorize(ksp, "K_II")
+        self.F_I = InteriorFactor(K, self.isI, factorization, hybrid)  # solves with K_II
         timings["factorize"] += time.perf_counter() - t0
-        self.F_I = ksp.getPC().getFactorMatrix()  # solves with K_II: MatSolve on it
-        nI = KII.getSize()[0]
-        self.vI, self.yI, self.tI = KII.createVecRight(), KII.createVecRight(), KII.createVecRight()
-        # Only a serial LU leaves the matrix entries in K_II's own arrays (PETSc's MUMPS
-        # interface copies them for Cholesky and for distributed matrices): otherwise K_II is
-        # not needed once factorized
-        if factorization == "lu" and self.comm.size == 1:
-            kept = [KII, ksp]
-        else:
-            kept = []
-            ksp.destroy()
-            KII.destroy()
+        self.vI = PETSc.Vec().createMPI((self.isI.getLocalSize(), None), comm=petsc_comm)
+        self.yI, self.tI = self.vI.duplicate(), self.vI.duplicate()
         m = Z.size
         self.sizes = {"zone_dofs": int(m)}
-        self._objects = [self.isI, self.isZ, self.F_I, self.vI, self.yI, self.tI, *kept]
+        self._objects = [self.isI, self.isZ, self.F_I, self.vI, self.yI, self.tI]
         if m == 0:
             return
         self.KZI = K.createSubMatrix(self.isZ, self.isI)
@@ -96,7 +90,7 @@ class Condensation:
         cols_z = PETSc.IS().createGeneral(Z.astype(PETSc.IntType) if root else Ip[:0], comm=seq)
         KIpZ = K.createSubMatrices(rows_ip, cols_z)[0]
         KZIp = K.createSubMatrices(cols_z, rows_ip)[0]
-        Ginv = inverse_block(self.F_I, Ip_II, nI)  # [K_II⁻¹]_{I'I'} on rank 0
+        Ginv = self.F_I.inverse_block(Ip_II)  # [K_II⁻¹]_{I'I'} on rank 0
         if root:
             k = Ip_II.size
             ip, ix, v = KIpZ.getValuesCSR()  # K_I'Z: its nonzero columns are Γ

@@ -115,7 +115,8 @@ class ContactZone:
             self.points = None
             return
         self.points = inside(self.n, Z, pattern or csr(self.penalty.M))
-        self.cond = Condensation(self.K, Z, self.factorization, self.timings)
+        hybrid = self.penalty.problem.condensed  # a hybrid stiffness' blocks, or None
+        self.cond = Condensation(self.K, Z, self.factorization, self.timings, hybrid)
         if Z.size:
             self.problem = ZoneProblem(self.cond, self.penalty, self.points, self.timings)
         self.builds += 1

@@ -1,0 +1,208 @@
+"""Koiter's bending energy with a facet multiplier: the hybrid interior-penalty form.
+
+The C⁰ interior-penalty terms of :mod:`shellobstacle.koiter` couple the dofs of the two
+cells of every facet directly. Here each cell instead meets a multiplier ``t_F`` of its
+facets, the normal derivative ``∂ζ_3/∂n_F`` at the facet's midpoint (a Crouzeix–Raviart
+function, single-valued there), and the facet terms are taken at the midpoints:
+
+    E_b(η, t) = ½ Σ_T ∫_T m^{αβ}(η) ρ_αβ(η) √a dy
+                + Σ_T Σ_{F ⊂ ∂T} |F| ( −M_nn(η) e_T + ½ (σ / h_T) C_F e_T² )(m_F),
+    e_T = ∂_{n_T} η_3 − (n_T · n_F) t_F,
+
+with ``t_F = 0`` on the clamped boundary (where ``e_T = ∂_n η_3``). The exact solution with
+``t_F = ∂_{n_F} ζ_3`` satisfies the equations (every ``e_T`` vanishes), so the method is
+consistent; it penalizes the jump of the normal derivative's mean over each facet, a
+stable choice for P2 (a continuous P2 function with zero broken Hessian and zero mean jumps
+is affine). Each term lives on one cell and one facet: the stiffness
+
+    [[A, B], [Bᵀ, C]]  (ζ, t),   C diagonal,
+
+has the stencil of P2 Lagrange plus one unknown per facet, and the stiffness in ζ alone is
+its Schur complement ``K = A − B C⁻¹ Bᵀ`` (:class:`CondensedStiffness`). A factorization of the
+whole block matrix has about a third of the flops of one of ``K`` or of the interior-penalty
+stiffness at equal dofs (``benchmarks/koiter_factor.py``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from mpi4py import MPI  # noqa: F401  (before PETSc: the MPI runtime PETSc links to)
+from petsc4py import PETSc
+
+import dolfinx
+import dolfinx.fem.petsc
+import numpy as np
+import ufl
+
+from shellobstacle.koiter import (
+    _facet_stiffness,
+    _normal_normal,
+    bending_moment,
+    change_of_curvature,
+)
+from shellobstacle.membrane import elastic_product
+from shellobstacle.surface import Geometry
+
+__all__ = ["DEFAULT_HYBRID_PENALTY", "CondensedStiffness", "hybrid_bending_energy"]
+
+DEFAULT_HYBRID_PENALTY = 16.0
+"""``σ`` of the hybrid form with ``h_T`` the cell's diameter: with the multiplier eliminated
+from two equal cells it penalizes the mean jump as the interior-penalty form's σ = 8 does."""
+
+
+def facet_normals(mesh: dolfinx.mesh.Mesh) -> dolfinx.fem.Function:
+    """``n_F``: a unit normal of every facet, oriented the same way on every rank (towards
+    the half-plane of a fixed direction), as a vector Crouzeix–Raviart function (exact at
+    the midpoints)."""
+    tdim = mesh.topology.dim
+    mesh.topology.create_connectivity(tdim, tdim - 1)
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    N = dolfinx.fem.Function(dolfinx.fem.functionspace(mesh, ("CR", 1, (tdim,))))
+    num_cells = mesh.topology.index_map(tdim).size_local + mesh.topology.index_map(tdim).num_ghosts
+    c2f = mesh.topology.connectivity(tdim, tdim - 1).array.reshape(num_cells, -1)
+    facets = np.arange(
+        mesh.topology.index_map(tdim - 1).size_local + mesh.topology.index_map(tdim - 1).num_ghosts,
+        dtype=np.int32,
+    )
+    nodes = dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, facets)
+    x = mesh.geometry.x[nodes][:, :, :2]
+    tangent = x[:, 1] - x[:, 0]
+    normal = np.stack([tangent[:, 1], -tangent[:, 0]], axis=1)
+    normal /= np.linalg.norm(normal, axis=1)[:, None]
+    normal[normal @ _ORIENTATION < 0] *= -1
+    dofs = N.function_space.dofmap.list[:num_cells]
+    N.x.array.reshape(-1, tdim)[dofs.ravel()] = normal[c2f.ravel()]
+    return N
+
+
+_ORIENTATION = np.array([1.0, np.sqrt(2.0) / 3.0])  # no mesh facet is normal to it
+
+
+def cell_boundaries(mesh: dolfinx.mesh.Mesh) -> ufl.Measure:
+    """The measure of the boundaries of the owned cells, facet by facet, each at its
+    midpoint (one Gauss point): an interior facet is integrated once from each cell."""
+    tdim = mesh.topology.dim
+    cells = mesh.topology.index_map(tdim).size_local
+    per_cell = dolfinx.cpp.mesh.cell_num_entities(mesh.topology.cell_type, tdim - 1)
+    entities = np.vstack(
+        (
+            np.repeat(np.arange(cells, dtype=np.int32), per_cell),
+            np.tile(np.arange(per_cell, dtype=np.int32), cells),
+        )
+    ).T.ravel()
+    return ufl.Measure(
+        "ds", domain=mesh, subdomain_data=[(1, entities)], metadata={"quadrature_degree": 1}
+    )(1)
+
+
+def hybrid_bending_energy(
+    G: Geometry,
+    epsilon: Any,
+    lam: Any,
+    mu: Any,
+    zeta: Any,
+    t: Any,
+    n_F: Any,
+    dx: ufl.Measure,
+    d_boundaries: ufl.Measure,
+    sigma: Any,
+) -> ufl.Form:
+    """The hybrid bending energy ``E_b(ζ, t)`` of the module docstring (UFL).
+
+    Args:
+        G: UFL geometry of θ (with third derivatives).
+        epsilon, lam, mu: half-thickness and Lamé constants.
+        zeta: the displacement, a vector Lagrange function (covariant components).
+        t: the facet multiplier, a Crouzeix–Raviart function (``∂ζ_3/∂n_F`` at midpoints,
+            0 on the clamped boundary).
+        n_F: the facets' normals (:func:`facet_normals`).
+        dx: cell measure; d_boundaries: :func:`cell_boundaries`.
+        sigma: the penalty ``σ`` (a number or a ``Constant``).
+    """
+    mesh = zeta.function_space.mesh
+    eta = [zeta[i] for i in range(3)]
+    grad = ufl.grad(zeta)
+    grad_eta = [[grad[i, a] for a in range(2)] for i in range(3)]
+    hess = ufl.grad(ufl.grad(zeta[2]))
+    rho = change_of_curvature(G, eta, grad_eta, [[hess[a, b] for b in range(2)] for a in range(2)])
+    m = bending_moment(G, epsilon, lam, mu, rho)
+    cells = 0.5 * (epsilon**3 / 3) * elastic_product(G, lam, mu, rho, rho) * G.sqrt_a * dx
+
+    n = ufl.FacetNormal(mesh)
+    h = ufl.CellDiameter(mesh)
+    e = ufl.dot(ufl.grad(zeta[2]), n) - ufl.dot(n, n_F) * t  # ∂_{n_T} η_3 − (n_T·n_F) t_F
+    M_nn = G.sqrt_a * _normal_normal(m, n)
+    C_F = _facet_stiffness(G, epsilon, lam, mu, n)
+    return cells + (-M_nn * e + 0.5 * (sigma / h) * C_F * e * e) * d_boundaries
+
+
+def drop_zeros(A: PETSc.Mat) -> PETSc.Mat:
+    """A new assembled AIJ matrix with the nonzero entries of ``A`` (its owned rows, the
+    same layout) and block size 1.
+
+    DOLFINx gives a facet integral the pattern of every dof of the facet's two cells against
+    every other; the terms of the hybrid form reach one cell and one facet, so the rest of
+    that pattern holds exact zeros, which would cost a factorization fill."""
+    indptr, cols, values = A.getValuesCSR()
+    keep = values != 0
+    kept = np.concatenate(([0], np.cumsum(keep, dtype=PETSc.IntType)))
+    B = PETSc.Mat().createAIJ(
+        size=A.getSizes(),
+        csr=(kept[indptr].astype(PETSc.IntType), cols[keep], values[keep]),
+        comm=A.comm,
+    )
+    B.assemble()
+    return B
+
+
+class CondensedStiffness:
+    """The blocks ``A`` (ζ, ζ), ``B`` (ζ, t) and ``C`` (t, t, diagonal) of a hybrid stiffness
+    and its Schur complement ``K = A − B C⁻¹ Bᵀ`` in ζ (Dirichlet rows and columns of the
+    identity, from ``A``).
+
+    ``A`` has the pattern of the cells (the penalty's Hessian, added to ``K`` later, lives
+    there); ``B`` and ``K − A`` have their nonzeros only.
+
+    Args:
+        forms: the compiled bilinear forms ``a_zz`` (its cell and its facet integrals apart),
+            ``a_zt`` and ``a_tt``, by those names.
+        bcs: Dirichlet conditions of ζ; bcs_t: those of ``t`` (the clamped boundary's facets).
+    """
+
+    def __init__(
+        self,
+        forms: dict[str, dolfinx.fem.Form],
+        bcs: list[dolfinx.fem.DirichletBC],
+        bcs_t: list[dolfinx.fem.DirichletBC],
+    ) -> None:
+        self.A = dolfinx.fem.petsc.assemble_matrix(forms["a_zz"], bcs=bcs)
+        self.A.assemble()
+        B = dolfinx.fem.petsc.assemble_matrix(forms["a_zt"], bcs=bcs + bcs_t)
+        B.assemble()
+        self.B = drop_zeros(B)
+        B.destroy()
+        C = dolfinx.fem.petsc.assemble_matrix(forms["a_tt"], bcs=bcs_t)
+        C.assemble()
+        self.c = C.getDiagonal()  # C is diagonal: each t_F meets only itself, at m_F
+        C.destroy()
+        root = self.c.copy()
+        root.reciprocal()
+        root.sqrtabs()
+        scaled = self.B.copy()
+        scaled.diagonalScale(None, root)  # B C^{-1/2}
+        E = scaled.matTransposeMult(scaled)  # B C⁻¹ Bᵀ
+        self.K = self.A.copy()
+        self.K.axpy(-1.0, E, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
+        for obj in (E, scaled, root):
+            obj.destroy()
+
+    def multiplier(self, zeta: PETSc.Vec, t: PETSc.Vec) -> None:
+        """``t ← −C⁻¹ Bᵀ ζ``: the multiplier that minimizes the energy at ``ζ``."""
+        self.B.multTranspose(zeta, t)
+        t.pointwiseDivide(t, self.c)
+        t.scale(-1.0)
+
+    def destroy(self) -> None:
+        for obj in (self.A, self.B, self.c, self.K):
+            obj.destroy()
