@@ -21,6 +21,7 @@ from shellobstacle.meshing import create_mesh
 from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.problem import PenalizedProblem
+from shellobstacle.solvers.base import direct_solver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.zone.interior import InteriorFactor
@@ -70,13 +71,8 @@ def test_stiffness_is_the_schur_complement_of_the_blocks() -> None:
     K = problem.stiffness()
     blocks = problem.condensed
     f = problem.load_vector()
-    ksp = PETSc.KSP().create(K.getComm())
-    ksp.setOperators(K)
-    ksp.setType("preonly")
-    ksp.getPC().setType("cholesky")
-    ksp.getPC().setFactorSolverType("mumps")
     zeta = K.createVecRight()
-    ksp.solve(f, zeta)
+    direct_solver(K, "cholesky").solve(f, zeta)
     # the block equations at (ζ, t(ζ)): A ζ + B t = f and Bᵀ ζ + C t = 0
     t = blocks.B.createVecRight()
     blocks.multiplier(zeta, t)

@@ -3,7 +3,8 @@
 The C⁰ interior-penalty terms of :mod:`shellobstacle.koiter` couple the dofs of the two
 cells of every facet directly. Here each cell instead meets a multiplier ``t_F`` of its
 facets, the normal derivative ``∂ζ_3/∂n_F`` at the facet's midpoint (a Crouzeix–Raviart
-function, single-valued there), and the facet terms are taken at the midpoints:
+function, single-valued there), and the facet terms are taken at the midpoints
+(:eq:`koiter-hybrid`)::
 
     E_b(η, t) = ½ Σ_T ∫_T m^{αβ}(η) ρ_αβ(η) √a dy
                 + Σ_T Σ_{F ⊂ ∂T} |F| ( −M_nn(η) e_T + ½ (σ / h_T) C_F e_T² )(m_F),
@@ -13,14 +14,14 @@ with ``t_F = 0`` on the clamped boundary (where ``e_T = ∂_n η_3``). The exact
 ``t_F = ∂_{n_F} ζ_3`` satisfies the equations (every ``e_T`` vanishes), so the method is
 consistent; it penalizes the jump of the normal derivative's mean over each facet, a
 stable choice for P2 (a continuous P2 function with zero broken Hessian and zero mean jumps
-is affine). Each term lives on one cell and one facet: the stiffness
+is affine). Each term lives on one cell and one facet: the stiffness::
 
     [[A, B], [Bᵀ, C]]  (ζ, t),   C diagonal,
 
 has the stencil of P2 Lagrange plus one unknown per facet, and the stiffness in ζ alone is
-its Schur complement ``K = A − B C⁻¹ Bᵀ`` (:class:`CondensedStiffness`). A factorization of the
-whole block matrix has about a third of the flops of one of ``K`` or of the interior-penalty
-stiffness at equal dofs (``benchmarks/koiter_factor.py``).
+its Schur complement ``K = A − B C⁻¹ Bᵀ`` (:class:`CondensedStiffness`). A Cholesky factor of
+the block matrix takes a fifth of the flops of one of the interior penalty's stiffness at
+equal dofs (``benchmarks/koiter_factor.py``).
 """
 
 from __future__ import annotations
@@ -36,15 +37,22 @@ import numpy as np
 import ufl
 
 from shellobstacle.koiter import (
-    _facet_stiffness,
-    _normal_normal,
     bending_moment,
     change_of_curvature,
+    facet_stiffness,
+    normal_normal,
 )
 from shellobstacle.membrane import elastic_product
 from shellobstacle.surface import Geometry
 
-__all__ = ["DEFAULT_HYBRID_PENALTY", "CondensedStiffness", "hybrid_bending_energy"]
+__all__ = [
+    "DEFAULT_HYBRID_PENALTY",
+    "CondensedStiffness",
+    "cell_boundaries",
+    "drop_zeros",
+    "facet_normals",
+    "hybrid_bending_energy",
+]
 
 DEFAULT_HYBRID_PENALTY = 16.0
 """``σ`` of the hybrid form with ``h_T`` the cell's diameter: with the multiplier eliminated
@@ -132,8 +140,8 @@ def hybrid_bending_energy(
     n = ufl.FacetNormal(mesh)
     h = ufl.CellDiameter(mesh)
     e = ufl.dot(ufl.grad(zeta[2]), n) - ufl.dot(n, n_F) * t  # ∂_{n_T} η_3 − (n_T·n_F) t_F
-    M_nn = G.sqrt_a * _normal_normal(m, n)
-    C_F = _facet_stiffness(G, epsilon, lam, mu, n)
+    M_nn = G.sqrt_a * normal_normal(m, n)
+    C_F = facet_stiffness(G, epsilon, lam, mu, n)
     return cells + (-M_nn * e + 0.5 * (sigma / h) * C_F * e * e) * d_boundaries
 
 

@@ -16,7 +16,9 @@ the facet in the plane of ω), ``C_F = (ε³/3) √a a^{αβστ} n_α n_β n_σ
 stiffness and ``F`` running over the interior facets and the clamped boundary (where the
 jump is ``∂_n η_3`` itself). The exact solution satisfies the discrete equations (the
 facet terms are what integrating the broken Hessian by parts leaves), so the method is
-consistent; ``σ`` large enough makes it coercive.
+consistent; ``σ`` large enough makes it coercive. The default bending form is the hybrid
+one of :mod:`shellobstacle.hybrid_bending`, which reuses this module's change of curvature,
+bending moment and facet stiffness.
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ __all__ = [
     "bending_energy",
     "bending_moment",
     "change_of_curvature",
+    "facet_stiffness",
+    "normal_normal",
 ]
 
 Tensor2 = list[list[Any]]
@@ -104,11 +108,12 @@ def bending_moment(G: Geometry, epsilon: Any, lam: Any, mu: Any, rho: Tensor2) -
     ]
 
 
-def _normal_normal(m: Tensor2, n: Any) -> Any:
+def normal_normal(m: Tensor2, n: Any) -> Any:
+    """``m^{αβ} n_α n_β``."""
     return sum(m[al][be] * n[al] * n[be] for al in range(2) for be in range(2))
 
 
-def _facet_stiffness(G: Geometry, epsilon: Any, lam: Any, mu: Any, n: Any) -> Any:
+def facet_stiffness(G: Geometry, epsilon: Any, lam: Any, mu: Any, n: Any) -> Any:
     """``C_F = (ε³/3) √a a^{αβστ} n_α n_β n_σ n_τ`` (the bending stiffness across the facet)."""
     A = G.a_upper
     ann = sum(A[al][be] * n[al] * n[be] for al in range(2) for be in range(2))
@@ -151,8 +156,8 @@ def bending_energy(
 
     n = ufl.FacetNormal(mesh)
     h = ufl.CellDiameter(mesh)
-    M_nn = G.sqrt_a * _normal_normal(m, n)
-    C_F = _facet_stiffness(G, epsilon, lam, mu, n)
+    M_nn = G.sqrt_a * normal_normal(m, n)
+    C_F = facet_stiffness(G, epsilon, lam, mu, n)
     jump = ufl.jump(ufl.grad(zeta[2]), n)
     h_avg = (h("+") + h("-")) / 2
     interior = (-ufl.avg(M_nn) * jump + 0.5 * (sigma / h_avg) * ufl.avg(C_F) * jump * jump) * dS

@@ -42,11 +42,16 @@ class PenalizedProblem:
     + (ε/(2κ)) ∫ ({g(η)}^-)² / |c| dy``; its derivative is the penalized equation
     :eq:`penalized-equation` and its (generalized) Hessian the symmetric positive definite
     Jacobian :eq:`penalty-jacobian`. For Koiter's model (``shell.model == "koiter"``) the
-    elastic part gains the bending energy of :eq:`koiter-energy` in its C⁰ interior-penalty
-    form :eq:`koiter-c0ip` (:func:`~shellobstacle.koiter.bending_energy`); the rest is shared.
+    elastic part gains the bending energy of :eq:`koiter-energy`, in its hybrid form
+    :eq:`koiter-hybrid` (the default, :mod:`~shellobstacle.hybrid_bending`: ``K`` is the Schur
+    complement of a block matrix in ``(ζ, t)``) or its C⁰ interior-penalty form
+    :eq:`koiter-c0ip` (:func:`~shellobstacle.koiter.bending_energy`); the rest is shared.
 
     Attributes:
         zeta: the unknown ``ζ_κ^h`` (covariant components), a vector Lagrange function.
+        t: the hybrid bending form's facet multiplier (None for the other forms), set from
+            ``ζ`` by :meth:`update_multiplier`.
+        condensed: the hybrid stiffness' blocks (after :meth:`stiffness`), or None.
         kappa: the penalty parameter, a ``Constant``.
         kappa_scale: None, or the cellwise factor ``ρ`` of a penalty parameter ``κ ρ(x)``.
         parameters: the load parameters, ``Constant`` objects by name.

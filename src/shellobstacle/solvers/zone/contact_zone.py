@@ -116,6 +116,8 @@ class ContactZone:
             return
         self.points = inside(self.n, Z, pattern or csr(self.penalty.M))
         hybrid = self.penalty.problem.condensed  # a hybrid stiffness' blocks, or None
+        if hybrid is not None and hybrid.K is not self.K:  # blocks of another stiffness
+            hybrid = None
         self.cond = Condensation(self.K, Z, self.factorization, self.timings, hybrid)
         if Z.size:
             self.problem = ZoneProblem(self.cond, self.penalty, self.points, self.timings)
