@@ -218,8 +218,9 @@ class PenalizedProblem:
         """Multiply Koiter's bending energy by ``s`` (1: the shell's own). When the load and
         the penalty are proportional to ε, as the paper's, J_κ/ε depends on ε only through
         the bending's ε²/3, so ``s = (ε'/ε)²`` gives Koiter's solution at thickness ε'
-        without compiling the forms again. The stiffness is assembled again at its next use:
-        solvers built before the change keep the old one."""
+        without compiling the forms again. The stiffness is destroyed and assembled again at
+        its next use: solvers built before the change hold the destroyed one, so build them
+        again."""
         if self.model != "koiter":
             raise ValueError("only Koiter's model has a bending energy to scale")
         if not s > 0:

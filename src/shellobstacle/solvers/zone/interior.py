@@ -3,10 +3,11 @@
 For the hybrid bending form (:mod:`shellobstacle.hybrid_bending`) the stiffness is the
 Schur complement ``K = A − B C⁻¹ Bᵀ`` of a block matrix in ``(ζ, t)`` with ``C`` diagonal, and
 so is ``K_II`` of ``H_I = [[A_II, B_I], [B_Iᵀ, C]]`` (``B_I``: the rows I of ``B``, every
-multiplier). ``H_I`` is factorized instead of ``K_II``: the same solves (``t``'s right-hand side zero, its
-part of the solution dropped) and the same selected inverse entries (``[K_II⁻¹]`` is the
-``(ζ, ζ)`` block of ``H_I⁻¹``), at a fraction of the fill, because each row of ``H_I`` couples
-one cell's dofs and its facets' multipliers, where ``K``'s rows reach across the facets.
+multiplier). ``H_I`` is factorized instead of ``K_II``: the same solves (``t``'s right-hand
+side zero, its part of the solution dropped) and the same selected inverse entries
+(``[K_II⁻¹]`` is the ``(ζ, ζ)`` block of ``H_I⁻¹``), at a fraction of the fill, because each
+row of ``H_I`` couples one cell's dofs and its facets' multipliers, where ``K``'s rows reach
+across the facets.
 """
 
 from __future__ import annotations
