@@ -67,12 +67,10 @@ def facet_normals(mesh: dolfinx.mesh.Mesh) -> dolfinx.fem.Function:
     mesh.topology.create_connectivity(tdim, tdim - 1)
     mesh.topology.create_connectivity(tdim - 1, tdim)
     N = dolfinx.fem.Function(dolfinx.fem.functionspace(mesh, ("CR", 1, (tdim,))))
-    num_cells = mesh.topology.index_map(tdim).size_local + mesh.topology.index_map(tdim).num_ghosts
+    cell_map, facet_map = mesh.topology.index_map(tdim), mesh.topology.index_map(tdim - 1)
+    num_cells = cell_map.size_local + cell_map.num_ghosts
     c2f = mesh.topology.connectivity(tdim, tdim - 1).array.reshape(num_cells, -1)
-    facets = np.arange(
-        mesh.topology.index_map(tdim - 1).size_local + mesh.topology.index_map(tdim - 1).num_ghosts,
-        dtype=np.int32,
-    )
+    facets = np.arange(facet_map.size_local + facet_map.num_ghosts, dtype=np.int32)
     nodes = dolfinx.mesh.entities_to_geometry(mesh, tdim - 1, facets)
     x = mesh.geometry.x[nodes][:, :, :2]
     tangent = x[:, 1] - x[:, 0]
@@ -149,9 +147,10 @@ def drop_zeros(A: PETSc.Mat) -> PETSc.Mat:
     """A new assembled AIJ matrix with the nonzero entries of ``A`` (its owned rows, the
     same layout) and block size 1.
 
-    DOLFINx gives a facet integral the pattern of every dof of the facet's two cells against
-    every other; the terms of the hybrid form reach one cell and one facet, so the rest of
-    that pattern holds exact zeros, which would cost a factorization fill."""
+    DOLFINx gives ``B`` the pattern of every dof of a cell against the multipliers of all
+    its facets; a term of the hybrid form reads one facet's midpoint, where the other facets'
+    Crouzeix–Raviart functions vanish, so the rest of that pattern holds exact zeros, which
+    would cost a factorization fill."""
     indptr, cols, values = A.getValuesCSR()
     keep = values != 0
     kept = np.concatenate(([0], np.cumsum(keep, dtype=PETSc.IntType)))
@@ -173,8 +172,7 @@ class CondensedStiffness:
     there); ``B`` and ``K − A`` have their nonzeros only.
 
     Args:
-        forms: the compiled bilinear forms ``a_zz`` (its cell and its facet integrals apart),
-            ``a_zt`` and ``a_tt``, by those names.
+        forms: the compiled bilinear forms ``a_zz``, ``a_zt`` and ``a_tt``, by those names.
         bcs: Dirichlet conditions of ζ; bcs_t: those of ``t`` (the clamped boundary's facets).
     """
 
