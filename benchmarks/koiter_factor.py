@@ -28,7 +28,7 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
     from shellobstacle.model import Discretization
     from shellobstacle.problem import PenalizedProblem
     from shellobstacle.solvers.base import direct_solver, factorize
-    from shellobstacle.solvers.zone.interior import block_matrix
+    from shellobstacle.solvers.zone.multipliers import block_matrix
 
     out = []
     for model, degree, size, bending in (
@@ -42,9 +42,7 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
         t0 = time.perf_counter()
         K = problem.stiffness()
         if bending == "hybrid":  # the block matrix in (ζ, t), as the contact zone has it
-            r0, r1 = K.getOwnershipRange()
-            every = PETSc.IS().createStride(r1 - r0, r0, 1, comm=K.getComm())
-            K, _ = block_matrix(problem.condensed, every)
+            K, _, _ = block_matrix(problem.condensed)
         assemble = time.perf_counter() - t0
         for ordering in orderings:
             seconds = []

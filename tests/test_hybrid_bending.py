@@ -1,5 +1,5 @@
-"""The hybrid bending form of Koiter's model: its blocks, its Schur complement, the interior
-factorization through the block matrix, and serial against distributed contact solves.
+"""The hybrid bending form of Koiter's model: its blocks, its Schur complement, the contact
+zone condensed in the block matrix, and serial against distributed contact solves.
 
 Its convergence (energy-norm rates on manufactured solutions, the clamped plate, the
 membrane limit) is tested with the interior-penalty form's in test_koiter.py.
@@ -24,7 +24,8 @@ from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.base import direct_solver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.solvers.zone.interior import InteriorFactor
+from shellobstacle.solvers.zone.condensation import Condensation
+from shellobstacle.solvers.zone.contact_zone import ContactZone
 from shellobstacle.surface import Surface
 
 COMM = MPI.COMM_WORLD
@@ -90,33 +91,79 @@ def test_stiffness_is_the_schur_complement_of_the_blocks() -> None:
     assert t.norm() > 0  # the multiplier is used: ζ_3's normal derivatives at the midpoints
 
 
+def koiter_solved(comm: MPI.Comm, h: float) -> tuple[PenalizedProblem, NewtonSolver, list]:
+    problem = paper_koiter(comm, h)
+    solver = NewtonSolver(problem)
+    steps = continuation(problem, solver, [h**0.5, h, h**1.5])
+    assert all(s.converged for s in steps)
+    return problem, solver, steps
+
+
+def lu_solve(A: PETSc.Mat, b: PETSc.Vec) -> PETSc.Vec:
+    ksp = direct_solver(A, "lu")
+    x = b.duplicate()
+    ksp.solve(b, x)
+    ksp.destroy()
+    return x
+
+
 @pytest.mark.mpi
-def test_interior_factor_through_the_block_matrix() -> None:
-    """Solves with ``K_II`` and the entries of ``K_II⁻¹`` are the same from the block matrix
-    ``H_I`` as from ``K_II`` itself (serially and on several ranks)."""
-    problem = paper_koiter(COMM, 0.1)
-    K = problem.stiffness()
-    n = K.getSize()[0]
-    Z = np.arange(n // 3, n // 2, dtype=PETSc.IntType)  # a band of dofs as the zone
-    r0, r1 = K.getOwnershipRange()
-    owned = np.arange(r0, r1, dtype=PETSc.IntType)
-    isI = PETSc.IS().createGeneral(owned[~np.isin(owned, Z)], comm=K.getComm())
-    plain = InteriorFactor(K, isI, "cholesky")
-    hybrid = InteriorFactor(K, isI, "cholesky", problem.condensed)
-    assert hybrid.size == plain.size == n - Z.size
-    b = PETSc.Vec().createMPI((isI.getLocalSize(), None), comm=K.getComm())
-    b.setRandom()
-    x, y = b.duplicate(), b.duplicate()
-    plain.solve(b, x)
-    hybrid.solve(b, y)
-    y.axpy(-1.0, x)
-    assert y.norm() <= 1e-9 * x.norm()
-    rows = np.unique(np.linspace(0, plain.size - 1, 40).astype(PETSc.IntType))
-    a, c = plain.inverse_block(rows), hybrid.inverse_block(rows)
-    if COMM.rank == 0:
-        assert np.abs(a - c).max() <= 1e-9 * np.abs(a).max()
-    for obj in (plain, hybrid, b, x, y, isI):
-        obj.destroy()
+def test_the_zone_condensed_in_the_block_matrix_solves_with_the_jacobian() -> None:
+    """The contact zone condensed in ``H`` (its multipliers with it) solves with ``J = K + P``
+    exactly, and couples to fewer outside unknowns than the zone condensed in ``K``."""
+    problem, solver, _ = koiter_solved(COMM, 0.05)
+    zone = solver.zone
+    assert zone.cond is not None and zone.cond.blocks is not None
+    sizes = zone.sizes
+    assert sizes["zone_multipliers"] > 0
+    blocks = zone.cond.blocks  # H's numbers of ζ's and t's owned rows
+    r0, r1 = problem.stiffness().getOwnershipRange()
+    t0, t1 = problem.condensed.B.getOwnershipRangeColumn()
+    assert np.array_equal(blocks.rows_zeta.getIndices(), blocks.of_zeta(np.arange(r0, r1)))
+    assert np.array_equal(blocks.rows_t.getIndices(), blocks.of_t(np.arange(t0, t1)))
+    system = solver.system
+    system.zeta.scale(0.9)  # away from the solution: a Newton step of some size
+    system.problem.zeta.x.scatter_forward()
+    system.residual()
+    J = system.jacobian()
+    assert zone.covers(system.g < 0)
+    zone.set_up(J)
+    b = system.R.duplicate()
+    b.array[:] = np.random.default_rng(COMM.rank).standard_normal(b.getLocalSize())
+    x = b.duplicate()
+    zone.cond.apply(b, x)
+    exact = lu_solve(J, b)
+    x.axpy(-1.0, exact)
+    assert x.norm() <= 1e-9 * exact.norm()
+    # a Newton step from the state (ζ, t(ζ)): x = −R(ζ)
+    system.negate_residual()
+    zone.newton_step(system.R, system.zeta, x)
+    exact = lu_solve(J, system.R)
+    assert exact.norm() > 1e-3 * system.zeta.norm()
+    x.axpy(-1.0, exact)
+    assert x.norm() <= 1e-9 * exact.norm()
+    plain = Condensation(problem.stiffness(), zone.Z, "cholesky", {"factorize": 0.0})
+    assert sizes["coupled_dofs"] < plain.sizes["coupled_dofs"]
+    plain.destroy()
+
+
+@pytest.mark.mpi
+def test_zone_steps_with_and_without_the_multipliers_agree(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The zone's problem in ``(ζ_Z, t_Z)``, started from minimizing multipliers, takes the
+    Newton steps of the problem in ``ζ_Z`` alone: the same steps per κ, the same solution."""
+    runs = []
+    for blocks in (True, False):
+        if not blocks:
+            monkeypatch.setattr(ContactZone, "_blocks", lambda self: None)
+        problem, solver, steps = koiter_solved(COMM, 0.05)
+        assert (solver.zone.cond.blocks is not None) == blocks
+        runs.append(([s.newton.iterations for s in steps], problem.zeta.x.petsc_vec.copy()))
+    (with_t, zeta), (without_t, reference) = runs
+    assert with_t == without_t
+    zeta.axpy(-1.0, reference)
+    assert zeta.norm() <= 1e-9 * reference.norm()
 
 
 @pytest.mark.mpi

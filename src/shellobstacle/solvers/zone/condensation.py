@@ -19,6 +19,10 @@ thousand dofs; on several ranks by all of them together) and solves
 For a Newton right-hand side ``r = −R(ζ)`` the penalty vanishes on ``I``, so
 ``K_ZI K_II⁻¹ r_I = K_ZI (K_II⁻¹ f_I − ζ_I) − T ζ_Z`` and one back-substitution per step is
 enough (:meth:`Condensation.newton_step`; ``K_II⁻¹ f_I`` once per zone and load).
+
+For the hybrid bending form all of this is done in the block matrix ``H`` in ``(ζ, t)``
+instead of ``K`` (:mod:`~shellobstacle.solvers.zone.multipliers`): the zone then holds
+multipliers too, and the methods here take and return vectors of ζ all the same.
 """
 
 from __future__ import annotations
@@ -30,10 +34,10 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.hybrid_bending import CondensedStiffness
 from shellobstacle.solvers.mumps import ReplicatedFactor
 from shellobstacle.solvers.zone.graph import union, unique
 from shellobstacle.solvers.zone.interior import InteriorFactor
+from shellobstacle.solvers.zone.multipliers import HybridBlocks
 
 __all__ = ["Condensation"]
 
@@ -42,10 +46,15 @@ class Condensation:
     """``K_II`` factorized, ``T`` on ``Γ × Γ`` and the pattern of ``S`` for the zone ``Z``.
 
     Args:
-        K: the membrane stiffness (parallel).
+        K: the stiffness (parallel).
         Z: the zone's dofs (sorted global numbers, the same on every rank).
         factorization: MUMPS ``"lu"`` or ``"cholesky"``, of ``K_II`` and of ``S``.
         timings: seconds are added to its ``"factorize"`` entry.
+        blocks: for a hybrid stiffness, its block matrix: the zone is condensed in it.
+
+    The zone's unknowns (``Z`` here, ``Ks``, ``S`` and the zone's vectors) are those of ``K``,
+    or with ``blocks`` those of ``H``: ζ's at the positions :attr:`zeta_pos`, then the zone's
+    multipliers.
     """
 
     def __init__(
@@ -54,10 +63,17 @@ class Condensation:
         Z: np.ndarray,
         factorization: str,
         timings: dict[str, float],
-        hybrid: CondensedStiffness | None = None,
+        blocks: HybridBlocks | None = None,
     ) -> None:
-        self.K, self.Z, self.timings = K, Z, timings
+        self.blocks, self.timings = blocks, timings
+        self.bs = K.getBlockSize()
+        self.K_zeta, self.Z_zeta = K, Z  # ζ's stiffness and zone
+        if blocks is not None:
+            K, Z = blocks.H, blocks.zone(Z)
+        self.K, self.Z = K, Z  # the matrix condensed and the zone's unknowns in it
+        self.zeta_pos = np.searchsorted(Z, Z if blocks is None else blocks.of_zeta(self.Z_zeta))
         self.Jzz: PETSc.Mat | None = None  # J_ZZ on every rank (set_up)
+        self.Kzz_zeta: PETSc.Mat | None = None  # ζ's K_ZZ on every rank (set_up with blocks)
         self.comm: MPI.Comm = K.getComm().tompi4py()
         petsc_comm = K.getComm()
         r0, r1 = K.getOwnershipRange()
@@ -66,13 +82,17 @@ class Condensation:
         self.isI = PETSc.IS().createGeneral(owned[~in_z], comm=petsc_comm)
         self.isZ = PETSc.IS().createGeneral(owned[in_z], comm=petsc_comm)
         t0 = time.perf_counter()
-        self.F_I = InteriorFactor(K, self.isI, factorization, hybrid)  # solves with K_II
+        self.F_I = InteriorFactor(K, self.isI, factorization)  # solves with K_II
         timings["factorize"] += time.perf_counter() - t0
         self.vI = PETSc.Vec().createMPI((self.isI.getLocalSize(), None), comm=petsc_comm)
         self.yI, self.tI = self.vI.duplicate(), self.vI.duplicate()
         m = Z.size
-        self.sizes = {"zone_dofs": int(m)}
+        self.sizes = {"zone_dofs": int(self.Z_zeta.size)}
         self._objects = [self.isI, self.isZ, self.F_I, self.vI, self.yI, self.tI]
+        if blocks is not None:  # vectors of H's layout: right-hand side, state, load, result
+            self.xH, self.wH, self.fH, self.yH = (K.createVecLeft() for _ in range(4))
+            self._objects += [self.xH, self.wH, self.fH, self.yH]
+            self.sizes["zone_multipliers"] = int(m - self.Z_zeta.size)
         if m == 0:
             return
         self.KZI = K.createSubMatrix(self.isZ, self.isI)
@@ -134,9 +154,11 @@ class Condensation:
         self.Ks.axpy(1.0, Kzz, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         self.Ks.axpy(1.0, self.minusT, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
         Kzz.destroy()
-        # S: sparse plus a dense |Γ|² block; approximate minimum fill (ICNTL(7) = 2) orders it
-        # for a 30 % faster factorization than MUMPS' default (METIS)
-        self.S_factor = ReplicatedFactor(self.comm, self.S, factorization, {7: 2})
+        # S: sparse plus a dense |Γ|² block. K's zone: approximate minimum fill (ICNTL(7) = 2),
+        # a 30 % faster factorization than MUMPS' default (METIS); H's zone, cells' blocks
+        # that nested dissection separates: PORD (4), half AMF's flops
+        ordering = 2 if blocks is None else 4
+        self.S_factor = ReplicatedFactor(self.comm, self.S, factorization, {7: ordering})
         #: what S's factorization holds: None for a full Jacobian's Z block, or (κ, active
         #: points) of the zone problem's Jacobian (:mod:`~shellobstacle.solvers.zone.reduced`)
         self.factor_state: tuple[float, np.ndarray] | None = None
@@ -158,15 +180,52 @@ class Condensation:
         for obj in self._objects:
             obj.destroy()
         self._objects = []
-        if self.Jzz is not None:
-            self.Jzz.destroy()
-            self.Jzz = None
+        for obj in (self.Jzz, self.Kzz_zeta):
+            if obj is not None:
+                obj.destroy()
+        self.Jzz = self.Kzz_zeta = None
+
+    # -- vectors of ζ and of the matrix condensed ---------------------------------------------
+    def _rhs(self, x: PETSc.Vec) -> PETSc.Vec:
+        """``x`` as a right-hand side of the matrix condensed (``(x, 0)`` with blocks)."""
+        if self.blocks is None:
+            return x
+        self.blocks.pad(x, self.xH)
+        return self.xH
+
+    def _state(self, zeta: PETSc.Vec) -> PETSc.Vec:
+        """``ζ`` as a state of the matrix condensed (``(ζ, t(ζ))`` with blocks)."""
+        if self.blocks is None:
+            return zeta
+        self.blocks.state(zeta, self.wH)
+        return self.wH
+
+    def _load(self, f: PETSc.Vec) -> PETSc.Vec:
+        if self.blocks is None:
+            return f
+        self.blocks.pad(f, self.fH)
+        return self.fH
+
+    def _out(self, y: PETSc.Vec) -> PETSc.Vec:
+        return y if self.blocks is None else self.yH
+
+    def _done(self, y: PETSc.Vec) -> None:
+        if self.blocks is not None:
+            self.blocks.restrict(self.yH, y)
+
+    def gather_state(self, zeta: PETSc.Vec, out: PETSc.Vec) -> None:
+        """``out ←`` the zone's entries of the state of ``ζ``, on every rank."""
+        x = self._state(zeta)
+        sub = x.getSubVector(self.isZ)
+        self.to_all.scatter(sub, out, PETSc.InsertMode.INSERT)
+        x.restoreSubVector(self.isZ, sub)
 
     # -- the load -----------------------------------------------------------------------------
     def solve_load(self, f: PETSc.Vec) -> None:
         """``u_f = K_II⁻¹ f_I`` and ``f̃ = f_Z − K_ZI u_f`` (once per zone and load)."""
         if self.uf_valid:
             return
+        f = self._load(f)
         sub = f.getSubVector(self.isI)
         self.F_I.solve(sub, self.uf)
         f.restoreSubVector(self.isI, sub)
@@ -179,19 +238,57 @@ class Condensation:
 
     # -- exact solves with a full Jacobian ----------------------------------------------------
     def set_up(self, J: PETSc.Mat) -> None:
-        """Factorize ``S = J_ZZ − T`` for the Jacobian ``J``."""
+        """Factorize ``S = J_ZZ − T`` for the Jacobian ``J`` (of ζ)."""
         if self.Z.size == 0:
             return
-        if self.Jzz is None:
-            self.Jzz = J.createSubMatrices(self.isZ_all, self.isZ_all)[0]
-        else:
-            J.createSubMatrices(self.isZ_all, self.isZ_all, submats=[self.Jzz])
         self.S.zeroEntries()
-        self.S.axpy(1.0, self.Jzz, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-        self.S.axpy(1.0, self.minusT, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        if self.blocks is None:
+            self.Jzz = self._zone_block(J, self.Jzz)
+            self.S.axpy(1.0, self.Jzz, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            self.S.axpy(1.0, self.minusT, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        else:  # S = K_S + (J − K)_ZZ
+            self.S.axpy(1.0, self.Ks, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            P = self._penalty_part(J)
+            self.S.axpy(1.0, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+            P.destroy()
         self.S_factor.factorize(self.S)
-        self.factored = True
         self.factor_state = None
+
+    def _zone_block(self, A: PETSc.Mat, out: PETSc.Mat | None) -> PETSc.Mat:
+        """ζ's zone block ``A_ZZ`` of a matrix of ζ, on every rank (into ``out`` if given)."""
+        rows = self.isZ_all
+        if self.blocks is not None:
+            Z = self.Z_zeta.astype(PETSc.IntType)
+            rows = PETSc.IS().createGeneral(Z, comm=PETSc.COMM_SELF)
+        if out is None:
+            out = A.createSubMatrices(rows, rows)[0]
+        else:
+            A.createSubMatrices(rows, rows, submats=[out])
+        if rows is not self.isZ_all:
+            rows.destroy()
+        return out
+
+    def _penalty_part(self, J: PETSc.Mat) -> PETSc.Mat:
+        """``(J − K)_ZZ`` (the penalty's Hessian on the zone) in the zone's unknowns of ``H``.
+
+        ``J`` is ``K`` plus the penalty's Hessian, nonzero on the cells of active points only,
+        whose dofs ``H`` couples: the difference's nonzeros lie in ``S``'s pattern.
+        """
+        if self.Kzz_zeta is None:
+            self.Kzz_zeta = self._zone_block(self.K_zeta, None)
+        self.Jzz = self._zone_block(J, self.Jzz)
+        P = self.Jzz.copy()
+        P.axpy(-1.0, self.Kzz_zeta, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        ip, ix, v = P.getValuesCSR()
+        P.destroy()
+        keep = v != 0
+        rows = np.repeat(self.zeta_pos, np.diff(ip))[keep]
+        cols = self.zeta_pos[ix[keep]].astype(PETSc.IntType)
+        m = self.Z.size
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=m))])
+        return PETSc.Mat().createAIJ(
+            (m, m), csr=(indptr.astype(PETSc.IntType), cols, v[keep]), comm=PETSc.COMM_SELF
+        )
 
     def newton_step(self, x: PETSc.Vec, zeta: PETSc.Vec, f: PETSc.Vec, y: PETSc.Vec) -> None:
         """``y ← J⁻¹ x`` for a Newton right-hand side ``x = −R(ζ)`` with the load ``f``: one
@@ -200,12 +297,14 @@ class Condensation:
         The active points lie in the zone, so on ``I`` the penalty vanishes and
         ``x_I = f_I − K_II ζ_I − K_IZ ζ_Z``; hence ``K_ZI K_II⁻¹ x_I = K_ZI (u_f − ζ_I) − T ζ_Z``
         with ``u_f = K_II⁻¹ f_I`` solved once per zone and load, and only
-        ``δ_I = K_II⁻¹ (x_I − K_IZ δ_Z)`` needs a back-substitution per step.
+        ``δ_I = K_II⁻¹ (x_I − K_IZ δ_Z)`` needs a back-substitution per step. (With blocks:
+        ``(x, 0)`` is ``H``'s right-hand side at the state ``(ζ, t(ζ))``.)
         """
         if self.Z.size == 0:
             self.apply(x, y)
             return
         self.solve_load(f)
+        x, zeta = self._rhs(x), self._state(zeta)
         sub = zeta.getSubVector(self.isI)
         self.uf.copy(self.tI)
         self.tI.axpy(-1.0, sub)  # u_f − ζ_I
@@ -224,13 +323,16 @@ class Condensation:
 
     def apply(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
         """``y ← J⁻¹ x`` for any ``x`` (two solves with ``K_II``)."""
+        x = self._rhs(x)
         sub = x.getSubVector(self.isI)
         self.F_I.solve(sub, self.yI)
         x.restoreSubVector(self.isI, sub)
         if self.Z.size == 0:
-            out = y.getSubVector(self.isI)
-            self.yI.copy(out)
-            y.restoreSubVector(self.isI, out)
+            out = self._out(y)
+            part = out.getSubVector(self.isI)
+            self.yI.copy(part)
+            out.restoreSubVector(self.isI, part)
+            self._done(y)
             return
         xz = x.getSubVector(self.isZ)
         self.KZI.mult(self.yI, self.vZ)
@@ -240,7 +342,8 @@ class Condensation:
         self._finish(x, y)
 
     def _finish(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
-        """From the zone right-hand side ``zseq``: ``δ_Z``, ``δ_I = K_II⁻¹(x_I − K_IZ δ_Z)``."""
+        """From the zone right-hand side ``zseq``: ``δ_Z``, ``δ_I = K_II⁻¹(x_I − K_IZ δ_Z)``
+        (``x`` of the matrix condensed, ``y`` of ζ)."""
         self.S_factor.solve(self.zseq, self.dseq)
         self.dZ.array[:] = self.dseq.array_r[self.z_lo : self.z_hi]
         self.KIZ.mult(self.dZ, self.vI)
@@ -251,18 +354,21 @@ class Condensation:
         self.write(y)
 
     def write(self, y: PETSc.Vec) -> None:
-        """``y_I ← yI``, ``y_Z ← dZ`` (the work vectors of a solve)."""
-        part = y.getSubVector(self.isI)
+        """``y_I ← yI``, ``y_Z ← dZ`` (the work vectors of a solve; ``y`` of ζ)."""
+        out = self._out(y)
+        part = out.getSubVector(self.isI)
         self.yI.copy(part)
-        y.restoreSubVector(self.isI, part)
-        part = y.getSubVector(self.isZ)
+        out.restoreSubVector(self.isI, part)
+        part = out.getSubVector(self.isZ)
         self.dZ.copy(part)
-        y.restoreSubVector(self.isZ, part)
+        out.restoreSubVector(self.isZ, part)
+        self._done(y)
 
     def extend(self, z: PETSc.Vec, out: PETSc.Vec, f: PETSc.Vec | None) -> None:
         """``out ← (z, ζ_I)`` with ``ζ_I = K_II⁻¹ (f_I − K_IZ z)`` (with the load ``f``) or
         ``−K_II⁻¹ K_IZ z`` (without): the minimizer over ``ζ_I``, or the matching change of
-        ``ζ_I`` for a change ``z`` of ``ζ_Z``; one back-substitution with ``K_II``."""
+        ``ζ_I`` for a change ``z`` of ``ζ_Z``; one back-substitution with ``K_II``. (``z``:
+        the zone's unknowns, ``out`` of ζ.)"""
         self.dZ.array[:] = z.array_r[self.z_lo : self.z_hi]
         self.KIZ.mult(self.dZ, self.vI)
         self.F_I.solve(self.vI, self.yI)

@@ -22,6 +22,7 @@ from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.solvers.base import direct_solver, factorize
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.graph import csr, dilate, dofs_of, inside, union
+from shellobstacle.solvers.zone.multipliers import HybridBlocks
 from shellobstacle.solvers.zone.reduced import ZoneProblem
 
 __all__ = ["ContactZone"]
@@ -61,6 +62,7 @@ class ContactZone:
         self.problem: ZoneProblem | None = None
         self.whole_ksp: PETSc.KSP | None = None
         self.f: PETSc.Vec | None = None  # the load of the coming Newton steps
+        self.blocks: HybridBlocks | None = None  # a hybrid stiffness' block matrix
 
     @property
     def sizes(self) -> dict[str, int]:
@@ -115,13 +117,20 @@ class ContactZone:
             self.points = None
             return
         self.points = inside(self.n, Z, pattern or csr(self.penalty.M))
-        hybrid = self.penalty.problem.condensed  # a hybrid stiffness' blocks, or None
-        if hybrid is not None and hybrid.K is not self.K:  # blocks of another stiffness
-            hybrid = None
-        self.cond = Condensation(self.K, Z, self.factorization, self.timings, hybrid)
+        self.cond = Condensation(self.K, Z, self.factorization, self.timings, self._blocks())
         if Z.size:
             self.problem = ZoneProblem(self.cond, self.penalty, self.points, self.timings)
         self.builds += 1
+
+    def _blocks(self) -> HybridBlocks | None:
+        """The block matrix in ``(ζ, t)`` of a hybrid stiffness ``K`` (made once), or None."""
+        problem = self.penalty.problem
+        hybrid = problem.condensed
+        if hybrid is None or hybrid.K is not self.K:  # no blocks, or another stiffness'
+            return None
+        if self.blocks is None or self.blocks.hybrid is not hybrid:
+            self.blocks = HybridBlocks(hybrid, problem.V, problem.t.function_space)
+        return self.blocks
 
     def owned_zone(self) -> np.ndarray:
         """Local positions of the zone's owned dofs (empty without a zone)."""

@@ -58,14 +58,26 @@ class ZoneProblem:
         P = np.concatenate(self.comm.allgather(own + M.getOwnershipRange()[0]))
         self.DP = np.concatenate(self.comm.allgather(penalty.D[own]))
         self.g0P = np.concatenate(self.comm.allgather(penalty.g0[own]))
-        isP = PETSc.IS().createGeneral(P.astype(PETSc.IntType), comm=PETSc.COMM_SELF)
-        self.MP = M.createSubMatrices(isP, cond.isZ_all)[0]  # rows: all the zone's points
-        isP.destroy()
+        seq = PETSc.COMM_SELF
+        isP = PETSc.IS().createGeneral(P.astype(PETSc.IntType), comm=seq)
+        isZ = PETSc.IS().createGeneral(cond.Z_zeta.astype(PETSc.IntType), comm=seq)
+        self.MP = M.createSubMatrices(isP, isZ)[0]  # rows: all the zone's points
+        for obj in (isP, isZ):
+            obj.destroy()
+        m = cond.Z.size
+        self.zeta_pos = None if cond.blocks is None else cond.zeta_pos  # ζ among the unknowns
+        if self.zeta_pos is not None:  # MP's columns at ζ's positions, zero at multipliers'
+            ip, ix, v = self.MP.getValuesCSR()
+            self.MP.destroy()
+            columns = self.zeta_pos[ix].astype(PETSc.IntType)
+            self.MP = PETSc.Mat().createAIJ((P.size, m), csr=(ip, columns, v), comm=seq)
+        self.component = np.zeros(m, dtype=np.int64)  # ζ_j of each zone dof
+        self.component[cond.zeta_pos] = cond.Z_zeta % cond.bs
         self.wP = self.MP.createVecLeft()
-        self.component = cond.Z % cond.K.getBlockSize()  # ζ_j of each zone dof
         self.S_now = cond.S.duplicate(copy=False)  # the current Jacobian when S's are reused
         self.ksp_cg: PETSc.KSP | None = None  # CG on the zone, preconditioned by S's factors
         self._row_sums: np.ndarray | None = None  # Σ_j |K_S,ij|, made at the first rounding()
+        self._tt: tuple | None = None  # the multipliers' block of K_S (minimize_multipliers)
 
     def destroy(self) -> None:
         for obj in (self.MP, self.wP, self.S_now, self.ksp_cg):
@@ -76,12 +88,41 @@ class ZoneProblem:
         """A new sequential vector on the zone's dofs."""
         return self.cond.wseq.duplicate()
 
-    def gather(self, x: PETSc.Vec, out: PETSc.Vec) -> None:
-        """``out ← x_Z`` on every rank."""
-        cond = self.cond
-        sub = x.getSubVector(cond.isZ)
-        cond.to_all.scatter(sub, out, PETSc.InsertMode.INSERT)
-        x.restoreSubVector(cond.isZ, sub)
+    def start(self, zeta: PETSc.Vec, f: PETSc.Vec, kappa: float, z: PETSc.Vec, r: PETSc.Vec):
+        """``z ←`` the zone's unknowns at ``ζ`` (with multipliers, those that minimize ``j`` at
+        ``ζ_Z``), ``r ← ∇j(z)``; returns ``g`` at the zone's points."""
+        self.cond.gather_state(zeta, z)
+        g = self.residual(z, f, kappa, r)
+        if self.zeta_pos is not None:
+            self._minimize_multipliers(z, r)
+            g = self.residual(z, f, kappa, r)
+        return g
+
+    def _minimize_multipliers(self, z: PETSc.Vec, r: PETSc.Vec) -> None:
+        """``t_Z ← t_Z − K_tt⁻¹ r_t``: ``j``'s minimizer over the multipliers, with ``K_tt``
+        their block of ``K_S`` (``C`` on the diagonal, ``−T`` on those of ``Γ``)."""
+        if self._tt is None:
+            t = np.setdiff1d(np.arange(self.cond.Z.size), self.zeta_pos)
+            diagonal = self.cond.Ks.getDiagonal()
+            c = diagonal.array_r[t].copy()
+            diagonal.destroy()
+            gamma_t = np.intersect1d(self.cond.gamma, t).astype(PETSc.IntType)
+            self._tt = (t, c, gamma_t, self.cond.Ks.getValues(gamma_t, gamma_t))
+        t, c, gamma_t, L = self._tt
+        step = np.zeros(z.getSize())
+        step[t] = -r.array_r[t] / c
+        if gamma_t.size:
+            step[gamma_t] = -np.linalg.solve(L, r.array_r[gamma_t])
+        z.array[:] += step
+
+    def norm(self, v: PETSc.Vec, kind: PETSc.NormType = PETSc.NormType.NORM_2) -> float:
+        """``‖v‖`` over the zone's dofs of ζ (its multipliers left out)."""
+        if self.zeta_pos is None:
+            return v.norm(kind)
+        x = v.array_r[self.zeta_pos]
+        if kind == PETSc.NormType.NORM_INFINITY:
+            return float(np.abs(x).max(initial=0.0))
+        return float(np.linalg.norm(x))
 
     def gap(self, z: PETSc.Vec) -> np.ndarray:
         """``g`` at the zone's points for ``ζ_Z = z``."""
@@ -115,7 +156,10 @@ class ZoneProblem:
         ``(Σ_j |K_S,ij|) |z_i|`` as :meth:`PenalizedSystem.elastic_rounding` does."""
         if self._row_sums is None:
             self._row_sums = abs_row_sums(self.cond.Ks)
-        return float(np.finfo(PETSc.ScalarType).eps * np.linalg.norm(self._row_sums * z.array_r))
+        terms = self._row_sums * z.array_r
+        if self.zeta_pos is not None:
+            terms = terms[self.zeta_pos]
+        return float(np.finfo(PETSc.ScalarType).eps * np.linalg.norm(terms))
 
     def _jacobian(self, S: PETSc.Mat, g: np.ndarray, kappa: float) -> None:
         """``S ← K_S + (1/κ) M_Aᵀ diag(1/D_A) M_A`` (``A``: zone points with g < 0)."""
@@ -202,14 +246,13 @@ class ZoneModel:
         self.kappa = system.kappa
         self.budget, self.rtol = budget, rtol
         self.z, self.r, self.d = problem.vector(), problem.vector(), problem.vector()
-        problem.gather(system.zeta, self.z)
-        self.g = problem.residual(self.z, system.f, self.kappa, self.r)
+        self.g = problem.start(system.zeta, system.f, self.kappa, self.z, self.r)
         touching = system.comm.allreduce(bool((self.g < 0).any()), op=MPI.LOR)
         self.seed = None if seed is None or touching or not seed.any() else seed
 
     def residual_norm(self) -> float:
         """``‖∇j(ζ_Z)‖``."""
-        return self.r.norm()
+        return self.problem.norm(self.r)
 
     def floor(self, load_norm: float) -> float:
         """:meth:`PenalizedSystem.floor` for the zone's problem: its active points, the
@@ -237,7 +280,7 @@ class ZoneModel:
         if self.seed is not None:
             cg = self._seed_step(self.seed)
             self.seed = None
-            if not r.dot(d) < -floor * d.norm():
+            if not r.dot(d) < -floor * problem.norm(d):
                 cg = -1  # no descent: the usual Newton step instead
         if cg < 0:
             r.scale(-1.0)
@@ -263,12 +306,12 @@ class ZoneModel:
 
     def small_step(self, stol: float) -> bool:
         """Whether ``‖d‖_∞ ≤ stol ‖ζ_Z‖_∞``."""
-        step = self.d.norm(PETSc.NormType.NORM_INFINITY)
-        return step <= stol * self.z.norm(PETSc.NormType.NORM_INFINITY)
+        inf = PETSc.NormType.NORM_INFINITY
+        return self.problem.norm(self.d, inf) <= stol * self.problem.norm(self.z, inf)
 
     def direction_norm(self) -> float:
         """``‖d‖``."""
-        return self.d.norm()
+        return self.problem.norm(self.d)
 
     def line_search(self, slope0: float, noise: float) -> tuple[float, int]:
         """The exact step of ``j`` along ``d`` (the same on every rank)."""
