@@ -195,9 +195,9 @@ class CondensedStiffness:
         root = self.c.copy()
         root.reciprocal()
         root.sqrtabs()
-        scaled = self.B.copy()
-        scaled.diagonalScale(None, root)  # B C^{-1/2}
-        E = scaled.matTransposeMult(scaled)  # B C⁻¹ Bᵀ
+        scaled = self.B.transpose(PETSc.Mat())
+        scaled.diagonalScale(L=root)  # C^{-1/2} Bᵀ
+        E = scaled.transposeMatMult(scaled)  # B C⁻¹ Bᵀ
         self.K = self.A.copy()
         self.K.axpy(-1.0, E, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
         for obj in (E, scaled, root):

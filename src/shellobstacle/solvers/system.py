@@ -249,8 +249,10 @@ class PenalizedSystem:
 def abs_row_sums(A: PETSc.Mat) -> np.ndarray:
     """``Σ_j |A_ij|`` for the rows of ``A`` this rank owns (for ``u ‖|A| |x|‖`` estimates)."""
     rows, _, values = A.getValuesCSR()
-    n = rows.size - 1
-    return np.bincount(np.repeat(np.arange(n), np.diff(rows)), weights=np.abs(values), minlength=n)
+    sums = np.zeros(rows.size - 1)
+    nonempty = rows[:-1] < rows[1:]
+    sums[nonempty] = np.add.reduceat(np.abs(values), rows[:-1][nonempty])
+    return sums
 
 
 def floor_of(factor: float, load_norm: float, penalty_norm: float) -> float:
