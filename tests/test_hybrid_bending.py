@@ -16,7 +16,7 @@ import pytest
 import ufl
 
 from shellobstacle.domains import DomainSpec
-from shellobstacle.hybrid_bending import facet_normals
+from shellobstacle.hybrid_bending import facet_midpoints, facet_normals
 from shellobstacle.meshing import create_mesh
 from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
 from shellobstacle.post.contact import Postprocessor
@@ -63,6 +63,25 @@ def test_facet_normals_are_unit_normals_of_their_facets() -> None:
     }
     assert values["interior"] < 1e-24 and values["boundary"] < 1e-24
     assert values["length"] == pytest.approx(values["facets"], rel=1e-12)
+
+
+def test_facet_midpoints_hold_each_cells_outward_normal_and_facet_length() -> None:
+    """The midpoint rule of the cells' facets with ``|F|`` and ``n_T``: ``Σ_F |F| x·n_T`` over
+    each cell's facets is ``∫_∂T x·n = 2|T|`` (exact for a linear integrand), and ``Σ |F|``
+    counts interior facets twice and boundary facets once."""
+    mesh = paper_koiter(COMM, 0.1).mesh
+    mid = facet_midpoints(mesh)
+    weight = mid.length / abs(ufl.JacobianDeterminant(mesh))
+    x = ufl.SpatialCoordinate(mesh)
+
+    def total(form: ufl.Form) -> float:
+        return COMM.allreduce(dolfinx.fem.assemble_scalar(dolfinx.fem.form(form)))
+
+    area = total(1 * ufl.dx(domain=mesh))
+    assert total(weight * ufl.dot(x, mid.normal) * mid.dx) == pytest.approx(2 * area, rel=1e-12)
+    assert total(weight * (ufl.dot(mid.normal, mid.normal) - 1) ** 2 * mid.dx) < 1e-24
+    facets = total(2 * ufl.dS(domain=mesh) + 1 * ufl.ds(domain=mesh))
+    assert total(weight * mid.dx) == pytest.approx(facets, rel=1e-12)
 
 
 def test_stiffness_is_the_schur_complement_of_the_blocks() -> None:

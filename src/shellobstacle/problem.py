@@ -22,7 +22,7 @@ from shellobstacle.expressions import to_ufl, y1, y2
 from shellobstacle.hybrid_bending import (
     DEFAULT_HYBRID_PENALTY,
     CondensedStiffness,
-    cell_boundaries,
+    facet_midpoints,
     facet_normals,
     hybrid_bending_energy,
 )
@@ -134,7 +134,7 @@ class PenalizedProblem:
                 )
                 bending = hybrid_bending_energy(
                     G, eps, lam, mu, zeta, self.t, facet_normals(mesh), dx_bending,
-                    cell_boundaries(mesh), self.sigma,
+                    facet_midpoints(mesh), self.sigma,
                 )  # fmt: skip
             else:
                 ds = ufl.Measure("ds", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
