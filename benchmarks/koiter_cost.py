@@ -7,12 +7,14 @@ h^1.5 on a disk mesh, solved by Newton with the direct solver:
 - membrane P2 and Koiter P2 on the mesh of size 2h (about the same dofs), Koiter with both
   bending forms (hybrid, the default, and C⁰-IP).
 
-Each configuration is solved ``--repeat`` times in this process after one untimed solve that
-compiles the forms (FFCx caches them on disk; both form times are recorded). The table gives
-the median wall time of the continuation (forms compiled, solver set-up included), the Newton
-steps, the dofs, the stiffness matrix's nonzeros, the solver's phases (seconds of the last
-run: set-up with the stiffness assembly, factorizations, ...) and the process's peak resident
-memory so far. One JSON line per row.
+The configurations are solved in turn, ``--repeat`` rounds after one untimed round that
+compiles the forms (FFCx caches them on disk; both form times are recorded), all in this
+process: a machine whose speed drifts slows every configuration of a round alike, so each
+row's ratio to membrane P1 is taken round by round (the median of the rounds' ratios). A row
+gives the median wall time of the continuation (forms compiled, solver set-up included), the
+Newton steps, the dofs, the stiffness matrix's nonzeros, the solver's phases (seconds of the
+last round: set-up with the stiffness assembly, factorizations, ...) and the process's peak
+resident memory at the end. One JSON line per row.
 
     .venv/bin/python benchmarks/koiter_cost.py --h 0.01 --repeat 3
 """
@@ -47,7 +49,16 @@ def paper_shell_and_mesh(model: str, h: float) -> tuple:
     return shell, mesh
 
 
-def run(model: str, degree: int, h: float, repeat: int, bending: str = "c0ip") -> dict:
+CONFIGURATIONS = (
+    ("membrane", 1, None),
+    ("membrane", 2, None),
+    ("koiter", 2, "c0ip"),
+    ("koiter", 2, "hybrid"),
+)
+
+
+def solve(shell, mesh, degree: int, bending: str | None) -> dict:
+    """One continuation: its seconds (forms compiled first, apart), steps and phases."""
     from mpi4py import MPI
     from petsc4py import PETSc
 
@@ -57,67 +68,91 @@ def run(model: str, degree: int, h: float, repeat: int, bending: str = "c0ip") -
     from shellobstacle.solvers.continuation import continuation
     from shellobstacle.solvers.newton import NewtonSolver
 
-    shell, mesh = paper_shell_and_mesh(model, h)
     kappas = PenaltySpec(exponent=1.5).ladder(mesh_size(mesh))
-    times, steps, dofs, forms = [], [], 0, []
-    for k in range(repeat + 1):
-        t = time.perf_counter()
-        problem = PenalizedProblem(shell, mesh, Discretization(degree=degree, bending=bending))
-        compiled = time.perf_counter()
-        forms.append(compiled - t)
-        solver = NewtonSolver(problem)
-        result = continuation(problem, solver, kappas)
-        MPI.COMM_WORLD.barrier()
-        if k:  # the first run compiles (or loads) the forms
-            times.append(time.perf_counter() - compiled)
-        steps = [s.newton.iterations for s in result]
-        dofs = problem.num_dofs
-        phases = {k: round(v, 4) for k, v in solver.timings.items()}
-        nnz = int(problem.stiffness().getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"])
-        del problem, solver
+    t = time.perf_counter()
+    disc = Discretization(degree=degree, bending=bending or "hybrid")
+    problem = PenalizedProblem(shell, mesh, disc)
+    compiled = time.perf_counter()
+    solver = NewtonSolver(problem)
+    result = continuation(problem, solver, kappas)
+    MPI.COMM_WORLD.barrier()
+    done = time.perf_counter()
+    K = problem.stiffness()
     return {
-        "model": model,
-        "degree": degree,
-        "bending": bending if model == "koiter" else None,
-        "target_h": h,
-        "h": mesh_size(mesh),
-        "dofs": dofs,
-        "newton_steps": steps,
-        "seconds_median": statistics.median(times),
-        "seconds": times,
-        "phases_last": phases,
-        "stiffness_nnz": nnz,
-        "forms_seconds_first": forms[0],
-        "forms_seconds_cached": statistics.median(forms[1:]),
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
-        "ranks": MPI.COMM_WORLD.size,
+        "forms": compiled - t,
+        "seconds": done - compiled,
+        "steps": [s.newton.iterations for s in result],
+        "dofs": problem.num_dofs,
+        "phases": {k: round(v, 4) for k, v in solver.timings.items()},
+        "nnz": int(K.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]),
     }
+
+
+def rows(h: float, repeat: int) -> list[dict]:
+    """The configurations solved in ``repeat`` timed rounds after an untimed one."""
+    from mpi4py import MPI
+
+    from shellobstacle.measures import mesh_size
+
+    setups = []
+    for model, degree, _ in CONFIGURATIONS:
+        size = h if degree == 1 else 2 * h
+        setups.append((*paper_shell_and_mesh(model, size), size))
+    runs: list[list[dict]] = [[] for _ in CONFIGURATIONS]
+    for _ in range(repeat + 1):
+        for k, ((_, degree, bending), (shell, mesh, _)) in enumerate(
+            zip(CONFIGURATIONS, setups, strict=True)
+        ):
+            runs[k].append(solve(shell, mesh, degree, bending))
+    base = [r["seconds"] / r["dofs"] for r in runs[0][1:]]
+    out = []
+    for (model, degree, bending), (_, mesh, size), done in zip(
+        CONFIGURATIONS, setups, runs, strict=True
+    ):
+        timed = done[1:]
+        ratios = [r["seconds"] / r["dofs"] / b for r, b in zip(timed, base, strict=True)]
+        out.append(
+            {
+                "model": model,
+                "degree": degree,
+                "bending": bending,
+                "target_h": size,
+                "h": mesh_size(mesh),
+                "dofs": timed[-1]["dofs"],
+                "newton_steps": timed[-1]["steps"],
+                "seconds_median": statistics.median(r["seconds"] for r in timed),
+                "seconds": [r["seconds"] for r in timed],
+                "per_dof_vs_membrane_p1": [round(x, 3) for x in ratios],
+                "per_dof_vs_membrane_p1_median": round(statistics.median(ratios), 3),
+                "phases_last": timed[-1]["phases"],
+                "stiffness_nnz": timed[-1]["nnz"],
+                "forms_seconds_first": done[0]["forms"],
+                "forms_seconds_cached": statistics.median(r["forms"] for r in timed),
+                "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                "ranks": MPI.COMM_WORLD.size,
+            }
+        )
+    return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--h", type=float, default=0.01, help="mesh size of the P1 run")
-    parser.add_argument("--repeat", type=int, default=3, help="timed solves per configuration")
+    parser.add_argument("--repeat", type=int, default=3, help="timed rounds")
     args = parser.parse_args()
     from mpi4py import MPI
 
-    rows = [
-        run("membrane", 1, args.h, args.repeat),
-        run("membrane", 2, 2 * args.h, args.repeat),
-        run("koiter", 2, 2 * args.h, args.repeat, "c0ip"),
-        run("koiter", 2, 2 * args.h, args.repeat, "hybrid"),
-    ]
+    out = rows(args.h, args.repeat)
     if MPI.COMM_WORLD.rank == 0:
-        for row in rows:
+        for row in out:
             print(json.dumps(row), flush=True)
-        base = rows[0]["seconds_median"] / rows[0]["dofs"]
-        for row in rows:
-            ratio = row["seconds_median"] / row["dofs"] / base
+        for row in out:
             print(
                 f"{row['model']:>8} P{row['degree']} {row['bending'] or '':>6}  "
                 f"{row['dofs']:>8} dofs  "
                 f"{row['seconds_median']:7.2f} s  Newton {row['newton_steps']}  "
-                f"{ratio:4.2f}× the membrane P1 time per dof"
+                f"{row['per_dof_vs_membrane_p1_median']:4.2f}× the membrane P1 time per dof "
+                f"(rounds: {row['per_dof_vs_membrane_p1']})"
             )
 
 

@@ -135,6 +135,12 @@ def test_the_zone_condensed_in_the_block_matrix_solves_with_the_jacobian() -> No
     assert zone.cond is not None and zone.cond.blocks is not None
     sizes = zone.sizes
     assert sizes["zone_multipliers"] > 0
+    assert zone.cond.F_I.F.getMumpsIcntl(15) == 1  # ordered on the nodes' blocks
+    outside = np.setdiff1d(np.arange(zone.cond.K.getSize()[0]), zone.cond.Z)
+    runs = zone.cond.blocks.variable_blocks(outside)
+    multipliers = problem.condensed.B.getSize()[1] - sizes["zone_multipliers"]
+    assert runs.sum() == outside.size and runs.max() == 3
+    assert np.count_nonzero(runs == 3) == (outside.size - multipliers) // 3  # whole nodes
     blocks = zone.cond.blocks  # H's numbers of ζ's and t's owned rows
     r0, r1 = problem.stiffness().getOwnershipRange()
     t0, t1 = problem.condensed.B.getOwnershipRangeColumn()

@@ -82,7 +82,10 @@ class Condensation:
         self.isI = PETSc.IS().createGeneral(owned[~in_z], comm=petsc_comm)
         self.isZ = PETSc.IS().createGeneral(owned[in_z], comm=petsc_comm)
         t0 = time.perf_counter()
-        self.F_I = InteriorFactor(K, self.isI, factorization)  # solves with K_II
+        blocks_I = None  # with blocks: MUMPS orders each node's displacements as one node
+        if blocks is not None:
+            blocks_I = blocks.variable_blocks(np.setdiff1d(np.arange(K.getSize()[0]), Z))
+        self.F_I = InteriorFactor(K, self.isI, factorization, blocks_I)  # solves with K_II
         timings["factorize"] += time.perf_counter() - t0
         self.vI = PETSc.Vec().createMPI((self.isI.getLocalSize(), None), comm=petsc_comm)
         self.yI, self.tI = self.vI.duplicate(), self.vI.duplicate()

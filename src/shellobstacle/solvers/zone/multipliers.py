@@ -74,6 +74,7 @@ class HybridBlocks:
         t0, _ = hybrid.B.getOwnershipRangeColumn()
         starts = np.array(self.comm.allgather((r0, r1, t0)), dtype=np.int64).reshape(-1, 3)
         self._r0, self._r1, self._t0 = starts.T
+        self.bs = hybrid.A.getBlockSize()
         # each local cell's dofs (global numbers in ζ) and multipliers (local numbers in t)
         mesh = V.mesh
         cells = mesh.topology.index_map(mesh.topology.dim)
@@ -96,6 +97,17 @@ class HybridBlocks:
         """``H``'s numbers of ``t``'s global dofs."""
         owner = np.searchsorted(self._t0, facets, side="right") - 1
         return self._r1[owner] + facets
+
+    def variable_blocks(self, rows: np.ndarray) -> np.ndarray:
+        """The sizes of the runs of ``rows`` (sorted numbers of ``H``) that are one node's
+        displacements or one multiplier: the blocks MUMPS may order as one node each."""
+        start = self._r0 + self._t0  # each rank's first row of H
+        owner = np.searchsorted(start, rows, side="right") - 1
+        local = rows - start[owner]
+        zeta = local < (self._r1 - self._r0)[owner]
+        node = np.where(zeta, (self._r0[owner] + local) // self.bs, -1 - rows)
+        first = np.flatnonzero(np.concatenate([[True], node[1:] != node[:-1]]))
+        return np.diff(np.concatenate([first, [rows.size]]))
 
     def zone(self, Z: np.ndarray) -> np.ndarray:
         """The zone in ``H`` (sorted, on every rank): the dofs ``Z`` (sorted global dofs of ζ)

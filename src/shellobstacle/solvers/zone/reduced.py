@@ -13,6 +13,12 @@ search is that of ``j``: Newton steps of ``J_κ`` that touch only the zone's sma
 back-substitution (:meth:`ZoneModel.complete`); if a point outside the zone became active,
 Newton's next step is a full one, which grows the zone.
 
+For the hybrid bending form the zone's unknowns also hold its facets' multipliers ``t_Z``
+(:mod:`~shellobstacle.solvers.zone.multipliers`): ``j`` is then a function of ``(ζ_Z, t_Z)``,
+started from the ``t_Z`` that minimizes it (:meth:`ZoneProblem.start`), and the norms that
+stop Newton are taken over ``ζ_Z`` (:meth:`ZoneProblem.norm`), so that the steps are those of
+the problem in ``ζ_Z`` alone.
+
 Vectors of the zone's problem are sequential and the same on every rank.
 """
 
