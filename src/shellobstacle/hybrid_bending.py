@@ -198,7 +198,7 @@ class CondensedStiffness:
     identity, from ``A``).
 
     ``A`` has the pattern of the cells (the penalty's Hessian, added to ``K`` later, lives
-    there); ``B`` and ``K − A`` have their nonzeros only.
+    there), ``B`` its nonzeros only, ``K`` the pattern of the two cells of each facet.
 
     Args:
         forms: the compiled bilinear forms ``a_zz``, ``a_zt`` and ``a_tt``, by those names.
@@ -216,7 +216,6 @@ class CondensedStiffness:
         B = dolfinx.fem.petsc.assemble_matrix(forms["a_zt"], bcs=bcs + bcs_t)
         B.assemble()
         self.B = drop_zeros(B)
-        B.destroy()
         C = dolfinx.fem.petsc.assemble_matrix(forms["a_tt"], bcs=bcs_t)
         C.assemble()
         self.c = C.getDiagonal()  # C is diagonal: each t_F meets only itself, at m_F
@@ -224,12 +223,15 @@ class CondensedStiffness:
         root = self.c.copy()
         root.reciprocal()
         root.sqrtabs()
-        scaled = self.B.transpose(PETSc.Mat())
+        scaled = B.transpose(PETSc.Mat())
+        B.destroy()
         scaled.diagonalScale(L=root)  # C^{-1/2} Bᵀ
-        E = scaled.transposeMatMult(scaled)  # B C⁻¹ Bᵀ
-        self.K = self.A.copy()
-        self.K.axpy(-1.0, E, structure=PETSc.Mat.Structure.DIFFERENT_NONZERO_PATTERN)
-        for obj in (E, scaled, root):
+        # B C⁻¹ Bᵀ from DOLFINx's pattern of B (every dof of a cell against each of its
+        # facets): its pattern holds every cell's, so A adds into it
+        self.K = scaled.transposeMatMult(scaled)
+        self.K.scale(-1.0)
+        self.K.axpy(1.0, self.A, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        for obj in (scaled, root):
             obj.destroy()
 
     def multiplier(self, zeta: PETSc.Vec, t: PETSc.Vec) -> None:
