@@ -3,10 +3,12 @@
 The meshes, shell and load of ``koiter_cost.py`` (equal dofs). Factorized: membrane P1's
 ``K``; Koiter's ``K`` with the C⁰ interior penalty; for the hybrid bending form, the block
 matrix in ``(ζ, t)`` (as the contact zone factorizes it; ``unknowns`` counts the
-multipliers too). For each and each MUMPS ordering (ICNTL(7): 5 METIS, the default here;
-3 SCOTCH; 4 PORD; 2 AMF; 0 AMD; 6 QAMD) one JSON line: dofs, the matrix' nonzeros and
-assembly seconds, the fastest of two factorizations (analysis included), the factor's
-entries (INFOG(29)) and flops (RINFOG(3)).
+multipliers too), as it is and with each mesh node's three displacements one block of
+MUMPS' analysis (``"node_blocks"``, ICNTL(15) = 1, as the contact zone orders it). For each
+and each MUMPS ordering (ICNTL(7): 5 METIS, the default here; 3 SCOTCH; 4 PORD; 2 AMF; 0 AMD;
+6 QAMD) one JSON line: dofs, the matrix' nonzeros and assembly seconds, the fastest of two
+factorizations (analysis included) and of two numeric factorizations after them (the
+difference is the analysis), the factor's entries (INFOG(29)) and flops (RINFOG(3)).
 
     .venv/bin/python benchmarks/koiter_factor.py --h 0.01,0.005 --orderings 5,3,4,2
 """
@@ -14,11 +16,13 @@ entries (INFOG(29)) and flops (RINFOG(3)).
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import time
 
 from mpi4py import MPI  # noqa: F401  (MPI before DOLFINx and PETSc)
 
+import numpy as np
 from koiter_cost import paper_shell_and_mesh
 
 
@@ -28,7 +32,8 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
     from shellobstacle.model import Discretization
     from shellobstacle.problem import PenalizedProblem
     from shellobstacle.solvers.base import direct_solver, factorize
-    from shellobstacle.solvers.zone.multipliers import block_matrix
+    from shellobstacle.solvers.mumps import set_variable_blocks
+    from shellobstacle.solvers.zone.multipliers import HybridBlocks
 
     out = []
     for model, degree, size, bending in (
@@ -41,16 +46,30 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
         problem = PenalizedProblem(shell, mesh, disc)
         t0 = time.perf_counter()
         K = problem.stiffness()
+        variants: list[np.ndarray | None] = [None]
         if bending == "hybrid":  # the block matrix in (ζ, t), as the contact zone has it
-            K, _, _ = block_matrix(problem.condensed)
+            blocks = HybridBlocks(problem.condensed, problem.V, problem.t.function_space)
+            K = blocks.H
+            variants.append(blocks.variable_blocks(np.arange(K.getSize()[0])))
         assemble = time.perf_counter() - t0
-        for ordering in orderings:
-            seconds = []
+        for ordering, node_blocks in itertools.product(orderings, variants):
+            seconds, numeric = [], []
             for _ in range(2):
                 ksp = direct_solver(K, "cholesky", "factor", icntl={7: ordering})
+                handed = None
+                if node_blocks is not None:
+                    ksp.getPC().setFactorSetUpSolverType()
+                    handed = set_variable_blocks(ksp.getPC().getFactorMatrix(), node_blocks)
                 t0 = time.perf_counter()
                 factorize(ksp, "K")
                 seconds.append(time.perf_counter() - t0)
+                del handed
+                K.setValue(0, 0, 0.0, addv=True)  # a new state: a numeric factorization
+                K.assemble()
+                ksp.setOperators(K)
+                t0 = time.perf_counter()
+                factorize(ksp, "K")
+                numeric.append(time.perf_counter() - t0)
                 F = ksp.getPC().getFactorMatrix()
                 entries, flops = F.getMumpsInfog(29), F.getMumpsRinfog(3)
                 ksp.destroy()
@@ -65,7 +84,9 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
                     "nonzeros": int(K.getInfo(PETSc.Mat.InfoType.GLOBAL_SUM)["nz_used"]),
                     "assemble_seconds": round(assemble, 3),
                     "ordering": ordering,
+                    "node_blocks": node_blocks is not None,
                     "factor_seconds": round(min(seconds), 3),
+                    "numeric_seconds": round(min(numeric), 3),
                     "factor_entries": int(entries),
                     "factor_gflop": round(flops / 1e9, 3),
                 }

@@ -91,9 +91,9 @@ class FacetMidpoints(NamedTuple):
     """The midpoints of each cell's facets as a quadrature rule of cell integrals, and the
     cell's outward unit normal ``n_T`` and the facet's length ``|F|`` there."""
 
-    dx: ufl.Measure  #: Σ_T Σ_{F ⊂ ∂T} |det J_T| f(m_F) (weight 1 per midpoint)
-    normal: dolfinx.fem.Function  #: n_T, a broken vector Crouzeix–Raviart function
-    length: dolfinx.fem.Function  #: |F|, a broken Crouzeix–Raviart function
+    dx: ufl.Measure  #: ``Σ_T Σ_{F ⊂ ∂T} |det J_T| f(m_F)`` (weight 1 per midpoint)
+    normal: dolfinx.fem.Function  #: ``n_T``, a broken vector Crouzeix–Raviart function
+    length: dolfinx.fem.Function  #: ``|F|``, a broken Crouzeix–Raviart function
 
 
 def facet_midpoints(mesh: dolfinx.mesh.Mesh) -> FacetMidpoints:
