@@ -189,12 +189,13 @@ class Condensation:
         self.Jzz = self.Kzz_zeta = None
 
     # -- vectors of ζ and of the matrix condensed ---------------------------------------------
-    def _rhs(self, x: PETSc.Vec) -> PETSc.Vec:
-        """``x`` as a right-hand side of the matrix condensed (``(x, 0)`` with blocks)."""
+    def _rhs(self, x: PETSc.Vec, work: str = "xH") -> PETSc.Vec:
+        """``x`` as a right-hand side of the matrix condensed (``(x, 0)`` with blocks, in the
+        work vector named ``work``)."""
         if self.blocks is None:
             return x
-        self.blocks.pad(x, self.xH)
-        return self.xH
+        self.blocks.pad(x, getattr(self, work))
+        return getattr(self, work)
 
     def _state(self, zeta: PETSc.Vec) -> PETSc.Vec:
         """``ζ`` as a state of the matrix condensed (``(ζ, t(ζ))`` with blocks)."""
@@ -202,12 +203,6 @@ class Condensation:
             return zeta
         self.blocks.state(zeta, self.wH)
         return self.wH
-
-    def _load(self, f: PETSc.Vec) -> PETSc.Vec:
-        if self.blocks is None:
-            return f
-        self.blocks.pad(f, self.fH)
-        return self.fH
 
     def _out(self, y: PETSc.Vec) -> PETSc.Vec:
         return y if self.blocks is None else self.yH
@@ -228,7 +223,7 @@ class Condensation:
         """``u_f = K_II⁻¹ f_I`` and ``f̃ = f_Z − K_ZI u_f`` (once per zone and load)."""
         if self.uf_valid:
             return
-        f = self._load(f)
+        f = self._rhs(f, "fH")
         sub = f.getSubVector(self.isI)
         self.F_I.solve(sub, self.uf)
         f.restoreSubVector(self.isI, sub)
