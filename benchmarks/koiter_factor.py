@@ -45,7 +45,7 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
     from shellobstacle.model import Discretization
     from shellobstacle.problem import PenalizedProblem
     from shellobstacle.solvers.base import direct_solver, factorize
-    from shellobstacle.solvers.mumps import set_variable_blocks
+    from shellobstacle.solvers.mumps import in_blocks
     from shellobstacle.solvers.zone.multipliers import HybridBlocks
 
     out = []
@@ -69,14 +69,10 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
             seconds, numeric = [], []
             for _ in range(2):
                 ksp = direct_solver(K, "cholesky", "factor", icntl={7: ordering})
-                handed = None
-                if node_blocks is not None:
-                    ksp.getPC().setFactorSetUpSolverType()
-                    handed = set_variable_blocks(ksp.getPC().getFactorMatrix(), node_blocks)
+                prepare = None if node_blocks is None else in_blocks(node_blocks)
                 t0 = time.perf_counter()
-                factorize(ksp, "K")
+                factorize(ksp, "K", prepare=prepare)
                 seconds.append(time.perf_counter() - t0)
-                del handed
                 numeric.append(refactorize(ksp, K))
                 F = ksp.getPC().getFactorMatrix()
                 entries, flops = F.getMumpsInfog(29), F.getMumpsRinfog(3)

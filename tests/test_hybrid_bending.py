@@ -23,6 +23,7 @@ from shellobstacle.post.contact import Postprocessor
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.base import direct_solver
 from shellobstacle.solvers.continuation import continuation
+from shellobstacle.solvers.linear.zone import ZoneStrategy
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.contact_zone import ContactZone
@@ -170,6 +171,28 @@ def test_the_zone_condensed_in_the_block_matrix_solves_with_the_jacobian() -> No
     plain = Condensation(problem.stiffness(), zone.Z, "cholesky", {"factorize": 0.0})
     assert sizes["coupled_dofs"] < plain.sizes["coupled_dofs"]
     plain.destroy()
+
+
+@pytest.mark.mpi
+def test_a_zone_too_large_factorizes_the_block_matrix_with_the_penalty() -> None:
+    """Above the zone's largest fraction the hybrid stiffness' Jacobian is solved through
+    ``H`` plus the penalty (Cholesky, the nodes as MUMPS blocks): the Newton steps and the
+    solution of the unseeded zone, whose steps are those of ``J_κ``."""
+    runs = []
+    for linear in (ZoneStrategy(seed=False), ZoneStrategy(max_fraction=1e-6)):
+        problem = paper_koiter(COMM, 0.05)
+        solver = NewtonSolver(problem, linear=linear)
+        steps = continuation(problem, solver, [0.05**0.5, 0.05, 0.05**1.5])
+        assert all(s.converged for s in steps)
+        runs.append(([s.newton.iterations for s in steps], problem.zeta.x.petsc_vec.copy()))
+    zone = solver.zone
+    assert zone.whole and zone.whole_H is not None
+    assert zone.whole_H.getSize() == zone.blocks.H.getSize()
+    assert zone.whole_ksp.getPC().getFactorMatrix().getMumpsIcntl(15) == 1
+    (condensed, reference), (whole, zeta) = runs
+    assert whole == condensed
+    zeta.axpy(-1.0, reference)
+    assert zeta.norm() <= 1e-9 * reference.norm()
 
 
 @pytest.mark.mpi

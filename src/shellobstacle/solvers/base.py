@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import itertools
 import weakref
+from collections.abc import Callable
 from typing import Any
 
 from mpi4py import MPI  # noqa: F401  (before PETSc: the MPI runtime PETSc links to)
@@ -119,21 +120,30 @@ def factorization_pc(
     set_mumps_controls(pc, icntl)
 
 
-def factorize(ksp: PETSc.KSP, what: str, attempts: int = 3) -> None:
+def factorize(
+    ksp: PETSc.KSP,
+    what: str,
+    attempts: int = 3,
+    prepare: Callable[[PETSc.PC], Any] | None = None,
+) -> None:
     """``ksp.setUp()`` for a MUMPS factorization of ``what``, made to succeed or raise.
 
     MUMPS sizes its working space by the analysis' estimate plus ICNTL(14) percent, and the
     estimate can be short for a distributed dense front (the zone's Schur complement on 2
     ranks). On INFOG(1) = −8 or −9 the analysis and factorization are made again with
     ICNTL(14) doubled, up to ``attempts`` times (setting it on the existing factor does not
-    take); any other failure raises.
+    take); any other failure raises. ``prepare(pc)`` runs before every attempt (e.g.
+    :func:`~shellobstacle.solvers.mumps.in_blocks`); what it returns is kept until the
+    attempt is over.
 
     Raises:
         ConvergenceError: naming ``what`` and MUMPS' INFOG(1), INFOG(2).
     """
     pc = ksp.getPC()
     for attempt in range(attempts + 1):
+        kept = prepare(pc) if prepare is not None else None
         ksp.setUp()
+        del kept
         if pc.getFailedReason() == 0:
             return
         F = pc.getFactorMatrix()

@@ -20,6 +20,7 @@ import numpy as np
 
 from shellobstacle.penalty import QuadraturePenalty
 from shellobstacle.solvers.base import direct_solver, factorize
+from shellobstacle.solvers.mumps import in_blocks
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.graph import csr, dilate, dofs_of, inside, union
 from shellobstacle.solvers.zone.multipliers import HybridBlocks
@@ -61,6 +62,7 @@ class ContactZone:
         self.cond: Condensation | None = None
         self.problem: ZoneProblem | None = None
         self.whole_ksp: PETSc.KSP | None = None
+        self.whole_H: PETSc.Mat | None = None  # a hybrid stiffness' H + P (whole)
         self.f: PETSc.Vec | None = None  # the load of the coming Newton steps
         self.blocks: HybridBlocks | None = None  # a hybrid stiffness' block matrix
 
@@ -151,9 +153,10 @@ class ContactZone:
         if self.cond is not None:
             self.cond.destroy()
             self.cond = None
-        if self.whole_ksp is not None:
-            self.whole_ksp.destroy()
-            self.whole_ksp = None
+        for obj in (self.whole_ksp, self.whole_H):
+            if obj is not None:
+                obj.destroy()
+        self.whole_ksp = self.whole_H = None
 
     # -- the load and exact solves ------------------------------------------------------------
     def set_load(self, f: PETSc.Vec) -> None:
@@ -173,13 +176,22 @@ class ContactZone:
             self.cond.factor_state = None
 
     def set_up(self, J: PETSc.Mat) -> None:
-        """Factorize for the Jacobian ``J``: ``S`` of the zone, or ``J`` itself (whole)."""
+        """Factorize for the Jacobian ``J``: ``S`` of the zone, or ``J`` itself (whole; for a
+        hybrid stiffness the block matrix ``H`` plus the penalty, whose Schur complement is
+        ``J``: Cholesky of a cell-local matrix instead of LU of ``J``)."""
         t0 = time.perf_counter()
         if self.whole:
+            blocks = self._blocks()
+            if blocks is not None:
+                self.whole_H = blocks.with_penalty(J, self.K, self.whole_H)
+                J = self.whole_H
+            prepare = None  # MUMPS orders H's mesh nodes (in_blocks), at its analysis
             if self.whole_ksp is None:
-                self.whole_ksp = direct_solver(J, "lu", "zone")
+                self.whole_ksp = direct_solver(J, "lu" if blocks is None else "cholesky", "zone")
+                if blocks is not None:
+                    prepare = in_blocks(blocks.variable_blocks(np.arange(J.getSize()[0])))
             self.whole_ksp.setOperators(J)
-            factorize(self.whole_ksp, "the Jacobian")
+            factorize(self.whole_ksp, "the Jacobian", prepare=prepare)
             self.timings["factorize"] += time.perf_counter() - t0
             return
         self.cond.set_up(J)
@@ -187,7 +199,12 @@ class ContactZone:
 
     def newton_step(self, x: PETSc.Vec, zeta: PETSc.Vec, y: PETSc.Vec) -> None:
         """``y ← J⁻¹ x`` for a Newton right-hand side ``x = −R(ζ)`` (after :meth:`set_up`)."""
-        if self.whole:
-            self.whole_ksp.solve(x, y)
-        else:
+        if not self.whole:
             self.cond.newton_step(x, zeta, self.f, y)
+        elif self.whole_H is None:
+            self.whole_ksp.solve(x, y)
+        else:  # (y, s) = H_J⁻¹ (x, 0)
+            blocks = self.blocks
+            blocks.pad(x, blocks.x)
+            self.whole_ksp.solve(blocks.x, blocks.y)
+            blocks.restrict(blocks.y, y)

@@ -8,7 +8,7 @@ from petsc4py import PETSc
 import numpy as np
 
 from shellobstacle.solvers.base import direct_solver, factorize
-from shellobstacle.solvers.mumps import inverse_block, set_variable_blocks
+from shellobstacle.solvers.mumps import in_blocks, inverse_block
 
 __all__ = ["InteriorFactor"]
 
@@ -21,7 +21,7 @@ class InteriorFactor:
         isI: the owned rows of ``I``.
         factorization: MUMPS ``"lu"`` or ``"cholesky"``.
         blocks: sizes of the blocks of consecutive rows of ``K_II`` that MUMPS orders as one
-            node each (:func:`~shellobstacle.solvers.mumps.set_variable_blocks`), or None:
+            node each (:func:`~shellobstacle.solvers.mumps.in_blocks`), or None:
             those of ``K``'s block size.
     """
 
@@ -36,12 +36,7 @@ class InteriorFactor:
         M = K.createSubMatrix(isI, isI)
         self.size = M.getSize()[0]
         ksp = direct_solver(M, factorization, "zone")
-        handed = None  # the block pointers MUMPS reads at the analysis
-        if blocks is not None:
-            ksp.getPC().setFactorSetUpSolverType()
-            handed = set_variable_blocks(ksp.getPC().getFactorMatrix(), blocks)
-        factorize(ksp, "K_II")
-        del handed
+        factorize(ksp, "K_II", prepare=None if blocks is None else in_blocks(blocks))
         self.F = ksp.getPC().getFactorMatrix()
         # Only a serial LU leaves the matrix entries in the matrix' own arrays (PETSc's MUMPS
         # interface copies them for Cholesky and for distributed matrices): otherwise the

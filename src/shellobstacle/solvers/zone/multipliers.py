@@ -86,7 +86,7 @@ class HybridBlocks:
         )
         self.cell_facets = T.dofmap.list[:num_cells]
         self.t_map = T.dofmap.index_map
-        self.x = self.H.createVecRight()  # a vector of H's layout, for the conversions
+        self.x, self.y = self.H.createVecRight(), self.H.createVecRight()  # work vectors
 
     def of_zeta(self, dofs: np.ndarray) -> np.ndarray:
         """``H``'s numbers of ζ's global dofs."""
@@ -129,6 +129,36 @@ class HybridBlocks:
         t_Z = union(self.comm, self.of_t(self.t_map.local_to_global(owned)))
         return np.sort(np.concatenate([self.of_zeta(Z), t_Z]))
 
+    def with_penalty(self, J: PETSc.Mat, K: PETSc.Mat, out: PETSc.Mat | None) -> PETSc.Mat:
+        """``H`` plus the penalty's Hessian ``J − K`` of a Jacobian ``J = K + P`` (``K``'s
+        pattern), into ``out`` if given (``H``'s pattern): the block matrix whose Schur
+        complement in ζ is ``J``. ``P`` lives on the cells of the active points, within
+        ``A``'s pattern."""
+        P = J.copy()
+        P.axpy(-1.0, K, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        indptr, cols, values = P.getValuesCSR()
+        P.destroy()
+        keep = values != 0
+        kept = np.concatenate([[0], np.cumsum(keep)])
+        per_row = np.zeros(self.H.getLocalSize()[0], dtype=np.int64)  # ζ's rows come first
+        per_row[: indptr.size - 1] = kept[indptr[1:]] - kept[indptr[:-1]]
+        spread = PETSc.Mat().createAIJ(
+            self.H.getSizes(),
+            csr=(
+                np.concatenate([[0], np.cumsum(per_row)]).astype(PETSc.IntType),
+                self.of_zeta(cols[keep]).astype(PETSc.IntType),
+                values[keep],
+            ),
+            comm=self.H.getComm(),
+        )
+        if out is None:
+            out = self.H.duplicate(copy=True)
+        else:
+            self.H.copy(out, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+        out.axpy(1.0, spread, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        spread.destroy()
+        return out
+
     def state(self, zeta: PETSc.Vec, out: PETSc.Vec) -> None:
         """``out ← (ζ, t(ζ))`` with ``t(ζ) = −C⁻¹ Bᵀ ζ``."""
         part = out.getSubVector(self.rows_zeta)
@@ -152,5 +182,5 @@ class HybridBlocks:
         w.restoreSubVector(self.rows_zeta, part)
 
     def destroy(self) -> None:
-        for obj in (self.H, self.rows_zeta, self.rows_t, self.x):
+        for obj in (self.H, self.rows_zeta, self.rows_t, self.x, self.y):
             obj.destroy()
