@@ -69,7 +69,7 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
             seconds, numeric = [], []
             for _ in range(2):
                 ksp = direct_solver(K, "cholesky", "factor", icntl={7: ordering})
-                prepare = None if node_blocks is None else in_blocks(node_blocks)
+                prepare = None if node_blocks is None else in_blocks(node_blocks, ordering)
                 t0 = time.perf_counter()
                 factorize(ksp, "K", prepare=prepare)
                 seconds.append(time.perf_counter() - t0)

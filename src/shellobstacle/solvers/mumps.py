@@ -91,17 +91,22 @@ def set_variable_blocks(F: PETSc.Mat, sizes: np.ndarray) -> np.ndarray | None:
     return pointers
 
 
-def in_blocks(sizes: np.ndarray) -> Callable[[PETSc.PC], np.ndarray | None]:
+def in_blocks(sizes: np.ndarray, ordering: int = 5) -> Callable[[PETSc.PC], np.ndarray | None]:
     """A ``prepare`` of :func:`~shellobstacle.solvers.base.factorize`: the factor of the PC
-    ordered in these variable blocks (:func:`set_variable_blocks`), on every attempt.
+    ordered in these variable blocks (:func:`set_variable_blocks`) by ``ordering`` (ICNTL(7)),
+    on every attempt.
 
-    On several ranks MUMPS' working space estimate with blocks falls short (INFOG(1) = −9
-    on the first attempt on 2 ranks): 50 % more from the start (ICNTL(14)).
+    METIS by default: MUMPS' automatic choice takes AMF for small matrices (below about 10k
+    unknowns), whose factor of the hybrid block matrix costs 7× METIS's flops
+    (``docs/perf/koiter/factor.jsonl``). On several ranks MUMPS' working space
+    estimate with blocks falls short (INFOG(1) = −9 on the first attempt on 2 ranks): 50 %
+    more from the start (ICNTL(14)).
     """
 
     def prepare(pc: PETSc.PC) -> np.ndarray | None:
         pc.setFactorSetUpSolverType()
         F = pc.getFactorMatrix()
+        F.setMumpsIcntl(7, ordering)
         if F.getComm().getSize() > 1:
             F.setMumpsIcntl(14, max(F.getMumpsIcntl(14), 50))
         return set_variable_blocks(F, sizes)
