@@ -8,7 +8,6 @@ membrane limit) is tested with the interior-penalty form's in test_koiter.py.
 from __future__ import annotations
 
 from mpi4py import MPI
-from petsc4py import PETSc
 
 import dolfinx
 import numpy as np
@@ -28,6 +27,7 @@ from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.contact_zone import ContactZone
 from shellobstacle.surface import Surface
+from tests.test_contact_zone import lu_solve
 
 COMM = MPI.COMM_WORLD
 PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
@@ -117,14 +117,6 @@ def koiter_solved(comm: MPI.Comm, h: float) -> tuple[PenalizedProblem, NewtonSol
     steps = continuation(problem, solver, [h**0.5, h, h**1.5])
     assert all(s.converged for s in steps)
     return problem, solver, steps
-
-
-def lu_solve(A: PETSc.Mat, b: PETSc.Vec) -> PETSc.Vec:
-    ksp = direct_solver(A, "lu")
-    x = b.duplicate()
-    ksp.solve(b, x)
-    ksp.destroy()
-    return x
 
 
 @pytest.mark.mpi

@@ -37,7 +37,7 @@ import numpy as np
 from shellobstacle.solvers.mumps import ReplicatedFactor
 from shellobstacle.solvers.zone.graph import union, unique
 from shellobstacle.solvers.zone.interior import InteriorFactor
-from shellobstacle.solvers.zone.multipliers import HybridBlocks
+from shellobstacle.solvers.zone.multipliers import HybridBlocks, penalty_entries
 
 __all__ = ["Condensation"]
 
@@ -92,7 +92,9 @@ class Condensation:
         m = Z.size
         self.sizes = {"zone_dofs": int(self.Z_zeta.size)}
         self._objects = [self.isI, self.isZ, self.F_I, self.vI, self.yI, self.tI]
-        if blocks is not None:  # vectors of H's layout: right-hand side, state, load, result
+        # vectors of H's layout (with blocks): right-hand side, state, load, result
+        self.xH = self.wH = self.fH = self.yH = None
+        if blocks is not None:
             self.xH, self.wH, self.fH, self.yH = (K.createVecLeft() for _ in range(4))
             self._objects += [self.xH, self.wH, self.fH, self.yH]
             self.sizes["zone_multipliers"] = int(m - self.Z_zeta.size)
@@ -189,13 +191,13 @@ class Condensation:
         self.Jzz = self.Kzz_zeta = None
 
     # -- vectors of ζ and of the matrix condensed ---------------------------------------------
-    def _rhs(self, x: PETSc.Vec, work: str = "xH") -> PETSc.Vec:
-        """``x`` as a right-hand side of the matrix condensed (``(x, 0)`` with blocks, in the
-        work vector named ``work``)."""
+    def _rhs(self, x: PETSc.Vec, work: PETSc.Vec | None) -> PETSc.Vec:
+        """``x`` as a right-hand side of the matrix condensed (``(x, 0)`` in ``work`` with
+        blocks)."""
         if self.blocks is None:
             return x
-        self.blocks.pad(x, getattr(self, work))
-        return getattr(self, work)
+        self.blocks.pad(x, work)
+        return work
 
     def _state(self, zeta: PETSc.Vec) -> PETSc.Vec:
         """``ζ`` as a state of the matrix condensed (``(ζ, t(ζ))`` with blocks)."""
@@ -223,7 +225,7 @@ class Condensation:
         """``u_f = K_II⁻¹ f_I`` and ``f̃ = f_Z − K_ZI u_f`` (once per zone and load)."""
         if self.uf_valid:
             return
-        f = self._rhs(f, "fH")
+        f = self._rhs(f, self.fH)
         sub = f.getSubVector(self.isI)
         self.F_I.solve(sub, self.uf)
         f.restoreSubVector(self.isI, sub)
@@ -275,17 +277,18 @@ class Condensation:
         if self.Kzz_zeta is None:
             self.Kzz_zeta = self._zone_block(self.K_zeta, None)
         self.Jzz = self._zone_block(J, self.Jzz)
-        P = self.Jzz.copy()
-        P.axpy(-1.0, self.Kzz_zeta, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        ip, ix, v = P.getValuesCSR()
-        P.destroy()
-        keep = v != 0
-        rows = np.repeat(self.zeta_pos, np.diff(ip))[keep]
-        cols = self.zeta_pos[ix[keep]].astype(PETSc.IntType)
+        counts, cols, values = penalty_entries(self.Jzz, self.Kzz_zeta)
+        per_row = np.zeros(self.Z.size, dtype=np.int64)
+        per_row[self.zeta_pos] = counts
         m = self.Z.size
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=m))])
         return PETSc.Mat().createAIJ(
-            (m, m), csr=(indptr.astype(PETSc.IntType), cols, v[keep]), comm=PETSc.COMM_SELF
+            (m, m),
+            csr=(
+                np.concatenate([[0], np.cumsum(per_row)]).astype(PETSc.IntType),
+                self.zeta_pos[cols].astype(PETSc.IntType),
+                values,
+            ),
+            comm=PETSc.COMM_SELF,
         )
 
     def newton_step(self, x: PETSc.Vec, zeta: PETSc.Vec, f: PETSc.Vec, y: PETSc.Vec) -> None:
@@ -302,7 +305,7 @@ class Condensation:
             self.apply(x, y)
             return
         self.solve_load(f)
-        x, zeta = self._rhs(x), self._state(zeta)
+        x, zeta = self._rhs(x, self.xH), self._state(zeta)
         sub = zeta.getSubVector(self.isI)
         self.uf.copy(self.tI)
         self.tI.axpy(-1.0, sub)  # u_f − ζ_I
@@ -321,7 +324,7 @@ class Condensation:
 
     def apply(self, x: PETSc.Vec, y: PETSc.Vec) -> None:
         """``y ← J⁻¹ x`` for any ``x`` (two solves with ``K_II``)."""
-        x = self._rhs(x)
+        x = self._rhs(x, self.xH)
         sub = x.getSubVector(self.isI)
         self.F_I.solve(sub, self.yI)
         x.restoreSubVector(self.isI, sub)

@@ -31,7 +31,7 @@ import numpy as np
 from shellobstacle.hybrid_bending import CondensedStiffness
 from shellobstacle.solvers.zone.graph import union
 
-__all__ = ["HybridBlocks", "block_matrix"]
+__all__ = ["HybridBlocks", "block_matrix", "penalty_entries"]
 
 
 def block_matrix(hybrid: CondensedStiffness) -> tuple[PETSc.Mat, PETSc.IS, PETSc.IS]:
@@ -49,6 +49,19 @@ def block_matrix(hybrid: CondensedStiffness) -> tuple[PETSc.Mat, PETSc.IS, PETSc
     for obj in (nest, Bt, C):
         obj.destroy()
     return H, rows_zeta, rows_t
+
+
+def penalty_entries(J: PETSc.Mat, K: PETSc.Mat) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The nonzeros of ``J − K``, the penalty's Hessian of a Jacobian ``J = K + P`` with
+    ``K``'s pattern, in the owned rows: how many per row, their columns and values (exact
+    zeros left out: outside the cells of active points ``J`` and ``K`` agree)."""
+    P = J.copy()
+    P.axpy(-1.0, K, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+    indptr, cols, values = P.getValuesCSR()
+    P.destroy()
+    keep = values != 0
+    kept = np.concatenate([[0], np.cumsum(keep)])
+    return kept[indptr[1:]] - kept[indptr[:-1]], cols[keep], values[keep]
 
 
 class HybridBlocks:
@@ -134,20 +147,15 @@ class HybridBlocks:
         pattern), into ``out`` if given (``H``'s pattern): the block matrix whose Schur
         complement in ζ is ``J``. ``P`` lives on the cells of the active points, within
         ``A``'s pattern."""
-        P = J.copy()
-        P.axpy(-1.0, K, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-        indptr, cols, values = P.getValuesCSR()
-        P.destroy()
-        keep = values != 0
-        kept = np.concatenate([[0], np.cumsum(keep)])
+        counts, cols, values = penalty_entries(J, K)
         per_row = np.zeros(self.H.getLocalSize()[0], dtype=np.int64)  # ζ's rows come first
-        per_row[: indptr.size - 1] = kept[indptr[1:]] - kept[indptr[:-1]]
+        per_row[: counts.size] = counts
         spread = PETSc.Mat().createAIJ(
             self.H.getSizes(),
             csr=(
                 np.concatenate([[0], np.cumsum(per_row)]).astype(PETSc.IntType),
-                self.of_zeta(cols[keep]).astype(PETSc.IntType),
-                values[keep],
+                self.of_zeta(cols).astype(PETSc.IntType),
+                values,
             ),
             comm=self.H.getComm(),
         )
