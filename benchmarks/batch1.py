@@ -19,9 +19,9 @@ from mpi4py import MPI
 
 from record import PAPER, add_solver_arguments, emit, solver_options, timed_mesh
 
-from shellobstacle.config import load_config
+from shellobstacle.config.loader import load_config
 from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
-from shellobstacle.model import Discretization
+from shellobstacle.spec import Discretization
 
 
 def main() -> None:

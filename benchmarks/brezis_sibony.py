@@ -21,10 +21,10 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from shellobstacle.config import load_config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.config.loader import load_config
 from shellobstacle.experiments.common import fit_rate
 from shellobstacle.experiments.solvers import compare_solvers, write_solver_comparison
+from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions
 
 PAPER = Path(__file__).resolve().parents[1] / "src/shellobstacle/configs/paper.toml"

@@ -21,9 +21,9 @@ from mpi4py import MPI
 
 # isort: split
 
-from shellobstacle.checks import check_assumptions
-from shellobstacle.config import load_config
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import load_config
+from shellobstacle.geometry.assumptions import check_assumptions
 
 PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 

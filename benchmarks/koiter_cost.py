@@ -33,10 +33,10 @@ PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06)
 def paper_shell_and_mesh(model: str, h: float) -> tuple:
     """The paper's shell (ε = 10⁻³) as ``model`` and a disk mesh of size ``h`` (ghosted for
     Koiter's facet terms)."""
-    from shellobstacle.domains import DomainSpec
-    from shellobstacle.model import Load, Material, Obstacle, Shell
-    from shellobstacle.pipeline import make_mesh
-    from shellobstacle.surface import Surface
+    from shellobstacle.api import make_mesh
+    from shellobstacle.geometry.surface import Surface
+    from shellobstacle.mesh.domains import DomainSpec
+    from shellobstacle.spec import Load, Material, Obstacle, Shell
 
     shell = Shell(
         Surface.spherical_cap(1.0, 0.85),
@@ -62,11 +62,11 @@ def solve(shell, mesh, degree: int, bending: str | None) -> dict:
     from mpi4py import MPI
     from petsc4py import PETSc
 
-    from shellobstacle.measures import mesh_size
-    from shellobstacle.model import Discretization, PenaltySpec
-    from shellobstacle.problem import PenalizedProblem
+    from shellobstacle.mesh.measures import mesh_size
+    from shellobstacle.models.problem import PenalizedProblem
     from shellobstacle.solvers.continuation import continuation
     from shellobstacle.solvers.newton import NewtonSolver
+    from shellobstacle.spec import Discretization, PenaltySpec
 
     kappas = PenaltySpec(exponent=1.5).ladder(mesh_size(mesh))
     t = time.perf_counter()
@@ -92,7 +92,7 @@ def rows(h: float, repeat: int) -> list[dict]:
     """The configurations solved in ``repeat`` timed rounds after an untimed one."""
     from mpi4py import MPI
 
-    from shellobstacle.measures import mesh_size
+    from shellobstacle.mesh.measures import mesh_size
 
     setups = []
     for model, degree, _ in CONFIGURATIONS:

@@ -42,11 +42,11 @@ def refactorize(ksp, A) -> float:
 def rows(h: float, orderings: list[int]) -> list[dict]:
     from petsc4py import PETSc
 
-    from shellobstacle.model import Discretization
-    from shellobstacle.problem import PenalizedProblem
+    from shellobstacle.models.problem import PenalizedProblem
     from shellobstacle.solvers.base import direct_solver, factorize
     from shellobstacle.solvers.mumps import in_blocks
     from shellobstacle.solvers.zone.multipliers import HybridBlocks
+    from shellobstacle.spec import Discretization
 
     out = []
     for model, degree, size, bending in (

@@ -24,11 +24,11 @@ from mpi4py import MPI
 
 from record import PAPER, add_solver_arguments, emit, solver_options, timed_mesh
 
-from shellobstacle.config import load_config
+from shellobstacle.config.loader import load_config
 from shellobstacle.io.paraview import write_paraview
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.plotting import plot_cross_section
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 

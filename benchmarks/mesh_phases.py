@@ -21,11 +21,11 @@ from mpi4py import MPI
 import numpy as np
 from record import PAPER, emit
 
-from shellobstacle import meshing
-from shellobstacle.config import load_config
-from shellobstacle.domains import DomainSpec
-from shellobstacle.measures import mesh_size, num_cells_global
-from shellobstacle.refinement import red_refinement
+from shellobstacle.config.loader import load_config
+from shellobstacle.mesh import meshing
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.measures import mesh_size, num_cells_global
+from shellobstacle.mesh.refinement import red_refinement
 
 
 def phases(spec: DomainSpec, steps: int, comm: MPI.Comm) -> dict:

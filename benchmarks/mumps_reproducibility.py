@@ -24,7 +24,7 @@ from petsc4py import PETSc
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 from tests.test_newton import paper_shell, square
 

@@ -24,14 +24,14 @@ from mpi4py import MPI
 
 import numpy as np
 
-from shellobstacle.config import load_config
-from shellobstacle.measures import mesh_size
-from shellobstacle.model import Discretization
-from shellobstacle.penalty import penalty_rule
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import load_config
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.quadrature import penalty_rule
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.spec import Discretization
 
 PAPER = "src/shellobstacle/configs/paper.toml"
 

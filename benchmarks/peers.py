@@ -51,11 +51,11 @@ from mpi4py import MPI
 
 import numpy as np
 
-from shellobstacle.config import Config, load_config
+from shellobstacle.api import make_mesh, nodal_solver
+from shellobstacle.config.loader import Config, load_config
 from shellobstacle.experiments.common import fit_rate
-from shellobstacle.measures import mesh_size
-from shellobstacle.pipeline import make_mesh, nodal_solver
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver

@@ -5,7 +5,7 @@ A clamped unit-square plate (biharmonic, D = 1, uniform load 1; the centre defle
 by MUMPS' LDLᵀ of the whole matrix:
 
 - ``c0ip``: ``w`` in P2 with the symmetric interior-penalty facet terms (σ = 8), the
-  discretization of Koiter's ζ_3 (:func:`shellobstacle.koiter.bending_energy`);
+  discretization of Koiter's ζ_3 (:func:`shellobstacle.models.koiter.bending_energy`);
 - ``hhj``: the moments in HHJ of degree 1 (normal-normal continuous) and ``w`` in P2, the
   saddle-point matrix ``[[A, −B], [−Bᵀ, 0]]`` with ``B`` the distributional Hessian.
 

@@ -26,10 +26,10 @@ tuning.apply(MPI.COMM_WORLD.size)
 
 import dolfinx
 
-from shellobstacle.checks import check_assumptions
-from shellobstacle.config import Config
-from shellobstacle.measures import mesh_size
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import Config
+from shellobstacle.geometry.assumptions import check_assumptions
+from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.solvers.linear import LinearStrategy
 from shellobstacle.solvers.linear.direct import DirectStrategy
 from shellobstacle.solvers.linear.iterative import IterativeStrategy

@@ -19,8 +19,8 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 
 from shellobstacle import Discretization, exact_solution, load_config, make_mesh
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import DifferenceNorms
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 

@@ -8,9 +8,9 @@ from mpi4py import MPI
 import dolfinx.mesh
 import numpy as np
 
-from shellobstacle.model import Discretization, Load, Material, Shell
-from shellobstacle.problem import PenalizedProblem
-from shellobstacle.surface import Surface
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.spec import Discretization, Load, Material, Shell
 
 #: the paper's load of section 10 (a pressure on the disk r < 0.06)
 PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"

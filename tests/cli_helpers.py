@@ -11,7 +11,7 @@ from mpi4py import MPI
 
 import pytest
 
-from shellobstacle.cli import main
+from shellobstacle.cli.main import main
 
 COMM = MPI.COMM_WORLD
 

@@ -9,17 +9,17 @@ import dolfinx
 import numpy as np
 import pytest
 
-from shellobstacle.model import Discretization, Load, Material, Shell
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm, vm_norm
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.active_set import ActiveSetResult, ActiveSetSolver
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.nodal import nodal_rotations
 from shellobstacle.solvers.options import ActiveSetOptions
-from shellobstacle.surface import Surface
+from shellobstacle.spec import Discretization, Load, Material, Shell
 
 PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 PULL_UP = "Piecewise(((2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"

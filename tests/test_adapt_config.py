@@ -13,9 +13,9 @@ from mpi4py import MPI
 import pytest
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.cli import main
-from shellobstacle.config import ConfigError, parse_config, to_toml
-from shellobstacle.schema import reference_text
+from shellobstacle.cli.main import main
+from shellobstacle.config.loader import ConfigError, parse_config, to_toml
+from shellobstacle.config.schema import reference_text
 
 ROOT = Path(__file__).parents[1]
 PAPER: dict[str, Any] = tomllib.loads((ROOT / "examples" / "paper.toml").read_text())

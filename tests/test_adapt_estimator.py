@@ -24,12 +24,12 @@ import sympy as sp
 import ufl
 
 from shellobstacle.adapt.estimator import ErrorEstimator
-from shellobstacle.expressions import to_ufl, y1, y2
-from shellobstacle.membrane import gap, membrane_stress, strain, stress_divergence
-from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.geometry.expressions import to_ufl, y1, y2
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.models.membrane import gap, membrane_stress, strain, stress_divergence
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
 COMM = MPI.COMM_WORLD
 EPS, LAM, MU = 0.001, 0.4, 0.012
@@ -125,7 +125,7 @@ def test_indicators_on_2_ranks_equal_the_serial_ones() -> None:
     """The paper's problem on a square with contact: every part of η on the distributed
     (ghosted) mesh equals the serial value; the edge jumps across process boundaries are
     counted once."""
-    from shellobstacle.config import load_config
+    from shellobstacle.config.loader import load_config
     from shellobstacle.solvers.continuation import continuation
 
     shell = load_config(Path(__file__).parents[1] / "examples" / "paper.toml").shell

@@ -10,7 +10,7 @@ from mpi4py import MPI
 
 import pytest
 
-from shellobstacle.cli import main
+from shellobstacle.cli.main import main
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -51,7 +51,7 @@ def test_experiment_adaptive_resumes_its_uniform_levels(tmp_path, monkeypatch) -
     """Interrupted in its third uniform level and resumed: the recorded uniform levels are
     not solved again (the adaptive loops are, deterministically) and the table is the
     uninterrupted run's, seconds aside."""
-    from shellobstacle.cli import EXIT_INTERRUPTED
+    from shellobstacle.cli.main import EXIT_INTERRUPTED
     from shellobstacle.io.checkpoint import Checkpoint
     from shellobstacle.solvers.newton import NewtonSolver
 

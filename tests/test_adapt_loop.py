@@ -16,13 +16,13 @@ import pytest
 
 from shellobstacle.adapt.loop import adaptive_solve, local_kappa_scale
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config import load_config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.config.loader import load_config
 from shellobstacle.experiments.common import transfer
-from shellobstacle.meshing import create_mesh
-from shellobstacle.model import PenaltySpec
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import DifferenceNorms
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.spec import PenaltySpec
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -148,7 +148,7 @@ def test_solve_with_adapt_writes_the_levels(cfg, tmp_path) -> None:
     """``solve`` with [adapt] solves the last mesh and records every level."""
     import json
 
-    from shellobstacle.cli import main
+    from shellobstacle.cli.main import main
 
     out = tmp_path / "run"
     args = ["solve", str(PAPER), "-q", "-o", str(out), "--set", "domain.h=0.08"]

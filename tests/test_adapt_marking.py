@@ -13,7 +13,7 @@ from shellobstacle.adapt.marking import (
     mark_dorfler,
     marked_edges,
 )
-from shellobstacle.refinement import refine_marked
+from shellobstacle.mesh.refinement import refine_marked
 
 COMM = MPI.COMM_WORLD
 

@@ -15,10 +15,10 @@ import pytest
 from test_newton import paper_shell, square
 
 from shellobstacle.experiments.solvers import compare_solvers, write_solver_comparison
-from shellobstacle.measures import mesh_size
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.brezis_sibony import (
     BrezisSibonyOptions,
     BrezisSibonyResult,

@@ -11,7 +11,7 @@ from mpi4py import MPI
 import pytest
 
 from shellobstacle import tuning
-from shellobstacle.cli import main
+from shellobstacle.cli.main import main
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")

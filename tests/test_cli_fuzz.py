@@ -34,8 +34,8 @@ import pytest
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
-from shellobstacle.cli import main
-from shellobstacle.schema import SCHEMA
+from shellobstacle.cli.main import main
+from shellobstacle.config.schema import SCHEMA
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fuzz tests run serially")
 
@@ -57,8 +57,8 @@ class Accepted(BaseException):
 
 #: the functions that start the work once everything is checked (module, name)
 WORK = [
-    ("shellobstacle.pipeline", "solve_config"),
-    ("shellobstacle.pipeline", "make_mesh"),
+    ("shellobstacle.api", "solve_config"),
+    ("shellobstacle.api", "make_mesh"),
     ("shellobstacle.experiments.reproduce", "reproduce"),
     ("shellobstacle.experiments.penalty", "run_penalty"),
     ("shellobstacle.experiments.mesh", "run_mesh"),

@@ -10,10 +10,10 @@ import dolfinx.fem.petsc
 import numpy as np
 import pytest
 
-from shellobstacle.model import Discretization
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.coarse_space import CoarseSpace, _quadratic_bsplines
 from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.spec import Discretization
 from tests.test_contact_zone import lu_solve
 from tests.test_newton import paper_shell, square
 

@@ -1,7 +1,7 @@
 """Property tests: any config dict and any expression text is accepted or refused cleanly.
 
 ``parse_config`` must return a :class:`Config` or raise :class:`ConfigError` for every input,
-and :func:`shellobstacle.expressions.parse` a SymPy ``Expr`` or :class:`ExpressionError`:
+and :func:`shellobstacle.geometry.expressions.parse` a SymPy ``Expr`` or :class:`ExpressionError`:
 never another exception, and never run code hidden in the input. The configs start from
 ``examples/paper.toml`` and are mutated (keys and sections deleted, renamed with typos,
 values replaced by values of random types, unknown sections added). ``parse_config`` parses
@@ -28,9 +28,9 @@ import sympy as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from shellobstacle.config import Config, ConfigError, parse_config
-from shellobstacle.expressions import FUNCTIONS, ExpressionError, parse, y1, y2
-from shellobstacle.schema import SCHEMA
+from shellobstacle.config.loader import Config, ConfigError, parse_config
+from shellobstacle.config.schema import SCHEMA
+from shellobstacle.geometry.expressions import FUNCTIONS, ExpressionError, parse, y1, y2
 
 pytestmark = [
     pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fuzz tests run serially"),
@@ -510,7 +510,7 @@ def test_parameter_named_float_is_refused_or_works() -> None:
 
 def test_power_tower_returns_quickly() -> None:
     code = (
-        "from shellobstacle.expressions import parse, ExpressionError, y1\n"
+        "from shellobstacle.geometry.expressions import parse, ExpressionError, y1\n"
         "try:\n    parse('9**9**9', {'y1': y1}, 'fuzz')\nexcept ExpressionError:\n    pass\n"
     )
     try:

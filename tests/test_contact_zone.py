@@ -7,7 +7,7 @@ from petsc4py import PETSc
 import numpy as np
 import pytest
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation, predict
 from shellobstacle.solvers.linear.direct import DirectStrategy
 from shellobstacle.solvers.linear.zone import ZoneStrategy

@@ -4,7 +4,7 @@ import re
 from pathlib import Path
 
 import shellobstacle
-from shellobstacle.schema import reference_text
+from shellobstacle.config.schema import reference_text
 
 DOCS = Path(__file__).parents[1] / "docs"
 

@@ -10,8 +10,8 @@ from mpi4py import MPI
 
 import pytest
 
+from shellobstacle.cli.doctor import coretype_warning, numpy_blas_config
 from shellobstacle.dependencies import out_of_range, pinned_ranges
-from shellobstacle.doctor import coretype_warning, numpy_blas_config
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fresh processes, serially")
 
@@ -87,7 +87,7 @@ def test_unfinished_compilations_are_a_problem_with_the_files_named(tmp_path, mo
 
     import dolfinx.jit
 
-    from shellobstacle import doctor
+    from shellobstacle.cli import doctor
 
     monkeypatch.setattr(dolfinx.jit, "get_options", lambda: {"cache_dir": tmp_path})
     for name in ("finished", "killed", "compiling"):

@@ -14,16 +14,16 @@ import gmsh
 import numpy as np
 import pytest
 
-from shellobstacle.domains import DomainSpec
-from shellobstacle.measures import (
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.measures import (
     boundary_facets,
     domain_area,
     mesh_size,
     mesh_size_min,
     num_cells_global,
 )
-from shellobstacle.meshing import create_mesh
-from shellobstacle.refinement import refine_uniformly
+from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.mesh.refinement import refine_uniformly
 
 COMM = MPI.COMM_WORLD
 L_SHAPE = ((0.0, 0.0), (1.0, 0.0), (1.0, 0.5), (0.5, 0.5), (0.5, 1.0), (0.0, 1.0))
@@ -332,7 +332,7 @@ def test_large_mesh_is_the_coarse_gmsh_mesh_refined_twice(spec: DomainSpec):
     cells, node for node."""
     import dataclasses
 
-    from shellobstacle import meshing as domains
+    from shellobstacle.mesh import meshing as domains
 
     coarse_spec = dataclasses.replace(spec, h=4 * spec.h, gmsh_max_vertices=0)
     with domains._gmsh_model("reference", domains._gmsh_options(coarse_spec)) as model:
@@ -356,7 +356,7 @@ def test_gmsh_max_vertices_must_not_be_negative():
 def test_a_mesh_too_large_for_the_machine_is_refused_on_every_rank(monkeypatch) -> None:
     """require_fits raises the same one-line ResourceError on every rank (the ranks on this
     machine need their share of the run's memory); what fits passes everywhere."""
-    from shellobstacle import resources
+    from shellobstacle.mesh import resources
 
     monkeypatch.setattr(resources, "machine_memory", lambda: 1.0e9)
     spec = DomainSpec("disk", 0.002)  # about 2.3e5 vertices, 7e5 dofs: 2.4 GB

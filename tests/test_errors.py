@@ -19,7 +19,7 @@ from mpi4py import MPI
 import pytest
 from cli_helpers import assert_user_error, run
 
-from shellobstacle.config import to_toml
+from shellobstacle.config.loader import to_toml
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
 
@@ -417,12 +417,12 @@ def test_solver_failure_exits_1_without_traceback(capsys, tmp_path) -> None:
 
 def test_internal_error_exits_1_with_traceback(capsys, monkeypatch) -> None:
     """A bug (any other exception) prints the traceback and asks for a report."""
-    import shellobstacle.pipeline
+    import shellobstacle.api
 
     def broken(_domain):
         raise RuntimeError("simulated bug in make_mesh")
 
-    monkeypatch.setattr(shellobstacle.pipeline, "make_mesh", broken)
+    monkeypatch.setattr(shellobstacle.api, "make_mesh", broken)
     code, _, err = run(capsys, "check", str(SMALL))
     assert code == 1
     assert "Traceback (most recent call last)" in err
@@ -514,10 +514,10 @@ def test_checks_in_chunks_find_the_same_extremes(tmp_path, monkeypatch, case: st
     """The checks evaluate the geometry a chunk of points at a time: chunks of 7 points give
     the table of one chunk for the whole mesh (values, points, verdicts), and the same
     point where θ is not defined."""
-    from shellobstacle import checks
-    from shellobstacle.config import load_config
-    from shellobstacle.expressions import ExpressionError
-    from shellobstacle.pipeline import make_mesh
+    from shellobstacle.api import make_mesh
+    from shellobstacle.config.loader import load_config
+    from shellobstacle.geometry import assumptions as checks
+    from shellobstacle.geometry.expressions import ExpressionError
 
     changes = NOT_DEFINED if case == "not defined" else ASSUMPTIONS[case][0]
     cfg = load_config(write_config(tmp_path, changes))

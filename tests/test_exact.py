@@ -14,11 +14,11 @@ import dolfinx
 import numpy as np
 import pytest
 
-from shellobstacle.membrane import gap
-from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.models.membrane import gap
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
 EPS = 0.001
 P = 1e-4  # > 0: pushes along a^3 = outward normal, away from the plane x3 = 0

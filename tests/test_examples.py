@@ -13,8 +13,8 @@ from mpi4py import MPI
 
 import pytest
 
-from shellobstacle.cli import main
-from shellobstacle.config import load_config
+from shellobstacle.cli.main import main
+from shellobstacle.config.loader import load_config
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
 

@@ -12,17 +12,17 @@ import dolfinx
 import numpy as np
 import pytest
 
-from shellobstacle.cli import main
-from shellobstacle.config import load_config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.cli.main import main
+from shellobstacle.config.loader import load_config
 from shellobstacle.experiments.common import transfer
 from shellobstacle.experiments.load import PAPER_BATCH3_LOAD, load_study
 from shellobstacle.experiments.mesh import mesh_levels, mesh_study
 from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
-from shellobstacle.meshing import create_mesh
-from shellobstacle.model import Discretization, Load, PenaltySpec
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.mesh.refinement import refine_uniformly
 from shellobstacle.post.norms import DifferenceNorms
-from shellobstacle.refinement import refine_uniformly
+from shellobstacle.spec import Discretization, Load, PenaltySpec
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "examples" / "paper.toml"

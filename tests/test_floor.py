@@ -7,9 +7,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from shellobstacle.model import Discretization
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.spec import Discretization
 from tests.test_active_set import paper_shell
 from tests.test_active_set_p2 import square
 

@@ -19,8 +19,8 @@ import pytest
 import sympy as sp
 import ufl
 
-from shellobstacle.expressions import y1, y2
-from shellobstacle.surface import Surface
+from shellobstacle.geometry.expressions import y1, y2
+from shellobstacle.geometry.surface import Surface
 
 R, OFFSET = 1.0, 0.85
 AXES, ELL_OFFSET = (0.8, 0.6, 0.5), 0.1

@@ -14,19 +14,19 @@ import numpy as np
 import pytest
 import ufl
 
-from shellobstacle.domains import DomainSpec
-from shellobstacle.hybrid_bending import facet_midpoints, facet_normals
-from shellobstacle.meshing import create_mesh
-from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.models.hybrid_bending import facet_midpoints, facet_normals
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.base import direct_solver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear.zone import ZoneStrategy
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.contact_zone import ContactZone
-from shellobstacle.surface import Surface
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 from tests.test_contact_zone import lu_solve
 
 COMM = MPI.COMM_WORLD

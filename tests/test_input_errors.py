@@ -25,10 +25,10 @@ from mpi4py import MPI
 import pytest
 from cli_helpers import assert_user_error, run
 
-from shellobstacle.cli import main
-from shellobstacle.config import ConfigError, load_config, parse_config, to_toml
-from shellobstacle.domains import DomainSpec
-from shellobstacle.model import Discretization, PenaltySpec, Shell
+from shellobstacle.cli.main import main
+from shellobstacle.config.loader import ConfigError, load_config, parse_config, to_toml
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.spec import Discretization, PenaltySpec, Shell
 
 COMM = MPI.COMM_WORLD
 serial = pytest.mark.skipif(COMM.size > 1, reason="CLI tests run serially")
@@ -388,8 +388,8 @@ def test_readme_paraview_field_names_are_the_written_ones() -> None:
 def test_offset_hint_points_the_way_that_fixes_it(tmp_path, q3: float, way: str) -> None:
     """θ_3 = √(R² − |y|²) − offset: θ·q falls by q_3 per unit of offset. Following the hint
     (by 0.2) turns the failing half-space check into a passing one."""
-    from shellobstacle.checks import check_assumptions
-    from shellobstacle.pipeline import make_mesh
+    from shellobstacle.api import make_mesh
+    from shellobstacle.geometry.assumptions import check_assumptions
 
     offset = 0.95 if q3 > 0 else 0.9  # 0.866 − offset ≤ θ_3 ≤ 1 − offset: partly outside
 

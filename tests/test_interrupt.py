@@ -1,8 +1,8 @@
-"""Ctrl-C inside a long call into C (shellobstacle.interrupt): the watcher stops the process
+"""Ctrl-C inside a long call into C (shellobstacle.cli.interrupt): the watcher stops the process
 when Python cannot run its handler, and leaves it alone when Python handled the interrupt.
 
 The long call is gmsh meshing a disk finely (minutes, in C, gmsh's own SIGINT handling off as
-in :mod:`shellobstacle.meshing`). The timeouts only bound a failing test.
+in :mod:`shellobstacle.mesh.meshing`). The timeouts only bound a failing test.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="runs its own pr
 PRELUDE = textwrap.dedent(
     """
     import sys, time
-    from shellobstacle import interrupt
+    from shellobstacle.cli import interrupt
     assert interrupt.install(grace=1.0)
     print("ready", flush=True)
     """
@@ -93,7 +93,7 @@ def test_the_library_installs_nothing() -> None:
     """Importing shellobstacle and running cli.main leave SIGINT's wakeup fd unset."""
     code = (
         "import signal, shellobstacle\n"
-        "from shellobstacle.cli import main\n"
+        "from shellobstacle.cli.main import main\n"
         "main(['config-reference'])\n"
         "assert signal.set_wakeup_fd(-1) == -1\n"
     )
@@ -106,7 +106,7 @@ def test_unfinished_compilations_of_this_process_are_removed(tmp_path, monkeypat
 
     import dolfinx.jit
 
-    from shellobstacle.interrupt import remove_unfinished_compilations
+    from shellobstacle.cli.interrupt import remove_unfinished_compilations
 
     monkeypatch.setattr(dolfinx.jit, "get_options", lambda: {"cache_dir": tmp_path})
     for name in ("finished", "unfinished", "old"):

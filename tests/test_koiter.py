@@ -22,18 +22,22 @@ import pytest
 import sympy as sp
 import ufl
 
-from shellobstacle.config import ConfigError, parse_config
-from shellobstacle.domains import DomainSpec
-from shellobstacle.expressions import to_ufl, y1, y2
-from shellobstacle.hybrid_bending import DEFAULT_HYBRID_PENALTY
-from shellobstacle.koiter import DEFAULT_INTERIOR_PENALTY, bending_moment, change_of_curvature
-from shellobstacle.membrane import membrane_stress, strain
-from shellobstacle.model import BENDING_FORMS, Discretization, Load, Material, Obstacle, Shell
-from shellobstacle.pipeline import make_mesh
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import ConfigError, parse_config
+from shellobstacle.geometry.expressions import to_ufl, y1, y2
+from shellobstacle.geometry.surface import Surface, cross, dot
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.models.hybrid_bending import DEFAULT_HYBRID_PENALTY
+from shellobstacle.models.koiter import (
+    DEFAULT_INTERIOR_PENALTY,
+    bending_moment,
+    change_of_curvature,
+)
+from shellobstacle.models.membrane import membrane_stress, strain
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface, cross, dot
+from shellobstacle.spec import BENDING_FORMS, Discretization, Load, Material, Obstacle, Shell
 
 COMM = MPI.COMM_WORLD
 Y = (y1, y2)
@@ -134,7 +138,7 @@ def plate_deflection_error(
 
 
 def _serial_mesh(spec: DomainSpec) -> dolfinx.mesh.Mesh:
-    from shellobstacle.meshing import create_mesh
+    from shellobstacle.mesh.meshing import create_mesh
 
     return create_mesh(spec, MPI.COMM_SELF)
 

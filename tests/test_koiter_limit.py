@@ -12,15 +12,15 @@ import dolfinx
 import numpy as np
 import pytest
 
-from shellobstacle.cli import main
-from shellobstacle.domains import DomainSpec
+from shellobstacle.cli.main import main
 from shellobstacle.experiments.koiter_limit import distance_to_boundary, layer_width
-from shellobstacle.meshing import create_mesh
-from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
 COMM = MPI.COMM_WORLD
 PAPER = Path(__file__).parents[1] / "examples" / "paper.toml"

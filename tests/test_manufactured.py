@@ -28,12 +28,18 @@ import pytest
 import sympy as sp
 import ufl
 
-from shellobstacle.expressions import to_ufl, y1, y2
-from shellobstacle.membrane import elastic_product, gap, membrane_stress, strain, stress_divergence
-from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.geometry.expressions import to_ufl, y1, y2
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.models.membrane import (
+    elastic_product,
+    gap,
+    membrane_stress,
+    strain,
+    stress_divergence,
+)
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
 COMM = MPI.COMM_WORLD
 EPS, LAM, MU = 0.001, 0.4, 0.012

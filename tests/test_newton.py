@@ -13,18 +13,18 @@ import dolfinx
 import numpy as np
 import pytest
 
-from shellobstacle.measures import mesh_size
-from shellobstacle.model import Discretization, Load, Material, Obstacle, PenaltySpec, Shell
-from shellobstacle.pipeline import solve
+from shellobstacle.api import solve
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear import iterative as iterative_module
 from shellobstacle.solvers.linear.iterative import WARM_FORCING, IterativeStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
-from shellobstacle.surface import Surface
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, PenaltySpec, Shell
 
 PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 
@@ -384,7 +384,7 @@ def test_the_iterative_solvers_jacobian_is_updated_by_the_changed_points() -> No
     the result is K + P_A of the last active set to round-off."""
     from petsc4py import PETSc
 
-    from shellobstacle.penalty import penalty_hessian
+    from shellobstacle.penalty.quadrature import penalty_hessian
 
     problem = PenalizedProblem(paper_shell(), square(n=16))
     solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))

@@ -1,5 +1,6 @@
-"""Options and sizes checked before any work: every experiment option (shellobstacle.options)
-and the estimated size of every mesh against the machine (shellobstacle.resources).
+"""Options and sizes checked before any work: every experiment option
+(shellobstacle.experiments.options)
+and the estimated size of every mesh against the machine (shellobstacle.mesh.resources).
 
 Each mistake ends with exit 2, one line on stderr naming the option, and no result folder.
 """
@@ -13,13 +14,13 @@ from mpi4py import MPI
 import gmsh
 import pytest
 
-from shellobstacle import resources
-from shellobstacle.cli import main
-from shellobstacle.config import ConfigError
-from shellobstacle.domains import DomainSpec
-from shellobstacle.meshing import create_mesh
-from shellobstacle.options import MAX_STEPS, numbers
-from shellobstacle.resources import estimate, mesh_vertices
+from shellobstacle.cli.main import main
+from shellobstacle.config.loader import ConfigError
+from shellobstacle.experiments.options import MAX_STEPS, numbers
+from shellobstacle.mesh import resources
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.mesh.resources import estimate, mesh_vertices
 
 EXAMPLES = Path(__file__).parents[1] / "examples"
 PAPER, KOITER = str(EXAMPLES / "paper.toml"), str(EXAMPLES / "cylinder_koiter.toml")

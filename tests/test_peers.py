@@ -21,13 +21,13 @@ import numpy as np
 import pytest
 from cli_helpers import assert_user_error, run
 
-from shellobstacle.config import ConfigError, load_config
-from shellobstacle.model import Discretization
-from shellobstacle.pipeline import nodal_solver
+from shellobstacle.api import nodal_solver
+from shellobstacle.config.loader import ConfigError, load_config
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import l2_norm
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.options import ProximalGalerkinOptions, SnesVIOptions
+from shellobstacle.spec import Discretization
 from tests.test_active_set import VERTEX, paper_shell, square
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"

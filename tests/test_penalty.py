@@ -9,12 +9,12 @@ import dolfinx.fem.petsc
 import numpy as np
 import pytest
 
-from shellobstacle.model import Discretization
-from shellobstacle.penalty import QuadraturePenalty
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.quadrature import QuadraturePenalty
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear.direct import DirectStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.spec import Discretization
 from tests.test_newton import paper_shell, square
 
 KAPPA = 1e-3

@@ -226,7 +226,7 @@ def test_solve_without_pyvista_writes_everything_else(
     renderer's path): exit 0, one warning in the log and the summary, every other file."""
     if COMM.size > 1:
         pytest.skip("the command line runs serially here")
-    from shellobstacle.cli import main
+    from shellobstacle.cli.main import main
 
     fake = tmp_path / "fake" / "pyvista"
     fake.mkdir(parents=True)
@@ -255,7 +255,7 @@ def test_solve_without_pyvista_writes_everything_else(
 def test_solve_draws_the_picture_and_lists_it(tmp_path: Path, fresh: None) -> None:
     if COMM.size > 1:
         pytest.skip("the command line runs serially here")
-    from shellobstacle.cli import main
+    from shellobstacle.cli.main import main
 
     out = tmp_path / "run"
     assert main(["solve", str(SMALL), "-o", str(out), "-q", "--set", "domain.h=0.05"]) == 0
@@ -277,7 +277,7 @@ def test_experiment_load_draws_the_largest_load_and_a_resumed_run_keeps_it(
     resumed run whose values are all recorded has no solution to draw and keeps the drawing."""
     if COMM.size > 1:
         pytest.skip("the command line runs serially here")
-    from shellobstacle.cli import main
+    from shellobstacle.cli.main import main
 
     paraboloid = Path(__file__).parents[1] / "examples" / "paraboloid.toml"
     out = tmp_path / "load"
@@ -312,7 +312,7 @@ def test_experiments_draw_their_finest_solution(
     recorded keeps that drawing."""
     if COMM.size > 1:
         pytest.skip("the command line runs serially here")
-    from shellobstacle.cli import main
+    from shellobstacle.cli.main import main
 
     paper = Path(__file__).parents[1] / "examples" / "paper.toml"
     out = tmp_path / experiment
@@ -330,7 +330,7 @@ def test_experiments_draw_their_finest_solution(
 def test_the_doctor_names_what_draws_the_pictures(monkeypatch: pytest.MonkeyPatch) -> None:
     import importlib.metadata
 
-    from shellobstacle import doctor
+    from shellobstacle.cli import doctor
 
     assert doctor._pictures().startswith(f"pyvista {importlib.metadata.version('pyvista')}, vtk ")
     version = importlib.metadata.version

@@ -21,15 +21,15 @@ import numpy as np
 import pytest
 import ufl
 
+from shellobstacle.geometry.surface import Surface
 from shellobstacle.io.paraview import SurfaceMesh, write_paraview
-from shellobstacle.model import Discretization, Load, Material, Shell
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import h1_norm, l2_norm, norms, vm_norm
 from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import cross_section
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface
+from shellobstacle.spec import Discretization, Load, Material, Shell
 
 COMM = MPI.COMM_WORLD
 HALF = 0.25  # ω = [-HALF, HALF]²

@@ -23,7 +23,7 @@ from mpi4py import MPI
 import pytest
 
 from shellobstacle import progress
-from shellobstacle.cli import main
+from shellobstacle.cli.main import main
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="terminals of one process")
 EXAMPLES = Path(__file__).parents[1] / "examples"

@@ -19,7 +19,7 @@ from mpi4py import MPI
 import pytest
 from cli_helpers import run_on_all_ranks as run
 
-from shellobstacle.cli import EXIT_INTERRUPTED, main
+from shellobstacle.cli.main import EXIT_INTERRUPTED, main
 from shellobstacle.solvers.newton import NewtonSolver
 
 ROOT = Path(__file__).parents[1]

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from cli_helpers import run_on_all_ranks as run
 
-from shellobstacle.cli import EXIT_INTERRUPTED, main
+from shellobstacle.cli.main import EXIT_INTERRUPTED, main
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.solvers.newton import NewtonSolver
 

@@ -17,12 +17,12 @@ import numpy as np
 import pytest
 import ufl
 
-from shellobstacle.cli import EXIT_INVALID, EXIT_OK, main
-from shellobstacle.config import load_config
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.api import make_mesh
+from shellobstacle.cli.main import EXIT_INVALID, EXIT_OK, main
+from shellobstacle.config.loader import load_config
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.validity import THRESHOLDS, assess
-from shellobstacle.problem import PenalizedProblem
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 #: a uniform pressure 1000 times the peak of the paper's load (examples/small.toml)
@@ -140,7 +140,7 @@ def test_a_load_sweep_names_the_values_outside_the_validity(tmp_path: Path) -> N
 @pytest.mark.mpi
 def test_the_python_api_measures_a_solve() -> None:
     """SolveResult.validity(): the paper's problem inside, the crushing load outside."""
-    from shellobstacle.pipeline import solve_config
+    from shellobstacle.api import solve_config
 
     inside = solve_config(load_config(SMALL, ["domain.h=0.06"])).validity()
     outside = solve_config(load_config(SMALL, ["domain.h=0.06", CRUSHING])).validity()

@@ -29,8 +29,8 @@ def main() -> int:
         if MPI.COMM_WORLD.rank == 0:
             print(f"shellobstacle: error: {err}", file=sys.stderr)
         return 2
-    from shellobstacle import interrupt
-    from shellobstacle.cli import main as cli_main
+    from shellobstacle.cli import interrupt
+    from shellobstacle.cli.main import main as cli_main
 
     interrupt.install()
     return cli_main()

@@ -2,7 +2,7 @@
 the error type of a problem the user can fix (:class:`ConfigError`).
 
 A value outside its choices is reported as ``key = 'value' is not one of 'a', 'b'; did you
-mean 'a'?`` wherever it is caught: :mod:`shellobstacle.config` prefixes the file (or the
+mean 'a'?`` wherever it is caught: :mod:`shellobstacle.config.loader` prefixes the file (or the
 ``--set``) that gave it, the dataclasses of the API raise the bare text.
 """
 

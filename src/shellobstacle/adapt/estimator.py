@@ -7,7 +7,7 @@ pushes along ``c = (a^i·q)``, the residual of the equilibrium equations is the 
 Integrating by parts on each cell ``T`` (``n^{αβ} = ε a^{αβστ} γ_στ(ζ_h)``) splits it into
 
 - the element residuals ``r_σ = √a (p^σ + n^{σβ}|_β) + Λ c_σ`` (``σ = 1, 2``; the covariant
-  divergence of :func:`~shellobstacle.membrane.stress_divergence`) and
+  divergence of :func:`~shellobstacle.models.membrane.stress_divergence`) and
   ``r_3 = √a (p^3 + b_αβ n^{αβ}) + Λ c_3``: the strong form :eq:`strong-form`;
 - the jumps ``J_σ = [√a n^{σβ} ν_β]`` of the membrane traction across interior edges.
 
@@ -37,8 +37,8 @@ import dolfinx.fem
 import numpy as np
 import ufl
 
-from shellobstacle.membrane import membrane_stress, stress_divergence
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.membrane import membrane_stress, stress_divergence
+from shellobstacle.models.problem import PenalizedProblem
 
 __all__ = ["ErrorEstimator", "Indicators", "penalty_force"]
 

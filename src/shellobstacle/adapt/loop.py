@@ -5,7 +5,7 @@ level compiles), solves it warm-started from the previous level's solution inter
 onto the refined mesh (exact: Plaza's meshes are nested), computes the indicators
 (:mod:`~shellobstacle.adapt.estimator`), marks by Dörfler's criterion and the discrete free
 boundary (:mod:`~shellobstacle.adapt.marking`) and refines the marked cells
-(:func:`~shellobstacle.refinement.refine_marked`). Everything is collective: on several ranks
+(:func:`~shellobstacle.mesh.refinement.refine_marked`). Everything is collective: on several ranks
 the marked set, hence the meshes and the numbers, are those of a serial run up to solver
 tolerance.
 
@@ -32,12 +32,12 @@ import numpy as np
 from shellobstacle.adapt.estimator import ErrorEstimator, Indicators
 from shellobstacle.adapt.marking import free_boundary_cells, mark_dorfler, marked_edges
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.measures import mesh_size, mesh_size_min, num_cells_global
-from shellobstacle.model import Discretization, PenaltySpec, Shell
-from shellobstacle.problem import PenalizedProblem
-from shellobstacle.refinement import refine_marked
+from shellobstacle.mesh.measures import mesh_size, mesh_size_min, num_cells_global
+from shellobstacle.mesh.refinement import refine_marked
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.spec import Discretization, PenaltySpec, Shell
 
 __all__ = [
     "AdaptLevel",
@@ -269,7 +269,7 @@ def _solve_level(
 ) -> tuple[list[Any], int, Any]:
     """Solve one level: ``(steps, iterations, contact pressure or None)``."""
     if method == "active-set":
-        from shellobstacle.pipeline import MethodStep
+        from shellobstacle.api import MethodStep
         from shellobstacle.solvers.active_set import ActiveSetSolver
 
         t0 = time.perf_counter()
@@ -338,10 +338,10 @@ def solve_adaptively(
     checks: list[Any],
     timings: dict[str, float],
 ) -> Any:
-    """:func:`adaptive_solve` as a :class:`~shellobstacle.pipeline.SolveResult` (what
-    :func:`~shellobstacle.pipeline.solve` returns with ``adapt``): the last level's problem
+    """:func:`adaptive_solve` as a :class:`~shellobstacle.api.SolveResult` (what
+    :func:`~shellobstacle.api.solve` returns with ``adapt``): the last level's problem
     and steps, the levels in ``extra["adapt"]``."""
-    from shellobstacle.pipeline import SolveResult
+    from shellobstacle.api import SolveResult
 
     t = time.perf_counter()
     r = adaptive_solve(

@@ -28,13 +28,13 @@ import numpy as np
 
 from shellobstacle.adapt.loop import AdaptiveResult, AdaptLevel, adaptive_solve, carry_over
 from shellobstacle.adapt.options import MAX_LEVELS, AdaptOptions
-from shellobstacle.config import Config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.post.nonmatching import SampledNorms
 from shellobstacle.post.norms import DifferenceNorms
 

@@ -12,13 +12,13 @@ from mpi4py import MPI  # noqa: F401  (MPI before dolfinx)
 import dolfinx
 
 from shellobstacle.adapt.estimator import ErrorEstimator
-from shellobstacle.config import Config
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import NewtonProgress, Say
 from shellobstacle.io.checkpoint import Checkpoint
-from shellobstacle.measures import mesh_size, mesh_size_min
+from shellobstacle.mesh.measures import mesh_size, mesh_size_min
+from shellobstacle.mesh.refinement import refine_uniformly
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.nonmatching import SampledNorms
-from shellobstacle.problem import PenalizedProblem
-from shellobstacle.refinement import refine_uniformly
 
 __all__ = ["uniform_sequence"]
 

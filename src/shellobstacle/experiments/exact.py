@@ -2,7 +2,7 @@
 
 The exact solution ``ζ^h`` of the discrete variational inequality (constraint ``g ≥ 0`` at the
 vertices, P1) is computed by the active-set solver and verified by its KKT conditions
-(:func:`~shellobstacle.pipeline.exact_solution`); batches 1 and 2 compare their penalized
+(:func:`~shellobstacle.api.exact_solution`); batches 1 and 2 compare their penalized
 solutions with it and this module writes the results.
 """
 
@@ -12,10 +12,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from shellobstacle.config import Config
+from shellobstacle.api import exact_solution
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import Say, finish_figure, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
-from shellobstacle.pipeline import exact_solution
 from shellobstacle.progress import phase
 
 __all__ = ["exact_reference", "write_batch4"]

@@ -27,22 +27,22 @@ import dolfinx
 import numpy as np
 import ufl
 
-from shellobstacle.config import Config
-from shellobstacle.domains import GRADED_KINDS, DomainSpec
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import NewtonProgress, Say, finish_figure, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
-from shellobstacle.measures import mesh_size
-from shellobstacle.model import Discretization, Shell
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.mesh.domains import GRADED_KINDS, DomainSpec
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import vm_norm
 from shellobstacle.post.sections import line_tree, mesh_extent, sample
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
     "KoiterLimit",
@@ -104,7 +104,7 @@ def validate(
     cfg: Config, epsilons: Sequence[float], edge_h: float | None, edge_width: float | None
 ) -> None:
     """Raise ConfigError for what the experiment cannot use, naming the fix."""
-    from shellobstacle.config import ConfigError
+    from shellobstacle.config.loader import ConfigError
 
     if not epsilons or any(not e > 0 for e in epsilons):
         raise ConfigError(f"--epsilons: expected positive numbers, got {list(epsilons)}")

@@ -14,23 +14,23 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.config import Config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import NewtonProgress, Say, finish_figure, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
-from shellobstacle.measures import mesh_size
-from shellobstacle.model import Discretization, Load, PenaltySpec, Shell
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import CrossSection
 from shellobstacle.post.validity import assess
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.spec import Discretization, Load, PenaltySpec, Shell
 
 __all__ = [
     "PAPER_BATCH3_LOAD",

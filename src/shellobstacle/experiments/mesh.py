@@ -14,8 +14,8 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.config import Config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import (
     LazyReference,
     NewtonProgress,
@@ -30,15 +30,15 @@ from shellobstacle.experiments.exact import exact_reference
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
-from shellobstacle.measures import mesh_size
-from shellobstacle.model import Discretization, PenaltySpec, Shell
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.mesh.refinement import refine_uniformly
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import DifferenceNorms
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.progress import phase
-from shellobstacle.refinement import refine_uniformly
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.spec import Discretization, PenaltySpec, Shell
 
 __all__ = [
     "MeshLevel",

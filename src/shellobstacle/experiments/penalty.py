@@ -15,8 +15,8 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.config import Config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.api import make_mesh
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import (
     LazyReference,
     NewtonProgress,
@@ -31,14 +31,14 @@ from shellobstacle.experiments.exact import exact_reference
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
-from shellobstacle.measures import mesh_size
-from shellobstacle.model import Discretization, Shell
-from shellobstacle.pipeline import make_mesh
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import DifferenceNorms
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import predict
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
     "PenaltyStudy",

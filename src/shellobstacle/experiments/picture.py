@@ -13,11 +13,11 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from shellobstacle.config import Config
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import Say
-from shellobstacle.measures import mesh_size
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.progress import phase
 
 __all__ = ["SolutionPicture"]

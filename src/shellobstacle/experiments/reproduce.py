@@ -8,8 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from shellobstacle.config import load_config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.config.loader import load_config
 from shellobstacle.experiments.adaptive import AdaptiveStudyOptions, run_adaptive
 from shellobstacle.experiments.exact import write_batch4
 from shellobstacle.experiments.koiter_limit import run_koiter_limit
@@ -19,6 +18,7 @@ from shellobstacle.experiments.penalty import run_penalty
 from shellobstacle.experiments.solvers import run_solvers
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.io.folders import atomic_write, versions
+from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.progress import phase
 
 __all__ = ["PAPER_CONFIG", "SIZES", "Sizes", "reproduce"]

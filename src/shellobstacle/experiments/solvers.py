@@ -1,7 +1,7 @@
 """Newton against the Brezis–Sibony iteration on the paper's problem (MODEL.md §6–7).
 
 For each mesh, ``κ = h^q`` is solved twice on one compiled problem: by Newton with the usual
-continuation ``κ = h^{0.5}, h^{1.0}, …, h^q`` (:func:`~shellobstacle.pipeline.continuation`)
+continuation ``κ = h^{0.5}, h^{1.0}, …, h^q`` (:func:`~shellobstacle.api.continuation`)
 and by the iteration (38) from the linearized start with the automatic step. Each row records
 the cost of both, the estimated contraction bound against the observed contraction factor,
 and the L² distance of the two solutions relative to Newton's. A Brezis–Sibony run that hits
@@ -23,22 +23,22 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.config import Config
-from shellobstacle.domains import DomainSpec
+from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
-from shellobstacle.measures import mesh_size
-from shellobstacle.meshing import create_mesh
-from shellobstacle.model import Discretization, PenaltySpec, Shell
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
-from shellobstacle.problem import PenalizedProblem
 from shellobstacle.progress import note, phase
 from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions, BrezisSibonySolver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.spec import Discretization, PenaltySpec, Shell
 
 __all__ = ["COLUMNS", "DEFAULT_SIZES", "compare_solvers", "write_solver_comparison"]
 

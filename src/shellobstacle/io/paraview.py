@@ -37,8 +37,8 @@ import dolfinx.mesh
 import numpy as np
 import ufl
 
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.problem import PenalizedProblem
 
 __all__ = ["SurfaceMesh", "surface_mesh", "write_paraview"]
 

@@ -10,7 +10,7 @@ from typing import Any
 
 from mpi4py import MPI
 
-from shellobstacle.checks import format_checks
+from shellobstacle.geometry.assumptions import format_checks
 from shellobstacle.io.folders import versions, write_json
 from shellobstacle.progress import phase
 

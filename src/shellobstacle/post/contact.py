@@ -20,8 +20,8 @@ import dolfinx.la
 import numpy as np
 import ufl
 
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.sections import AXES, CrossSection, cross_section, line_tree
-from shellobstacle.problem import PenalizedProblem
 
 __all__ = ["Postprocessor"]
 

@@ -17,7 +17,7 @@ import dolfinx.geometry
 import dolfinx.la
 import numpy as np
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 
 __all__ = [
     "AXES",

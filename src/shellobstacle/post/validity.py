@@ -24,7 +24,7 @@ over itself. Scale-free measures, computed after every solve:
 
 A measure beyond its threshold in :data:`THRESHOLDS` makes the result *outside the validity*:
 ``solve`` warns on the terminal and in ``summary.json`` and exits with status 3
-(:data:`~shellobstacle.commands.EXIT_INVALID`).
+(:data:`~shellobstacle.cli.commands.EXIT_INVALID`).
 """
 
 from __future__ import annotations

@@ -38,7 +38,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError, direct_solver, factorize
 from shellobstacle.solvers.line_search import piecewise_linear_root
 from shellobstacle.solvers.nodal_qp import NodalQP, NodalResult, factor_mb

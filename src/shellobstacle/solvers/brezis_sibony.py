@@ -1,7 +1,8 @@
 """The Brezis–Sibony iteration for the penalized problem (MODEL.md §6, the paper's (38)).
 
 With ``R(ψ)`` the residual vector of the discrete penalized problem (the ``"residual"`` form of
-:class:`~shellobstacle.problem.PenalizedProblem`: ``A_h ψ + (ε/κ) P_h β(ψ) − P_h(p√a)`` tested
+:class:`~shellobstacle.models.problem.PenalizedProblem`:
+``A_h ψ + (ε/κ) P_h β(ψ) − P_h(p√a)`` tested
 against the basis of ``V_h``) and ``M`` the mass matrix of ``V_h``, the paper's operator is
 ``N_h(ψ) = M⁻¹ R(ψ)`` and the iteration (38) reads
 
@@ -12,7 +13,7 @@ stays 0 on them.
 
 **Residual.** A step does not assemble the residual form: ``R(ψ) = Kψ − L + (1/κ) Mᵀ min(g, 0)``
 from the stiffness matrix ``K`` and the penalty's point matrix ``M``
-(:class:`~shellobstacle.penalty.QuadraturePenalty`, the operators
+(:class:`~shellobstacle.penalty.quadrature.QuadraturePenalty`, the operators
 :class:`~shellobstacle.solvers.newton.NewtonSolver` uses), which is the form's vector up to
 round-off (tested) for a fraction of the cost: a product with ``K``, one with the point
 matrix and one with its stored transpose. The mass matrix is factorized once by Cholesky
@@ -61,8 +62,8 @@ import dolfinx.fem.petsc
 import numpy as np
 import ufl
 
-from shellobstacle.penalty import QuadraturePenalty, penalty_hessian
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.quadrature import QuadraturePenalty, penalty_hessian
 from shellobstacle.solvers.base import ConvergenceError, direct_solver
 from shellobstacle.solvers.options import BrezisSibonyOptions
 from shellobstacle.solvers.spectrum import extreme_eigenvalue

@@ -19,7 +19,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import phase
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.newton import NewtonResult, NewtonSolver

@@ -34,7 +34,7 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import note
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.linear import LinearSolveError, LinearStrategy, make_strategy

@@ -21,7 +21,7 @@ import dolfinx.la
 import numpy as np
 import ufl
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 
 __all__ = ["NodalConstraint", "lumped_mass_p2", "nodal_rotations"]
 

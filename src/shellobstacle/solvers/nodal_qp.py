@@ -35,7 +35,7 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.nodal import NodalConstraint
 

@@ -38,7 +38,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import (
     ConvergenceError,
     direct_solver,

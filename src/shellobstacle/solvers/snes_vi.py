@@ -28,7 +28,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import factorization_pc, unique_prefix
 from shellobstacle.solvers.nodal_qp import NodalQP, NodalResult, factor_mb
 from shellobstacle.solvers.options import SnesVIOptions

@@ -2,7 +2,7 @@
 
 ``J_κ(ζ) = ½ ζᵀKζ − f·ζ + (1/(2κ)) Σ_k D_k min(g_k, 0)²`` (MODEL.md §4–5): the membrane part
 is quadratic, with the stiffness ``K`` assembled once per mesh, and the penalty lives at its
-quadrature points (:class:`~shellobstacle.penalty.QuadraturePenalty`). A residual is then
+quadrature points (:class:`~shellobstacle.penalty.quadrature.QuadraturePenalty`). A residual is then
 one product with ``K`` and one with the point matrix ``M``, a Jacobian ``K`` plus a product
 over the active points only, and a line-search evaluation a sum over the points.
 
@@ -25,8 +25,8 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 
-from shellobstacle.penalty import QuadraturePenalty, penalty_hessian
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.quadrature import QuadraturePenalty, penalty_hessian
 from shellobstacle.solvers.line_search import exact_step
 
 __all__ = ["PenalizedSystem"]

@@ -18,7 +18,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.penalty import QuadraturePenalty
+from shellobstacle.penalty.quadrature import QuadraturePenalty
 from shellobstacle.solvers.base import direct_solver, factorize
 from shellobstacle.solvers.mumps import in_blocks
 from shellobstacle.solvers.zone.condensation import Condensation

@@ -1,6 +1,6 @@
 """The hybrid stiffness as the contact zone condenses it: the block matrix in ``(ζ, t)``.
 
-For the hybrid bending form (:mod:`shellobstacle.hybrid_bending`) the stiffness in ζ is the
+For the hybrid bending form (:mod:`shellobstacle.models.hybrid_bending`) the stiffness in ζ is the
 Schur complement ``K = A − B C⁻¹ Bᵀ`` of
 
     H = [[A, B], [Bᵀ, C]]   in (ζ, t),   C diagonal,
@@ -28,7 +28,7 @@ from petsc4py import PETSc
 import dolfinx
 import numpy as np
 
-from shellobstacle.hybrid_bending import CondensedStiffness
+from shellobstacle.models.hybrid_bending import CondensedStiffness
 from shellobstacle.solvers.zone.graph import union
 
 __all__ = ["HybridBlocks", "block_matrix", "penalty_entries"]

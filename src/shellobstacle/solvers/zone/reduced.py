@@ -31,7 +31,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.penalty import QuadraturePenalty, gap_scale, penalty_hessian
+from shellobstacle.penalty.quadrature import QuadraturePenalty, gap_scale, penalty_hessian
 from shellobstacle.solvers.base import unique_prefix
 from shellobstacle.solvers.line_search import exact_step
 from shellobstacle.solvers.system import PenalizedSystem, abs_row_sums, floor_of

@@ -106,7 +106,7 @@ def report(installed: str) -> tuple[list[str], list[str]]:
             f"MUMPS' selected inverse entries are out of reach ({reason}): the direct solver "
             "falls back to one factorization per κ (solver.contact_zone has no effect)"
         )
-    from shellobstacle.interrupt import unfinished_compilations
+    from shellobstacle.cli.interrupt import unfinished_compilations
 
     if stale := unfinished_compilations(older_than=time.time() - 600.0):
         problems.append(

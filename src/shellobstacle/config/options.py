@@ -1,5 +1,5 @@
 """The options of ``[solver]``'s non-Newton methods and of ``[adapt]``, built from the
-resolved config and checked against each other (:mod:`shellobstacle.config` calls them)."""
+resolved config and checked against each other (:mod:`shellobstacle.config.loader` calls them)."""
 
 from __future__ import annotations
 
@@ -8,13 +8,13 @@ from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.messages import ConfigError
-from shellobstacle.model import PenaltySpec, Shell
 from shellobstacle.solvers.options import (
     ActiveSetOptions,
     BrezisSibonyOptions,
     ProximalGalerkinOptions,
     SnesVIOptions,
 )
+from shellobstacle.spec import PenaltySpec, Shell
 
 __all__ = ["adapt_options", "method_options"]
 

@@ -3,7 +3,7 @@
 Where they are not (a square root of a negative number, a sphere narrower than ω, an
 overflow, a division by zero), nothing of the theory applies, and the assumption table would
 only show NaN. :func:`require_finite` evaluates them at the points the checks sample and
-raises one :class:`~shellobstacle.expressions.ExpressionError` naming the key, the quantity
+raises one :class:`~shellobstacle.geometry.expressions.ExpressionError` naming the key, the quantity
 and the point of the mesh nearest the origin where it fails, identical on every rank.
 """
 
@@ -16,9 +16,9 @@ from mpi4py import MPI
 import numpy as np
 import sympy as sp
 
-from shellobstacle.expressions import ExpressionError, to_numpy, y1, y2
-from shellobstacle.model import Shell
-from shellobstacle.surface import Geometry
+from shellobstacle.geometry.expressions import ExpressionError, to_numpy, y1, y2
+from shellobstacle.geometry.surface import Geometry
+from shellobstacle.spec import Shell
 
 __all__ = ["SURFACE_NAMES", "Failure", "first_failure", "require_finite"]
 

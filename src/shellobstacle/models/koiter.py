@@ -2,7 +2,7 @@
 (MODEL.md §8, :eq:`koiter-energy`; Ciarlet 2005, ch. 4).
 
 The change of curvature :func:`change_of_curvature` is a pure function on scalar lists, like
-:mod:`shellobstacle.membrane`, usable with UFL and SymPy. :func:`bending_energy` writes the
+:mod:`shellobstacle.models.membrane`, usable with UFL and SymPy. :func:`bending_energy` writes the
 bending energy of a C⁰ Lagrange ``ζ_3`` (degree ≥ 2): basix has no C¹ element, so the H²
 conformity of ``ζ_3`` and the clamped condition ``∂_ν ζ_3 = 0`` are imposed weakly, by the
 symmetric interior-penalty terms of the bending moment on the facets (Engel et al. 2002,
@@ -17,7 +17,7 @@ stiffness and ``F`` running over the interior facets and the clamped boundary (w
 jump is ``∂_n η_3`` itself). The exact solution satisfies the discrete equations (the
 facet terms are what integrating the broken Hessian by parts leaves), so the method is
 consistent; ``σ`` large enough makes it coercive. The default bending form is the hybrid
-one of :mod:`shellobstacle.hybrid_bending`, which reuses this module's change of curvature,
+one of :mod:`shellobstacle.models.hybrid_bending`, which reuses this module's change of curvature,
 bending moment and facet stiffness.
 """
 
@@ -28,8 +28,8 @@ from typing import Any
 
 import ufl
 
-from shellobstacle.membrane import elastic_product
-from shellobstacle.surface import Geometry
+from shellobstacle.geometry.surface import Geometry
+from shellobstacle.models.membrane import elastic_product
 
 __all__ = [
     "DEFAULT_INTERIOR_PENALTY",

@@ -19,17 +19,17 @@ from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 
 import dolfinx
 
-from shellobstacle.checks import Check, check_assumptions, require
-from shellobstacle.config import NODAL_METHODS, Config, ConfigError
-from shellobstacle.domains import DomainSpec
-from shellobstacle.measures import mesh_size
-from shellobstacle.meshing import create_mesh
-from shellobstacle.model import Discretization, PenaltySpec, Shell
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.config.loader import NODAL_METHODS, Config, ConfigError
+from shellobstacle.geometry.assumptions import Check, check_assumptions, require
+from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import phase
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.continuation import KappaStep, continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.spec import Discretization, PenaltySpec, Shell
 
 __all__ = [
     "METHODS",
@@ -144,7 +144,7 @@ def solve(
         discretization: element degree, boundary condition of ζ_3, penalty quadrature.
         options: Newton tolerances and linear solver.
         force: proceed (with a warning) when the theory's assumptions fail, and mesh even
-            when the mesh looks too large for this machine (:mod:`shellobstacle.resources`).
+            when the mesh looks too large for this machine (:mod:`shellobstacle.mesh.resources`).
         progress: called with one-line progress messages.
         method: ``"newton"`` (continuation in κ), ``"brezis-sibony"`` (the iteration (38) at
             the target κ), or the exact nodal VI (κ = 0) by ``"active-set"``, ``"snes-vi"``
@@ -172,7 +172,7 @@ def solve(
     t = time.perf_counter()
     if isinstance(domain, DomainSpec):
         if not force:
-            from shellobstacle.resources import require_fits
+            from shellobstacle.mesh.resources import require_fits
 
             require_fits(domain, shell.model, (discretization or Discretization()).degree)
         say(f"meshing {domain.kind} (target h = {domain.h})")

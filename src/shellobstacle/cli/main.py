@@ -1,6 +1,6 @@
 """The command line: solve, check, reproduce, experiment, doctor, config-reference.
 
-:func:`main` parses and dispatches to :mod:`shellobstacle.commands`; it changes nothing in the
+:func:`main` parses and dispatches to :mod:`shellobstacle.cli.commands`; it changes nothing in the
 process (the ``shellobstacle`` executable tunes it first: :mod:`shellobstacle.__main__`).
 """
 
@@ -17,8 +17,8 @@ from collections.abc import Sequence
 from mpi4py import MPI
 
 import shellobstacle
-from shellobstacle import commands
-from shellobstacle.commands import (
+from shellobstacle.cli import commands
+from shellobstacle.cli.commands import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
     EXIT_INVALID,
@@ -246,9 +246,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.folder = None  # the ResultFolder, once known (for the messages below)
     args.report = None  # the Reporter, whose log.txt also gets how the run ended
-    from shellobstacle.checks import AssumptionError
-    from shellobstacle.config import ConfigError
-    from shellobstacle.expressions import ExpressionError
+    from shellobstacle.config.loader import ConfigError
+    from shellobstacle.geometry.assumptions import AssumptionError
+    from shellobstacle.geometry.expressions import ExpressionError
     from shellobstacle.io.folders import ResultsError
     from shellobstacle.solvers.base import ConvergenceError
 
@@ -274,7 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         return EXIT_FAILED
     except KeyboardInterrupt:
-        from shellobstacle import interrupt
+        from shellobstacle.cli import interrupt
 
         interrupt.acknowledge()
         interrupt.remove_unfinished_compilations(since=started)
@@ -298,7 +298,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     """Run the command of ``args``; returns its exit code."""
     _require_text(args.argv)
     if args.command == "config-reference":
-        from shellobstacle.schema import reference_text
+        from shellobstacle.config.schema import reference_text
 
         print(reference_text())
         return EXIT_OK
@@ -328,7 +328,7 @@ def _require_text(argv: Sequence[str]) -> None:
     """Refuse an argument that is not UTF-8 text (a byte such as 0xff in a file name arrives
     as a lone surrogate): the paths and values are written into UTF-8 logs, configs and
     reports, which cannot hold it."""
-    from shellobstacle.config import ConfigError
+    from shellobstacle.config.loader import ConfigError
 
     for arg in argv:
         try:

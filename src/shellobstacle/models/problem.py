@@ -18,18 +18,18 @@ import numpy as np
 import sympy as sp
 import ufl
 
-from shellobstacle.expressions import to_ufl, y1, y2
-from shellobstacle.hybrid_bending import (
+from shellobstacle.geometry.expressions import to_ufl, y1, y2
+from shellobstacle.models.hybrid_bending import (
     DEFAULT_HYBRID_PENALTY,
     CondensedStiffness,
     facet_midpoints,
     facet_normals,
     hybrid_bending_energy,
 )
-from shellobstacle.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
-from shellobstacle.membrane import elastic_product, gap, strain
-from shellobstacle.model import Discretization, Shell
+from shellobstacle.models.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
+from shellobstacle.models.membrane import elastic_product, gap, strain
 from shellobstacle.progress import phase
+from shellobstacle.spec import Discretization, Shell
 
 __all__ = ["PenalizedProblem"]
 
@@ -43,9 +43,10 @@ class PenalizedProblem:
     :eq:`penalized-equation` and its (generalized) Hessian the symmetric positive definite
     Jacobian :eq:`penalty-jacobian`. For Koiter's model (``shell.model == "koiter"``) the
     elastic part gains the bending energy of :eq:`koiter-energy`, in its hybrid form
-    :eq:`koiter-hybrid` (the default, :mod:`~shellobstacle.hybrid_bending`: ``K`` is the Schur
+    :eq:`koiter-hybrid` (the default, :mod:`~shellobstacle.models.hybrid_bending`: ``K`` is the
+    Schur
     complement of a block matrix in ``(ζ, t)``) or its C⁰ interior-penalty form
-    :eq:`koiter-c0ip` (:func:`~shellobstacle.koiter.bending_energy`); the rest is shared.
+    :eq:`koiter-c0ip` (:func:`~shellobstacle.models.koiter.bending_energy`); the rest is shared.
 
     Attributes:
         zeta: the unknown ``ζ_κ^h`` (covariant components), a vector Lagrange function.
@@ -312,5 +313,5 @@ def _require_koiter_discretization(disc: Discretization, mesh: dolfinx.mesh.Mesh
         if mesh.comm.allreduce(imap.num_ghosts, op=MPI.SUM) == 0:
             raise ValueError(
                 "Koiter's facet terms need ghost cells across process boundaries: build the "
-                "mesh with shellobstacle.meshing.create_mesh(..., ghosted=True)"
+                "mesh with shellobstacle.mesh.meshing.create_mesh(..., ghosted=True)"
             )

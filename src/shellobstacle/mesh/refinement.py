@@ -12,10 +12,10 @@ import dolfinx.mesh
 import numpy as np
 import ufl
 
-from shellobstacle.measures import boundary_facets
+from shellobstacle.mesh.measures import boundary_facets
 
 if TYPE_CHECKING:
-    from shellobstacle.domains import DomainSpec
+    from shellobstacle.mesh.domains import DomainSpec
 
 __all__ = ["prepare", "red_refinement", "refine_marked", "refine_uniformly"]
 

@@ -12,7 +12,7 @@ the penalty and its first two derivatives are
     residual  (1/κ) Mᵀ min(g, 0)
     Jacobian  (1/κ) M_Aᵀ diag(1/D_A) M_A         (A: the points with g_k < 0)
 
-exactly the values the UFL forms of :class:`~shellobstacle.problem.PenalizedProblem`
+exactly the values the UFL forms of :class:`~shellobstacle.models.problem.PenalizedProblem`
 assemble with the same rule. The membrane part of ``J_κ`` is quadratic, so Newton needs
 the membrane stiffness ``K`` once per mesh, and an exact line search needs only vector
 operations at the quadrature points (:mod:`shellobstacle.solvers.newton`).
@@ -30,7 +30,7 @@ import dolfinx.fem.petsc
 import numpy as np
 import ufl
 
-from shellobstacle.problem import PenalizedProblem
+from shellobstacle.models.problem import PenalizedProblem
 
 __all__ = ["QuadraturePenalty", "gap_scale", "penalty_hessian", "penalty_rule"]
 

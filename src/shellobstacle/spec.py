@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from shellobstacle.expressions import is_safe_name, parse, y1, y2
+from shellobstacle.geometry.expressions import is_safe_name, parse, y1, y2
+from shellobstacle.geometry.surface import Surface
 from shellobstacle.messages import not_one_of
-from shellobstacle.surface import Surface
 
 __all__ = [
     "MODELS",
@@ -158,11 +158,11 @@ class Discretization:
         penalty_quadrature: ``"gauss"`` (the paper's) or ``"vertex"`` (nodal, mass-lumped; P1).
         quadrature_degree: for the membrane and load integrals (default ``2 * degree + 2``).
         interior_penalty: ``σ`` of the facet terms of Koiter's bending energy (default
-            :data:`~shellobstacle.hybrid_bending.DEFAULT_HYBRID_PENALTY` or
-            :data:`~shellobstacle.koiter.DEFAULT_INTERIOR_PENALTY`); unused by the membrane.
+            :data:`~shellobstacle.models.hybrid_bending.DEFAULT_HYBRID_PENALTY` or
+            :data:`~shellobstacle.models.koiter.DEFAULT_INTERIOR_PENALTY`); unused by the membrane.
         bending: Koiter's bending form, ``"hybrid"`` (a multiplier per facet,
-            :mod:`~shellobstacle.hybrid_bending`) or ``"c0ip"`` (the C⁰ interior penalty,
-            :mod:`~shellobstacle.koiter`); unused by the membrane.
+            :mod:`~shellobstacle.models.hybrid_bending`) or ``"c0ip"`` (the C⁰ interior penalty,
+            :mod:`~shellobstacle.models.koiter`); unused by the membrane.
     """
 
     degree: int = 1

@@ -1,6 +1,6 @@
 """TOML configuration → validated objects, with errors that name the key and the fix.
 
-Keys, types and defaults come from :mod:`shellobstacle.schema`.
+Keys, types and defaults come from :mod:`shellobstacle.config.schema`.
 """
 
 from __future__ import annotations
@@ -15,11 +15,15 @@ from pathlib import Path
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config_options import adapt_options, method_options
-from shellobstacle.domains import DomainSpec
-from shellobstacle.expressions import ExpressionError
+from shellobstacle.config.options import adapt_options, method_options
+from shellobstacle.config.schema import OPTIONAL_SECTIONS, REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
+from shellobstacle.config.toml_io import apply_overrides, read_toml, to_toml
+from shellobstacle.geometry.expressions import ExpressionError
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.messages import ConfigError, not_one_of, suggest
-from shellobstacle.model import (
+from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.spec import (
     Discretization,
     Load,
     Material,
@@ -27,10 +31,6 @@ from shellobstacle.model import (
     PenaltySpec,
     Shell,
 )
-from shellobstacle.schema import OPTIONAL_SECTIONS, REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
-from shellobstacle.solvers.options import NewtonOptions
-from shellobstacle.surface import Surface
-from shellobstacle.toml_io import apply_overrides, read_toml, to_toml
 
 __all__ = [
     "NODAL_METHODS",

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from shellobstacle.expressions import ExpressionError, parse, to_numpy, to_ufl, y1, y2
+from shellobstacle.geometry.expressions import ExpressionError, parse, to_numpy, to_ufl, y1, y2
 
 __all__ = ["SURFACE_KINDS", "Geometry", "Surface"]
 

@@ -1,6 +1,6 @@
 """Koiter's bending energy with a facet multiplier: the hybrid interior-penalty form.
 
-The C⁰ interior-penalty terms of :mod:`shellobstacle.koiter` couple the dofs of the two
+The C⁰ interior-penalty terms of :mod:`shellobstacle.models.koiter` couple the dofs of the two
 cells of every facet directly. Here each cell instead meets a multiplier ``t_F`` of its
 facets, the normal derivative ``∂ζ_3/∂n_F`` at the facet's midpoint (a Crouzeix–Raviart
 function, single-valued there), and the facet terms are taken at the midpoints
@@ -37,14 +37,14 @@ import dolfinx.fem.petsc
 import numpy as np
 import ufl
 
-from shellobstacle.koiter import (
+from shellobstacle.geometry.surface import Geometry
+from shellobstacle.models.koiter import (
     bending_moment,
     change_of_curvature,
     facet_stiffness,
     normal_normal,
 )
-from shellobstacle.membrane import elastic_product
-from shellobstacle.surface import Geometry
+from shellobstacle.models.membrane import elastic_product
 
 __all__ = [
     "DEFAULT_HYBRID_PENALTY",

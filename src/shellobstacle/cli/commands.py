@@ -1,4 +1,4 @@
-"""What each command of the command line does (:mod:`shellobstacle.cli` parses)."""
+"""What each command of the command line does (:mod:`shellobstacle.cli.main` parses)."""
 
 from __future__ import annotations
 
@@ -13,16 +13,16 @@ from typing import Any
 
 from mpi4py import MPI
 
+from shellobstacle.cli.reporter import Reporter
 from shellobstacle.progress import LiveStatus, on_terminal, phase
-from shellobstacle.reporter import Reporter
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 3, 130
 
 
 def check(args: argparse.Namespace) -> int:
-    from shellobstacle.checks import check_assumptions, format_checks
-    from shellobstacle.pipeline import make_mesh
-    from shellobstacle.resources import require_fits
+    from shellobstacle.api import make_mesh
+    from shellobstacle.geometry.assumptions import check_assumptions, format_checks
+    from shellobstacle.mesh.resources import require_fits
 
     cfg, config_warnings = _load(args)
     if not args.force:
@@ -62,7 +62,7 @@ def _live_status() -> Iterator[None]:
 def _load(args: argparse.Namespace) -> tuple[Any, list[str]]:
     """The config of ``args`` and the warnings of loading it, which the command reports once
     every check has passed (a refused command prints its one error line only)."""
-    from shellobstacle.config import load_config
+    from shellobstacle.config.loader import load_config
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -95,11 +95,11 @@ def run_and_write(
     A solve that does not converge has results too (the last iterate, the residual history):
     they replace an old folder like a converged solve's, and the exit code is 1.
     """
-    from shellobstacle.config import to_toml
+    from shellobstacle.api import solve_config
+    from shellobstacle.config.loader import to_toml
     from shellobstacle.io.folders import atomic_write, prepare_folder
     from shellobstacle.io.summary import write_solution
-    from shellobstacle.pipeline import solve_config
-    from shellobstacle.resources import require_fits
+    from shellobstacle.mesh.resources import require_fits
 
     if not force:
         require_fits(cfg.domain, cfg.shell.model, cfg.discretization.degree)
@@ -157,7 +157,7 @@ def _commit(where: Any, report: Reporter) -> None:
 
 def reproduce(args: argparse.Namespace) -> int:
     """The paper's section 10 (batches 1–4 and the solver comparison) with report.md."""
-    from shellobstacle.config import load_config
+    from shellobstacle.config.loader import load_config
     from shellobstacle.experiments.reproduce import PAPER_CONFIG, reproduce
     from shellobstacle.io.folders import prepare_folder
 
@@ -220,15 +220,15 @@ def _finish(checkpoint: Any, report: Reporter) -> None:
 
 def experiment(args: argparse.Namespace) -> int:
     """One batch on a user's config."""
-    from shellobstacle.config import ConfigError, to_toml
+    from shellobstacle.config.loader import ConfigError, to_toml
     from shellobstacle.experiments import adaptive, koiter_limit, load, mesh, solvers
-    from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
-    from shellobstacle.io.folders import atomic_write, prepare_folder
-    from shellobstacle.options import (
+    from shellobstacle.experiments.options import (
         experiment_domains,
         experiment_options,
         require_experiment_fits,
     )
+    from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
+    from shellobstacle.io.folders import atomic_write, prepare_folder
 
     cfg, config_warnings = _load(args)
     if args.batch == "load" and cfg.penalty is None:
@@ -314,8 +314,8 @@ def experiment(args: argparse.Namespace) -> int:
 
 def doctor(args: argparse.Namespace) -> int:
     """The environment, versions and active tuning; exit 1 when a problem was found."""
+    from shellobstacle.cli.doctor import report
     from shellobstacle.compat import bootstrap
-    from shellobstacle.doctor import report
 
     lines, problems = report(bootstrap())
     if MPI.COMM_WORLD.rank == 0:

@@ -15,9 +15,9 @@ from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
 import dolfinx
 import numpy as np
 
-from shellobstacle.finiteness import Failure, first_failure, require_finite
-from shellobstacle.model import Shell
-from shellobstacle.surface import Geometry
+from shellobstacle.geometry.finiteness import Failure, first_failure, require_finite
+from shellobstacle.geometry.surface import Geometry
+from shellobstacle.spec import Shell
 
 __all__ = ["AssumptionError", "Check", "check_assumptions", "format_checks", "sample_points"]
 
@@ -161,7 +161,7 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
 
     Raises:
         ExpressionError: θ, its derivatives or the load are not finite at a point of the mesh
-            (:mod:`shellobstacle.finiteness`): the assumptions are then meaningless.
+            (:mod:`shellobstacle.geometry.finiteness`): the assumptions are then meaningless.
     """
     pts = sample_points(mesh)
     found: list[list[Extreme]] = [[] for _ in ROWS]

@@ -1,6 +1,6 @@
 """The configuration's schema: every section and key, its type, default and meaning.
 
-The single source of truth: :mod:`shellobstacle.config` validates against it and
+The single source of truth: :mod:`shellobstacle.config.loader` validates against it and
 ``shellobstacle config-reference`` prints it (:func:`reference_text`), so the documentation
 cannot drift from the loader.
 """
@@ -11,9 +11,9 @@ from dataclasses import dataclass
 from typing import Any
 
 from shellobstacle.adapt.options import KAPPA_MODES
-from shellobstacle.model import BENDING_FORMS, MODELS, PENALTY_QUADRATURES, TRANSVERSE
+from shellobstacle.geometry.surface import SURFACE_KINDS
 from shellobstacle.solvers.options import VI_LINE_SEARCHES, VI_TYPES
-from shellobstacle.surface import SURFACE_KINDS
+from shellobstacle.spec import BENDING_FORMS, MODELS, PENALTY_QUADRATURES, TRANSVERSE
 
 __all__ = [
     "OPTIONAL",

@@ -1,9 +1,9 @@
 """The ``experiment`` command's options, parsed and checked before any folder or mesh is made.
 
 Every numeric option is finite and in its range, every list non-empty, every choice known, and
-every sweep bounded; a mistake is a :class:`~shellobstacle.config.ConfigError` naming the option
+every sweep bounded; a mistake is a :class:`~shellobstacle.messages.ConfigError` naming the option
 and the fix (exit 2). :func:`experiment_domains` lists the meshes a batch will make, so that
-their size is checked against the machine (:mod:`shellobstacle.resources`) first.
+their size is checked against the machine (:mod:`shellobstacle.mesh.resources`) first.
 """
 
 from __future__ import annotations
@@ -13,8 +13,8 @@ import dataclasses
 import math
 from typing import Any
 
-from shellobstacle.config import Config, ConfigError
-from shellobstacle.domains import DomainSpec, validate
+from shellobstacle.config.loader import Config, ConfigError
+from shellobstacle.mesh.domains import DomainSpec, validate
 
 __all__ = [
     "MAX_STEPS",
@@ -55,7 +55,7 @@ def _positive(value: float, what: str) -> float:
 
 def _quadratures(args: argparse.Namespace, cfg: Config) -> list[str]:
     """``--quadratures``, by default every one the element allows (vertex: P1 only)."""
-    from shellobstacle.schema import SCHEMA
+    from shellobstacle.config.schema import SCHEMA
 
     degree = cfg.discretization.degree
     if args.quadratures is None:
@@ -206,9 +206,9 @@ def experiment_domains(
 def require_experiment_fits(
     args: argparse.Namespace, cfg: Config, domains: list[DomainSpec]
 ) -> None:
-    """Refuse (:class:`~shellobstacle.resources.ResourceError`) a mesh of ``domains`` that
+    """Refuse (:class:`~shellobstacle.mesh.resources.ResourceError`) a mesh of ``domains`` that
     would not fit in this machine's memory with the model the batch solves."""
-    from shellobstacle.resources import require_fits
+    from shellobstacle.mesh.resources import require_fits
 
     model, degree = cfg.shell.model, cfg.discretization.degree
     if args.batch == "koiter-limit":

@@ -3,7 +3,7 @@
 
 Pure functions on scalar lists, usable with UFL (forms) and SymPy (manufactured
 solutions). ``eta[i]`` are covariant displacement components ``η_i`` and
-``grad_eta[i][α] = ∂_α η_i``; ``G`` is a :class:`~shellobstacle.surface.Geometry`.
+``grad_eta[i][α] = ∂_α η_i``; ``G`` is a :class:`~shellobstacle.geometry.surface.Geometry`.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-from shellobstacle.surface import Geometry
+from shellobstacle.geometry.surface import Geometry
 
 __all__ = [
     "elastic_product",

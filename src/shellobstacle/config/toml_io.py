@@ -1,6 +1,6 @@
 """TOML text in and out: reading a config file, ``--set`` overrides, writing a resolved config.
 
-:mod:`shellobstacle.config` validates what is read here.
+:mod:`shellobstacle.config.loader` validates what is read here.
 """
 
 from __future__ import annotations

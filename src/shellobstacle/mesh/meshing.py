@@ -1,9 +1,9 @@
-"""Triangle meshes of the parameter domain ω (:class:`~shellobstacle.domains.DomainSpec`).
+"""Triangle meshes of the parameter domain ω (:class:`~shellobstacle.mesh.domains.DomainSpec`).
 
 Curved and polygonal domains are meshed by gmsh on rank 0 only and distributed over the
 communicator by :func:`dolfinx.mesh.create_mesh`; a large mesh is gmsh's mesh at a coarser size,
 distributed, then refined uniformly in parallel (new boundary nodes moved onto the curve,
-:mod:`shellobstacle.refinement`). Rectangles get a structured DOLFINx mesh. All meshes are
+:mod:`shellobstacle.mesh.refinement`). Rectangles get a structured DOLFINx mesh. All meshes are
 affine (linear) triangles with geometric dimension 2.
 """
 
@@ -22,9 +22,9 @@ import dolfinx.io.gmsh
 import dolfinx.mesh
 import numpy as np
 
-from shellobstacle.domains import DomainSpec, coarsening_steps, validate
+from shellobstacle.mesh.domains import DomainSpec, coarsening_steps, validate
+from shellobstacle.mesh.refinement import prepare, red_refinement, refine_uniformly
 from shellobstacle.progress import phase
-from shellobstacle.refinement import prepare, red_refinement, refine_uniformly
 
 __all__ = ["create_mesh"]
 

@@ -1,7 +1,8 @@
 """The parameter domain ω ⊂ R² of the shell and the size of its mesh: :class:`DomainSpec`.
 
-Plain data and its validation (no DOLFINx): :mod:`shellobstacle.meshing` meshes it,
-:mod:`shellobstacle.refinement` refines the meshes, :mod:`shellobstacle.measures` measures them.
+Plain data and its validation (no DOLFINx): :mod:`shellobstacle.mesh.meshing` meshes it,
+:mod:`shellobstacle.mesh.refinement` refines the meshes, :mod:`shellobstacle.mesh.measures`
+measures them.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 A one-character typo in ``h`` (``0.0001`` for ``0.001``) asks for 10⁸ vertices: meshing alone
 would run for hours and exhaust the memory. :func:`require_fits` estimates the cost from the
-domain's area and ``h`` (:func:`~shellobstacle.domains.estimated_vertices`) and refuses, in one
+domain's area and ``h`` (:func:`~shellobstacle.mesh.domains.estimated_vertices`) and refuses, in one
 line with the estimate, what cannot fit in this machine's memory.
 
 The memory per dof was measured on the paper's problem with the direct solver (peak resident
@@ -23,8 +23,8 @@ from pathlib import Path
 
 from mpi4py import MPI
 
-from shellobstacle.config import ConfigError
-from shellobstacle.domains import DomainSpec, estimated_vertices
+from shellobstacle.config.loader import ConfigError
+from shellobstacle.mesh.domains import DomainSpec, estimated_vertices
 
 __all__ = ["Estimate", "ResourceError", "estimate", "machine_memory", "require_fits"]
 

@@ -1,0 +1,1 @@
+"""The command line: argument parsing, commands, progress reporting, doctor, Ctrl-C."""

@@ -1,0 +1,1 @@
+"""Meshes of the domain ω: descriptions, gmsh meshing, refinement, sizes, cost estimates."""

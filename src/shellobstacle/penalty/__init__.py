@@ -1,0 +1,1 @@
+"""The penalty term of J_κ at its quadrature points."""
