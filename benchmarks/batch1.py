@@ -1,4 +1,4 @@
-"""Batch 1 of the paper (MODEL.md §7) end to end, timed by phase: the issue's headline figure.
+"""Batch 1 of the paper (docs/model.md §7) end to end, timed by phase: the issue's headline figure.
 
 Mesh (gmsh), geometry checks, compilation and solver set-up, then the κ-sweep κ = h^q,
 q = 0.5, 1.0, …, q_max (each κ warm-started from the previous one, with the Cauchy

@@ -1,4 +1,4 @@
-"""Newton against the Brezis–Sibony iteration (38) on the paper's problem (MODEL.md §6–7).
+"""Newton against the Brezis–Sibony iteration (38) on the paper's problem (docs/model.md §6–7).
 
 The disk ``|y| < 0.5`` is meshed by gmsh for each target size; ``κ = h^q``. Prints one JSON
 line per mesh (iterations, times, contraction bound against observed factor, distance

@@ -1,4 +1,4 @@
-"""The geometry checks (MODEL.md §3) on one mesh: seconds, memory faulted in, peak RSS.
+"""The geometry checks (docs/model.md §3) on one mesh: seconds, memory faulted in, peak RSS.
 
 Meshes the paper's configuration at ``--target``, then times ``check_assumptions`` once (as a
 solve does, right after the mesh). One JSON line with a record per rank: ``checks_s``, the

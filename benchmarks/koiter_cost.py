@@ -1,4 +1,4 @@
-"""What Koiter's model costs against the membrane model at equal dofs (MODEL.md §8).
+"""What Koiter's model costs against the membrane model at equal dofs (docs/model.md §8).
 
 The paper's problem (spherical cap, its load, ε = 10⁻³) with the continuation κ = h^0.5, h,
 h^1.5 on a disk mesh, solved by Newton with the direct solver:

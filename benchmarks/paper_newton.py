@@ -1,4 +1,4 @@
-"""Newton on the paper's problem (MODEL.md §7): κ = h^q, q = 0.5, 1.0, …, q_max, warm-started.
+"""Newton on the paper's problem (docs/model.md §7): κ = h^q, q = 0.5, 1.0, …, q_max, warm-started.
 
 Prints one JSON line per κ (Newton steps, line-search evaluations, stop reason, relative
 residual, seconds, contact area, the active set: its points, how many switched on and off

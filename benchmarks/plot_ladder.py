@@ -1,7 +1,7 @@
 """Tables and a log–log plot of phase time against dofs from ``ladder.py`` JSON lines.
 
-    .venv/bin/python benchmarks/plot_ladder.py docs/perf/ladder_serial.jsonl \
-        docs/perf/ladder_mpi2.jsonl --png docs/perf/ladder.png
+    .venv/bin/python benchmarks/plot_ladder.py docs/perf/ladder/ladder_1.93M_direct_serial.jsonl \
+        docs/perf/ladder/ladder_1.93M_direct_mpi2.jsonl --png ladder.png
 """
 
 from __future__ import annotations

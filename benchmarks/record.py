@@ -50,7 +50,7 @@ def petsc_blas() -> str:
         return "unknown"
 
 
-# the paper's section 10 problem (MODEL.md §7), the configuration most benchmarks run
+# the paper's section 10 problem (docs/model.md §7), the configuration most benchmarks run
 PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 
 

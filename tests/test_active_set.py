@@ -28,7 +28,7 @@ KKT_TOL = 1e-10
 
 
 def paper_shell(load: str = PAPER_LOAD) -> Shell:
-    """The paper's section 10 data (MODEL.md §7)."""
+    """The paper's section 10 data (docs/model.md §7)."""
     return Shell(
         Surface.spherical_cap(1.0, 0.85), Material(1e-3, 0.4, 0.012), Load(("0", "0", load))
     )

@@ -1,4 +1,4 @@
-"""The Brezis–Sibony iteration (MODEL.md §6, the paper's (38)) against Newton's solution.
+"""The Brezis–Sibony iteration (docs/model.md §6, the paper's (38)) against Newton's solution.
 
 A 6×6 square of the paper's shell and material, with the paper's load widened to
 ``|y| < 0.15`` so that five vertices touch the plane, and ``κ = 1e-2``: about 2·10⁴ steps

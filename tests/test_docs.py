@@ -32,3 +32,63 @@ def test_every_demo_is_on_the_site() -> None:
     text = (DOCS / "demos.md").read_text()
     demos = sorted(p.stem for p in (DOCS.parent / "demos").glob("*.py"))
     assert sorted(re.findall(r"^demos/(\w+)$", text, re.M)) == demos
+
+
+ROOT = DOCS.parent
+CITED = ("src", "tests", "benchmarks", "demos", "docs")
+
+
+def _sources() -> list[Path]:
+    files = [ROOT / "README.md"]
+    for folder in CITED:
+        files += [
+            p
+            for p in (ROOT / folder).rglob("*")
+            if p.suffix in (".py", ".md") and "_build" not in p.parts and p.is_file()
+        ]
+    return files
+
+
+def test_model_citations_name_sections_of_docs_model() -> None:
+    """Every "docs/model.md §n" (and "model §n" link text) names a numbered section of
+    docs/model.md, and nothing cites the spec kept outside the repository."""
+    sections = set(re.findall(r"^## (\d+)\. ", (DOCS / "model.md").read_text(), re.M))
+    assert sections == {str(n) for n in range(1, len(sections) + 1)}
+    cited: dict[str, set[str]] = {}
+    outside = "MODEL" + ".md"
+    for path in _sources():
+        text = path.read_text()
+        assert outside not in text, f"{path} cites {outside}, which the repository lacks"
+        for group in re.findall(r"model(?:\.md)?\]? ?((?:§[\d–, §]+))", text):
+            for n in re.findall(r"\d+", group):
+                cited.setdefault(n, set()).add(str(path.relative_to(ROOT)))
+    assert cited, "no citation found: the pattern is wrong"
+    unknown = {n: sorted(paths) for n, paths in cited.items() if n not in sections}
+    assert not unknown, f"sections cited but missing from docs/model.md: {unknown}"
+
+
+def test_relative_links_of_the_docs_reach_files() -> None:
+    """A relative Markdown link of the site names a file (a folder is no page on the site)."""
+    broken = []
+    for path in DOCS.rglob("*.md"):
+        if "_build" in path.parts:
+            continue
+        text = re.sub(r"\$\$.*?\$\$|\$[^$\n]*\$", "", path.read_text(), flags=re.S)
+        for target in re.findall(r"\]\(([^)\s]+)\)", text):
+            if re.match(r"[a-z]+:", target) or target.startswith("#"):
+                continue
+            if not (path.parent / target.split("#")[0]).is_file():
+                broken.append(f"{path.relative_to(DOCS)}: {target}")
+    assert not broken, broken
+
+
+def test_performance_page_is_a_summary() -> None:
+    """docs/performance.md states targets and standing in at most 300 lines; the dated records
+    (docs/perf/) stay out of the site's sidebar."""
+    assert len((DOCS / "performance.md").read_text().splitlines()) <= 300
+    toctrees = re.findall(r"```\{toctree\}(.*?)```", (DOCS / "index.md").read_text(), re.S)
+    entries = [line.strip() for tree in toctrees for line in tree.splitlines()]
+    assert "performance" in entries
+    assert not [e for e in entries if e.startswith("perf/")]
+    for record in (DOCS / "perf").rglob("*.md"):
+        assert record.read_text().startswith("---\norphan: true\n---"), record

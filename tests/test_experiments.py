@@ -1,4 +1,4 @@
-"""The paper's batches on small meshes: the qualitative results of section 10 (MODEL.md §7)."""
+"""The paper's batches on small meshes: the qualitative results of section 10 (docs/model.md §7)."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Geometry (MODEL.md §1) against independent SymPy derivations, and its three backends.
+"""Geometry (docs/model.md §1) against independent SymPy derivations, and its three backends.
 
 The reference values are derived here from ``θ`` alone, without :class:`Geometry`: the metric
 ``a_αβ = ∂_α θ · ∂_β θ``, Christoffel symbols from the metric,

@@ -1,4 +1,4 @@
-"""Koiter's model (MODEL.md §8): the change of curvature, the C⁰ interior-penalty bending
+"""Koiter's model (docs/model.md §8): the change of curvature, the C⁰ interior-penalty bending
 energy, and the discrete solutions against exact ones.
 
 - symbolic: an infinitesimal rigid displacement ``η_i = (c + d ∧ θ)·a_i`` has
@@ -67,7 +67,7 @@ def _numeric(exprs, points=POINTS):
 
 @pytest.mark.parametrize("name", sorted(SURFACES))
 def test_rigid_displacements_neither_stretch_nor_bend(name: str) -> None:
-    """γ_αβ(η) = ρ_αβ(η) = 0 for η_i = (c + d ∧ θ)·a_i, c and d arbitrary (MODEL.md §8)."""
+    """γ_αβ(η) = ρ_αβ(η) = 0 for η_i = (c + d ∧ θ)·a_i, c and d arbitrary (docs/model.md §8)."""
     G = SURFACES[name].geometry_sympy()
     c, d = (1.0, -2.0, 0.5), (0.7, 0.3, -1.1)
     u = [c[k] + cross(d, G.theta)[k] for k in range(3)]

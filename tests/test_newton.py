@@ -1,4 +1,4 @@
-"""Newton on the penalized problem: small κ, cold starts, failures, serial vs MPI (MODEL.md §4)."""
+"""Newton's method: small κ, cold starts, failures, serial vs MPI (docs/model.md §6)."""
 
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06)
 
 
 def paper_shell(load: str = PAPER_LOAD) -> Shell:
-    """The paper's section 10 data (MODEL.md §7)."""
+    """The paper's section 10 data (docs/model.md §7)."""
     return Shell(
         Surface.spherical_cap(1.0, 0.85), Material(1e-3, 0.4, 0.012), Load(("0", "0", load))
     )

@@ -1,6 +1,6 @@
 """Post-processing: nodal gap, contact set and areas, norms, cross-sections, PNG and VTX output.
 
-The contact problem is the paper's (MODEL.md §7: spherical cap R = 1 offset 0.85, ε = 0.001,
+The contact problem is the paper's (docs/model.md §7: spherical cap R = 1 offset 0.85, ε = 0.001,
 λ = 0.4, μ = 0.012, the load pushing the top of the cap onto the plane) on the square
 [-0.25, 0.25]², with the nodal (vertex) penalty so that the vertex gap is what the penalty
 controls. Only global quantities are asserted, so the ``mpi`` tests hold on any number of
@@ -34,7 +34,7 @@ from shellobstacle.spec import Discretization, Load, Material, Shell
 COMM = MPI.COMM_WORLD
 HALF = 0.25  # ω = [-HALF, HALF]²
 N = 20  # cells per side
-# the paper's load (MODEL.md §7) times a sign s: s = 1 pushes the cap down, s = -1 pulls it up
+# the paper's load (docs/model.md §7) times a sign s: s = 1 pushes the cap down, s = -1 pulls it up
 PAPER_LOAD = "s*Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 KAPPAS = (1e-2, 1e-3, 1e-4)
 

@@ -158,7 +158,7 @@ def solve(
             result holds the last mesh's solution and, in ``extra["adapt"]``, every level.
 
     Raises:
-        AssumptionError: the data violate MODEL.md §3 (unless ``force``).
+        AssumptionError: the data violate docs/model.md §3 (unless ``force``).
         ResourceError: the mesh would not fit in this machine's memory (unless ``force``).
         ExpressionError: θ, its derivatives or the load are not finite at a point of the mesh
             (whatever ``force``: nothing can be solved there).
@@ -355,7 +355,7 @@ def exact_solution(
     options: Any = None,
 ) -> tuple[dolfinx.fem.Function, Any]:
     """The exact solution ``ζ^h`` of the discrete variational inequality (κ = 0) on ``mesh``,
-    with the constraint ``g ≥ 0`` at the vertices and P1 elements (MODEL.md §3, §5).
+    with the constraint ``g ≥ 0`` at the vertices and P1 elements (docs/model.md §5).
 
     Args:
         shell: surface, material, load and obstacle.

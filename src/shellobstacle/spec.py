@@ -1,4 +1,4 @@
-"""The data of a shell obstacle problem (MODEL.md §2–5): the physical shell (surface,
+"""The data of a shell obstacle problem (docs/model.md §2–5): the physical shell (surface,
 material, load, obstacle) and the numerical choices (discretization, penalty).
 
 These small frozen dataclasses are the Python API that mirrors the config file; they
@@ -125,7 +125,7 @@ MODELS = ("membrane", "koiter")
 @dataclass(frozen=True)
 class Shell:
     """Everything physical: the middle surface, the material, the load, the obstacle, and the
-    shell model: ``"membrane"`` (MODEL.md §2–4, elliptic surfaces) or ``"koiter"`` (§8, the
+    shell model: ``"membrane"`` (docs/model.md §2–4, elliptic surfaces) or ``"koiter"`` (§8, the
     membrane energy plus bending; any immersed thin shell)."""
 
     surface: Surface
@@ -150,7 +150,7 @@ BENDING_FORMS = ("hybrid", "c0ip")
 
 @dataclass(frozen=True)
 class Discretization:
-    """Finite-element choices (MODEL.md §5).
+    """Finite-element choices (docs/model.md §5).
 
     Attributes:
         degree: Lagrange degree of all three components (1 or 2).
@@ -211,7 +211,7 @@ class Discretization:
 @dataclass(frozen=True)
 class PenaltySpec:
     """``κ`` given directly or as ``h^exponent`` (the paper's coupling), and whether to reach
-    it through a ladder of larger κ (warm starts, MODEL.md §4)."""
+    it through a ladder of larger κ (warm starts, docs/model.md §6)."""
 
     kappa: float | None = None
     exponent: float | None = None

@@ -1,5 +1,5 @@
 """A posteriori error indicators of the membrane obstacle problem (the model page's
-:eq:`estimator`; MODEL.md §2–5).
+:eq:`estimator`; docs/model.md §9).
 
 For a discrete solution ``ζ_h`` and a contact force density ``Λ ≥ 0`` (per unit ``dy``) that
 pushes along ``c = (a^i·q)``, the residual of the equilibrium equations is the functional

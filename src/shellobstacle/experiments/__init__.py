@@ -1,1 +1,1 @@
-"""The paper's numerical experiments (MODEL.md §7) and our extra studies."""
+"""The paper's numerical experiments (docs/model.md §7) and our extra studies."""

@@ -62,7 +62,7 @@ def transfer(
     """Interpolate a coarse-mesh Function into a space on a finer (nested) mesh.
 
     On nested meshes a P1 coarse function is represented exactly, so differences of
-    solutions on consecutive meshes measure the discretization alone (MODEL.md §7, batch 2).
+    solutions on consecutive meshes measure the discretization alone (docs/model.md §7, batch 2).
     """
     fine = dolfinx.fem.Function(V_fine)
     mesh = V_fine.mesh

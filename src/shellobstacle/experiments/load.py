@@ -41,7 +41,7 @@ __all__ = [
     "write_load_study",
 ]
 
-#: The paper's g_ℓ (MODEL.md §7, batch 3) with ℓ as the load parameter ``ell``.
+#: The paper's g_ℓ (docs/model.md §7, batch 3) with ℓ as the load parameter ``ell``.
 PAPER_BATCH3_LOAD = (
     "Piecewise((-(2*epsilon/25)*(-5.0*y1**2 - 5.0*y2**2 + (1 + 0.05*ell)*0.295), r < 0.060),"
     " (0, True))"

@@ -1,4 +1,4 @@
-"""Newton against the Brezis–Sibony iteration on the paper's problem (MODEL.md §6–7).
+"""Newton against the Brezis–Sibony iteration on the paper's problem (docs/model.md §6–7).
 
 For each mesh, ``κ = h^q`` is solved twice on one compiled problem: by Newton with the usual
 continuation ``κ = h^{0.5}, h^{1.0}, …, h^q`` (:func:`~shellobstacle.api.continuation`)

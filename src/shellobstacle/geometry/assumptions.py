@@ -1,4 +1,4 @@
-"""The assumptions of the theory (MODEL.md §3, listed under "The obstacle problem" of the
+"""The assumptions of the theory (docs/model.md §3, listed under "The obstacle problem" of the
 model page), evaluated on the user's data and mesh.
 
 Each check reports the extreme value of its quantity, where it occurs, and
@@ -156,7 +156,7 @@ def _half_space_hint(shell: Shell, hint: str) -> str:
 
 
 def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
-    """Evaluate assumptions 1–4 and 6 of MODEL.md §3 (5, ``|q| = 1``, is enforced by Obstacle);
+    """Evaluate assumptions 1–4 and 6 of docs/model.md §3 (5, ``|q| = 1``, is enforced by Obstacle);
     for Koiter's model the Gaussian curvature is reported but not required (§8).
 
     Raises:
@@ -181,7 +181,7 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
         value, where = _pick(mesh.comm.allgather(_pick(local, kind)), kind)
         ok = bool(np.isfinite(value) and (value < 1.0 if kind == "max" else value > 0.0))
         if name == "elliptic" and shell.model == "koiter":
-            # Koiter's model needs an immersion and a thin shell, not K > 0 (MODEL.md §8)
+            # Koiter's model needs an immersion and a thin shell, not K > 0 (docs/model.md §8)
             requirement, ok = "none (Koiter's model)", bool(np.isfinite(value))
         checks.append(Check(name, quantity, value, where, requirement, ok, hint))
     return checks

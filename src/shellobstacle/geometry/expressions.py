@@ -356,8 +356,8 @@ def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
 
 @functools.lru_cache(maxsize=1024)
 def _lambdified(expr: sp.Expr, args: tuple[sp.Symbol, ...]) -> Callable[..., Any]:
-    """``sympy.lambdify`` of ``expr``, made once per expression (1-2 ms each: the geometry's
-    42 expressions took 60 ms per evaluation, in every chunk of the checks and every output)."""
+    """``sympy.lambdify`` of ``expr``, made once per expression (lambdifying the geometry's
+    42 expressions again in every chunk of the checks and every output would dominate)."""
     return sp.lambdify(args, expr, modules="numpy")
 
 

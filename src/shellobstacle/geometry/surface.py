@@ -1,4 +1,4 @@
-"""The middle surface θ(ω̄) and its differential geometry (MODEL.md §1).
+"""The middle surface θ(ω̄) and its differential geometry (docs/model.md §1).
 
 A :class:`Surface` holds the immersion ``θ(y1, y2)`` as three SymPy expressions.
 Its first and second derivatives are taken symbolically, and :class:`Geometry`
@@ -36,7 +36,7 @@ def cross(u: Sequence[Any], v: Sequence[Any]) -> Vec:
 
 
 class Geometry:
-    """Bases, fundamental forms, Christoffel symbols and curvature of θ (MODEL.md §1;
+    """Bases, fundamental forms, Christoffel symbols and curvature of θ (docs/model.md §1;
     :eq:`covariant-basis`, :eq:`second-fundamental-form`).
 
     Built from ``theta`` (three scalars), ``d1[α][i] = ∂_α θ_i``,

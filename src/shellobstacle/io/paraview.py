@@ -1,4 +1,4 @@
-"""ParaView output (ADIOS2 VTX ``.bp``) of a solved penalized problem (MODEL.md §1, §4, §7).
+"""ParaView output (ADIOS2 VTX ``.bp``) of a solved penalized problem (docs/model.md §1, §3, §7).
 
 :func:`write_paraview` writes, into one folder:
 

@@ -10,11 +10,19 @@ function, single-valued there), and the facet terms are taken at the midpoints
                 + Σ_T Σ_{F ⊂ ∂T} |F| ( −M_nn(η) e_T + ½ (σ / h_T) C_F e_T² )(m_F),
     e_T = ∂_{n_T} η_3 − (n_T · n_F) t_F,
 
-with ``t_F = 0`` on the clamped boundary (where ``e_T = ∂_n η_3``). The exact solution with
-``t_F = ∂_{n_F} ζ_3`` satisfies the equations (every ``e_T`` vanishes), so the method is
-consistent; it penalizes the jump of the normal derivative's mean over each facet, a
-stable choice for P2 (a continuous P2 function with zero broken Hessian and zero mean jumps
-is affine). Each term lives on one cell and one facet: the stiffness::
+with ``t_F = 0`` on the clamped boundary (where ``e_T = ∂_n η_3``). It penalizes the jump of
+the normal derivative's mean over each facet, a stable choice for P2 (a continuous P2
+function with zero broken Hessian and zero mean jumps is affine).
+
+The method is consistent to O(h), not exactly (docs/model.md §8, :eq:`hybrid-consistency`).
+For the exact solution and ``t_F = ∂_{n_F} ζ_3(m_F)`` every ``e_T`` vanishes and the
+multipliers' equations hold, but a test displacement ``v`` meets the moment term
+``−|F| M_nn(ζ)(m_F) ∂_{n_T} v_3(m_F)``, the midpoint rule of the ``−∫_F M_nn(ζ) ∂_{n_T} v_3 ds``
+that integration by parts leaves. The rule's error on ``M_nn(ζ) [∂_n v_3]`` (linear jump for
+P2) sums to ``|r(v)| ≤ C h ‖M_nn(ζ)‖_{W^{2,∞}} (Σ_F ‖[∂_n v_3]‖²_F / |F|)^{1/2}``: O(h) in the
+energy norm, the order of P2's own error there, so the rate h is kept.
+
+Each term lives on one cell and one facet: the stiffness::
 
     [[A, B], [Bᵀ, C]]  (ζ, t),   C diagonal,
 

@@ -1,5 +1,5 @@
 """Koiter's linear shell model: the change of curvature and its C⁰ interior-penalty energy
-(MODEL.md §8, :eq:`koiter-energy`; Ciarlet 2005, ch. 4).
+(docs/model.md §8, :eq:`koiter-energy`; Ciarlet 2005, ch. 4).
 
 The change of curvature :func:`change_of_curvature` is a pure function on scalar lists, like
 :mod:`shellobstacle.models.membrane`, usable with UFL and SymPy. :func:`bending_energy` writes the

@@ -1,4 +1,4 @@
-"""Membrane strain, elasticity tensor, stresses and the gap (MODEL.md §2, §4; the model page's
+"""Membrane strain, elasticity tensor, stresses and the gap (docs/model.md §2–3; the model page's
 :eq:`membrane-strain`, :eq:`elasticity-tensor`, :eq:`strong-form`, :eq:`gap`).
 
 Pure functions on scalar lists, usable with UFL (forms) and SymPy (manufactured

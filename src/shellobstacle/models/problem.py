@@ -1,4 +1,4 @@
-"""The discrete penalized problem P_{M,κ}^{ε,h} (MODEL.md §4–5) as compiled DOLFINx forms.
+"""The discrete penalized problem P_{M,κ}^{ε,h} (docs/model.md §4–5) as compiled DOLFINx forms.
 
 One :class:`PenalizedProblem` is compiled once per mesh; ``κ`` and the load
 parameters are ``dolfinx.fem.Constant`` objects, so a sweep over them reuses it.
@@ -35,7 +35,7 @@ __all__ = ["PenalizedProblem"]
 
 
 class PenalizedProblem:
-    """Compiled forms of the penalized shell problem on one mesh (MODEL.md §4–5, §8).
+    """Compiled forms of the penalized shell problem on one mesh (docs/model.md §4–5, §8).
 
     The energy is :eq:`penalized-energy`,
     ``J_κ(η) = (ε/2) ∫ a^{αβστ} γ_στ(η) γ_αβ(η) √a dy − ∫ p^{i,ε} η_i √a dy

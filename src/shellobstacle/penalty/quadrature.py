@@ -1,4 +1,4 @@
-"""The penalty term of ``J_κ`` evaluated at its quadrature points (MODEL.md §4–5;
+"""The penalty term of ``J_κ`` evaluated at its quadrature points (docs/model.md §4–5;
 :eq:`penalty-sum`).
 
 The penalty ``(ε/(2κ)) ∫ ({g(ζ)}^-)² / |c| dy`` is a sum over the points ``x_k`` of its
@@ -36,7 +36,7 @@ __all__ = ["QuadraturePenalty", "gap_scale", "penalty_hessian", "penalty_rule"]
 
 
 def penalty_rule(problem: PenalizedProblem) -> tuple[np.ndarray, np.ndarray]:
-    """The reference points and weights of the problem's penalty rule (MODEL.md §4): the
+    """The reference points and weights of the problem's penalty rule (docs/model.md §5): the
     vertices with equal weights, or the Gauss rule of degree ``qdegree``."""
     cell = problem.mesh.basix_cell()
     if problem.disc.penalty_quadrature == "vertex":
@@ -139,7 +139,7 @@ class QuadraturePenalty:
 
     def store_transpose(self) -> None:
         """Keep ``Mᵀ`` as a matrix of its own: :meth:`add_residual` then multiplies by it,
-        2.4× faster than ``M``'s transpose product at 1k dofs, for a second copy of ``M``
+        faster than ``M``'s transpose product, for a second copy of ``M``
         (worth it for the Brezis–Sibony iteration's 10⁵ residuals on small meshes)."""
         if self._MT is None:
             self._MT = self.M.transpose(PETSc.Mat())

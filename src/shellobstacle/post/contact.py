@@ -1,7 +1,7 @@
 """The contact of a solved problem: nodal gap, contact set and its area, displacements.
 
 The contact set of a penalized solution is ``{y : g(ζ)(y) ≤ 0}`` with the gap
-``g(ζ) = (θ + ζ_i a^i)·q`` (MODEL.md §3–4). It is measured on the mesh vertices (MODEL.md §7,
+``g(ζ) = (θ + ζ_i a^i)·q`` (docs/model.md §3). It is measured on the vertices (docs/model.md §7,
 batch 3): the sign of ``g`` at quadrature points is noise of order ``h²`` for P1. Its area is
 the sum of the lumped (vertex-rule) masses of the contact vertices, with the surface element
 ``√a dy`` and projected (``dy``). Everything returned is global: the same on every rank.
@@ -72,7 +72,7 @@ class Postprocessor:
         U = ufl.as_vector(problem.G.cartesian([zeta[i] for i in range(3)]))
         self._U_expr = dolfinx.fem.Expression(U, problem.V.element.interpolation_points)
 
-        # lumped masses m_i = ∫ φ_i √a dy and ∫ φ_i dy with the vertex rule (MODEL.md §7)
+        # lumped masses m_i = ∫ φ_i √a dy and ∫ φ_i dy with the vertex rule (docs/model.md §7)
         dxv = ufl.Measure(
             "dx", domain=mesh, metadata={"quadrature_rule": "vertex", "quadrature_degree": 1}
         )
@@ -94,7 +94,7 @@ class Postprocessor:
         return vec.array[: self.P1.dofmap.index_map.size_local].copy()
 
     def nodal_gap(self) -> dolfinx.fem.Function:
-        """``g(ζ) = (θ + ζ_i a^i)·q`` at the mesh vertices (MODEL.md §4), as a P1 Function.
+        """``g(ζ) = (θ + ζ_i a^i)·q`` at the mesh vertices (docs/model.md §3), as a P1 Function.
 
         For P2 ``ζ`` these are still the vertex values (the P1 interpolation points).
         """
@@ -111,7 +111,7 @@ class Postprocessor:
         return self.nodal_gap().x.array <= self.tolerance(tol_rel)
 
     def contact(self, tol_rel: float = 1e-12) -> dict[str, float | int]:
-        """The contact set ``{g(ζ) ≤ tol}`` at the vertices and its measures (MODEL.md §7).
+        """The contact set ``{g(ζ) ≤ tol}`` at the vertices and its measures (docs/model.md §7).
 
         Args:
             tol_rel: Tolerance relative to ``max θ·q``.

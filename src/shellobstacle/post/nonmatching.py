@@ -1,4 +1,4 @@
-"""Norms of the difference of two solutions on unrelated meshes (MODEL.md §2: ``V_M``).
+"""Norms of the difference of two solutions on unrelated meshes (docs/model.md §2: ``V_M``).
 
 An adapted reference mesh is neither a refinement of a uniform mesh nor refined by it, so a
 solution on one cannot be interpolated exactly into the other's space. :class:`SampledNorms`

@@ -1,4 +1,4 @@
-"""Norms of the space V_M = H¹ × H¹ × L² (MODEL.md §2), of functions and of differences.
+"""Norms of the space V_M = H¹ × H¹ × L² (docs/model.md §2), of functions and of differences.
 
 Every norm is assembled and reduced over the communicator: the same value on every rank.
 """
@@ -110,7 +110,7 @@ def norms(
     """The L², H¹ and V_M norms of ``u − v`` (of ``u`` if ``v`` is None).
 
     ``u`` and ``v`` must live on the same mesh (interpolate a coarse solution into the fine
-    space first: nested meshes make that exact, MODEL.md §7 batch 2).
+    space first: nested meshes make that exact, docs/model.md §7 batch 2).
 
     Args:
         u: Vector Function or UFL expression (three covariant components).

@@ -46,7 +46,7 @@ class SurfaceData:
         points: ``θ + U`` at the vertices, ``U = ζ_i a^i`` (shape ``(n, 3)``).
         reference: ``θ`` at the vertices.
         triangles: The cells as vertex triples (``(m, 3)``).
-        gap: ``g(ζ) = (θ + U)·q`` at the vertices (MODEL.md §4).
+        gap: ``g(ζ) = (θ + U)·q`` at the vertices (docs/model.md §3).
         contact: 1 on contact vertices (``g ≤`` the contact tolerance), else 0.
         q: Unit normal of the plane ``x·q = 0``.
     """

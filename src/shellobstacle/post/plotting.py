@@ -1,4 +1,4 @@
-"""Matplotlib figures (Agg backend, PNG): cross-sections of the deformed shell (MODEL.md §7).
+"""Matplotlib figures (Agg backend, PNG): cross-sections of the deformed shell (docs/model.md §7).
 
 Only rank 0 draws: pass the same data on every rank (as
 :func:`~shellobstacle.post.sections.cross_section` returns it) and call from all ranks.

@@ -8,7 +8,7 @@ end its process with a segmentation fault instead of an exception, and a process
 keeps the solve that called it alive.
 
 The views show the deformed middle surface ``θ + ζ_i a^i`` coloured by the gap
-``g(ζ) = (θ + ζ_i a^i)·q`` (MODEL.md §4), the plane ``x·q = 0`` as a translucent grey square
+``g(ζ) = (θ + ζ_i a^i)·q`` (docs/model.md §3), the plane ``x·q = 0`` as a translucent grey square
 (the penalized solution's slight penetration, ``g < 0``, shows through it) and the boundary of
 the contact zone as a red tube: of the cells whose vertices all touch (``g ≤ 0``), the flat
 part of the shell on the plane, which the steep wall around it does not hide from above.

@@ -1,4 +1,4 @@
-"""Cross-sections of a solved shell along a line of ω (MODEL.md §7, batch 3).
+"""Cross-sections of a solved shell along a line of ω (docs/model.md §7, batch 3).
 
 The reference and deformed middle surfaces and their heights above the plane, sampled on the
 distributed mesh and gathered: the same on every rank.
@@ -137,7 +137,7 @@ def cross_section(
     ``n`` equispaced points span the mesh's extent along ``axis`` on the line (``y2 = at`` for
     ``axis="y1"``); the points outside the mesh (a polygonal disk misses a little of its
     bounding box) are dropped. Each MPI rank evaluates the points its cells contain and every
-    rank receives all values (MODEL.md §7, batch 3: cross-sections of ``θ + ζ_i a^i``).
+    rank receives all values (docs/model.md §7, batch 3: cross-sections of ``θ + ζ_i a^i``).
 
     Args:
         problem: The problem; its current ``zeta`` is sampled.

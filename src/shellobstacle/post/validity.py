@@ -10,14 +10,14 @@ over itself. Scale-free measures, computed after every solve:
     initial height above it (the gap scale). The penalized solution's penetration vanishes as
     κ → 0; one that is a sizeable part of the height means the constraint is not imposed.
 ``displacement``
-    ``max |ζ_i a^i| / diam θ(ω)``: the linearized strain (MODEL.md §2) assumes displacements
+    ``max |ζ_i a^i| / diam θ(ω)``: the linearized strain (docs/model.md §2) assumes displacements
     small against the shell; beyond a quarter of its size the linearization is not credible.
 ``orientation``
     ``min a_3 · (ã_1 ∧ ã_2) / √a`` with the deformed tangent vectors ``ã_α = a_α + ∂_α U``,
     ``U = ζ_i a^i``: 1 for no deformation, ``≤ 0`` where the deformed surface folds over.
 ``penalty_ratio``
     the penetration against ``κ max(√a |p|) / ε``, the penetration at which the penalty force
-    ``(ε/κ) {g}^-`` balances the load at a point (MODEL.md §4): how many times the largest
+    ``(ε/κ) {g}^-`` balances the load at a point (docs/model.md §4): how many times the largest
     load the plane's reaction carries somewhere. Recorded, not judged: a membrane's contact
     pressure can be a measure concentrated on curves (the paper's problem: 4.5 at κ = h²,
     39 at κ = h³ on the same mesh), so the ratio grows as κ → 0 with nothing wrong.

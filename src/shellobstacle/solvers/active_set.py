@@ -1,4 +1,4 @@
-"""Exact solver of the discrete obstacle problem with nodal constraints (MODEL.md §3, §5).
+"""Exact solver of the discrete obstacle problem with nodal constraints (docs/model.md §5–6).
 
 The problem is the bound-constrained quadratic program ``min ½ uᵀK'u − f'ᵀu``, ``u_B ≥ ψ``
 of :mod:`~shellobstacle.solvers.nodal_qp` (the constraint at the Lagrange nodes, rotated

@@ -1,4 +1,4 @@
-"""The Brezis–Sibony iteration for the penalized problem (MODEL.md §6, the paper's (38)).
+"""The Brezis–Sibony iteration for the penalized problem (docs/model.md §6, the paper's (38)).
 
 With ``R(ψ)`` the residual vector of the discrete penalized problem (the ``"residual"`` form of
 :class:`~shellobstacle.models.problem.PenalizedProblem`:
@@ -17,8 +17,8 @@ from the stiffness matrix ``K`` and the penalty's point matrix ``M``
 :class:`~shellobstacle.solvers.newton.NewtonSolver` uses), which is the form's vector up to
 round-off (tested) for a fraction of the cost: a product with ``K``, one with the point
 matrix and one with its stored transpose. The mass matrix is factorized once by Cholesky
-(PETSc's own serially, MUMPS under MPI). On the reproduction's 1,152-dof mesh a step takes
-125 instead of 723 µs (docs/performance.md).
+(PETSc's own serially, MUMPS under MPI). A step costs a fraction of an assembly of the
+residual form (docs/performance.md).
 
 **Step and contraction.** ``R`` is piecewise linear: at every penalty quadrature point
 ``min(g, 0)`` is a piecewise-linear function of the affine gap ``g(ψ)``, so

@@ -1,4 +1,4 @@
-"""The continuation in κ: each κ warm-started from the previous solution (MODEL.md §4).
+"""The continuation in κ: each κ warm-started from the previous solution (docs/model.md §6).
 
 A plain Newton from ζ = 0 directly at a small κ can take many damped steps; from the solution
 at a larger κ it takes a few. :func:`continuation` solves a ladder of κ on one compiled

@@ -1,4 +1,4 @@
-"""Exact line search for convex piecewise-quadratic energies (MODEL.md §4).
+"""Exact line search for convex piecewise-quadratic energies (docs/model.md §6).
 
 Along a descent direction δ the restriction ``φ(t) = J_κ(u + tδ)`` of such an energy is
 convex and piecewise quadratic, so ``φ'`` is monotone and piecewise linear; its root on

@@ -37,8 +37,8 @@ __all__ = [
 ]
 
 #: right-hand sides per block when MUMPS computes selected inverse entries (ICNTL(27)):
-#: 256 took 0.25–0.30 s where MUMPS' default (32) took 0.34–0.40 s at 329k dofs, and 2.4
-#: against 3.3 s at 1.93 M, with the same peak memory
+#: larger blocks than MUMPS' default (32) compute the entries faster, with the same peak
+#: memory
 INVERSE_BLOCK = 256
 
 _LIB: ctypes.CDLL | None = None
@@ -73,8 +73,8 @@ def set_variable_blocks(F: PETSc.Mat, sizes: np.ndarray) -> np.ndarray | None:
     blocks of consecutive variables of the given sizes (ICNTL(15) = 1).
 
     The factor is the same up to the order; METIS runs on a graph a block size smaller (on
-    the hybrid form's block matrix, its nodes' three displacements one node, 0.5 s against
-    0.9 s at 140k unknowns). Returns the block pointers handed over (keep them until ``F`` is
+    the hybrid form's block matrix, its nodes' three displacements one node: a shorter
+    analysis). Returns the block pointers handed over (keep them until ``F`` is
     analysed), or None, leaving ``F`` as it was, where PETSc has no ``MatMumpsSetBlk``.
     """
     try:

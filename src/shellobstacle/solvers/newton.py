@@ -1,4 +1,4 @@
-"""Semismooth Newton for the penalized problem, globalized by an exact line search (MODEL.md §4).
+"""Semismooth Newton for the penalized problem with an exact line search (docs/model.md §6).
 
 ``J_κ`` is strictly convex, C¹ and piecewise quadratic, so along a Newton direction ``δ`` the
 function ``φ(t) = J_κ(ζ + tδ)`` is convex and piecewise quadratic and ``φ'(t) = R(ζ + tδ)·δ``
@@ -150,7 +150,7 @@ class NewtonSolver:
     @property
     def active_points(self) -> np.ndarray:
         """The owned penalty points where the last iterate penetrates, ``g_k < 0`` (the
-        active set ``A`` of MODEL.md §5), in the quadrature space's local order; empty before
+        active set ``A`` of docs/model.md §5), in the quadrature space's local order; empty before
         the first solve."""
         return self.system.g < 0
 

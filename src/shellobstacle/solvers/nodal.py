@@ -1,4 +1,4 @@
-"""The nodal constraint as bounds: one rotation per node (MODEL.md §3, §5).
+"""The nodal constraint as bounds: one rotation per node (docs/model.md §5).
 
 With the constraint ``g ≥ 0`` imposed at the Lagrange nodes (P1: the vertices; P2: the
 vertices and edge midpoints), each constraint involves only the three unknowns of its node.

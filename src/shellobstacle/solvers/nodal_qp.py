@@ -1,4 +1,4 @@
-"""The nodal obstacle problem as a bound-constrained quadratic program (MODEL.md §3, §5).
+"""The nodal obstacle problem as a bound-constrained quadratic program (docs/model.md §3, §5).
 
 With the constraint ``g ≥ 0`` imposed at the Lagrange nodes ``x_i`` of the displacement
 space (P1: the vertices; P2: the vertices and edge midpoints), the discrete variational

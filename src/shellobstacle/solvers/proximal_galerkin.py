@@ -9,7 +9,7 @@ Keith & Surowiec's proximal Galerkin method (Found. Comput. Math., 2024) for a l
 is written with a latent variable ``φ = log(u − ψ)``, so that ``u = ψ + e^φ`` lies above
 the bound for every ``φ``, and solved by Newton's method in the mixed unknowns ``(u, φ)``.
 Here the bound is the nodal one of :mod:`~shellobstacle.solvers.nodal_qp` (``u_B ≥ ψ``
-after the nodal change of variables, MODEL.md §3, §5), the latent variable lives at the
+after the nodal change of variables, docs/model.md §5), the latent variable lives at the
 constrained nodes and the distance is weighted by the lumped masses ``m_b``:
 
 :math:`α_k (K'u − f') + E M (φ − φ_{k−1}) = 0,\\qquad M (E^T u − ψ − e^φ) = 0`,

@@ -3,7 +3,7 @@
 The problem is the bound-constrained quadratic program of
 :mod:`~shellobstacle.solvers.nodal_qp`: ``min ½ uᵀK'u − f'ᵀu`` subject to ``u_B ≥ ψ``
 (the constraint ``g ≥ 0`` at the Lagrange nodes after the nodal change of variables,
-MODEL.md §3, §5). Its KKT conditions are the mixed complementarity problem
+docs/model.md §3, §5). Its KKT conditions are the mixed complementarity problem
 ``F(u) = K'u − f' ⊥ u_B ≥ ψ``, ``F(u)_b = 0`` for the unbounded unknowns, which PETSc's
 ``SNESVINEWTONRSLS`` and ``SNESVINEWTONSSLS`` solve with the bounds
 (``SNESVISetVariableBounds``), the Jacobian ``K'`` and PETSc's own line searches:

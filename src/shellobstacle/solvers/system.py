@@ -1,6 +1,6 @@
 """The penalized energy of one problem at its current iterate, as Newton's method needs it.
 
-``J_κ(ζ) = ½ ζᵀKζ − f·ζ + (1/(2κ)) Σ_k D_k min(g_k, 0)²`` (MODEL.md §4–5): the membrane part
+``J_κ(ζ) = ½ ζᵀKζ − f·ζ + (1/(2κ)) Σ_k D_k min(g_k, 0)²`` (docs/model.md §5): the membrane part
 is quadratic, with the stiffness ``K`` assembled once per mesh, and the penalty lives at its
 quadrature points (:class:`~shellobstacle.penalty.quadrature.QuadraturePenalty`). A residual is then
 one product with ``K`` and one with the point matrix ``M``, a Jacobian ``K`` plus a product

@@ -8,8 +8,8 @@ or a comma-separated list of the knobs below. ``shellobstacle doctor`` says what
 * ``heap`` (:mod:`.malloc`, :mod:`.prefault`): glibc's malloc keeps freed memory in the
   process, and on a spare core a helper thread faults the heap's new pages in ahead of the
   solver. On virtual machines whose host takes free memory back, touching fresh memory is
-  slow; a serial solve at 1.93 M dofs took 55.6 s with it and 72.0 s without (medians of 3
-  alternated pairs, docs/performance.md).
+  slow, and a large solve spends much of its time faulting pages in (measured in
+  docs/performance.md).
 * ``gemmt`` (:mod:`.gemmt`): MUMPS' Cholesky factorizations call DGEMMT, which the DOLFINx
   wheel's OpenBLAS computes column by column; a DGEMMT made of DGEMM blocks replaces it.
 * ``threads`` (:mod:`.threads`): under ``mpiexec``, NumPy's BLAS gets one thread per rank

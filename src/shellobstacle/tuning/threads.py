@@ -2,7 +2,7 @@
 
 NumPy's wheels bring their own threaded OpenBLAS, which starts as many threads as there are
 cores. Under ``mpiexec`` every rank does so, and the ranks' threads then compete for the same
-cores (the contact zone's dense products took three times as long on 2 ranks of a 2-core
+cores (the contact zone's dense products are much slower on 2 ranks of a 2-core
 machine). :func:`limit_blas_threads` sets ``OPENBLAS_NUM_THREADS=1`` before NumPy is loaded
 when there is more than one rank and neither ``OMP_NUM_THREADS`` nor ``OPENBLAS_NUM_THREADS``
 is set (hybrid MPI + threads keeps the user's choice). PETSc and MUMPS run on the DOLFINx

@@ -1,6 +1,6 @@
 """Exact solves with the Newton Jacobian by condensation onto a contact zone.
 
-The Jacobian of ``J_κ`` (MODEL.md §5) is ``J = K + P_A`` with the membrane stiffness ``K``
+The Jacobian of ``J_κ`` (docs/model.md §5) is ``J = K + P_A`` with the membrane stiffness ``K``
 (fixed per mesh) and the penalty part ``P_A = (1/κ) M_Aᵀ diag(1/D_A) M_A``, which couples only
 the dofs of the cells holding active points ``A``. Split the dofs into a zone ``Z`` that holds
 every active point and the rest ``I``:
