@@ -20,7 +20,7 @@ PACKAGE = Path(shellobstacle.__file__).parent
 # What runs the library for a user: nothing outside this list may import it.
 APPLICATION = (
     "shellobstacle.__main__",
-    "shellobstacle.cli.main",
+    "shellobstacle.cli",
     "shellobstacle.experiments",
     "shellobstacle.io",
     "shellobstacle.post.pictures",
