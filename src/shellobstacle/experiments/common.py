@@ -98,6 +98,20 @@ def fit_rate(x: Sequence[float], y: Sequence[float]) -> float:
     return float(np.polyfit(np.log(x[keep]), np.log(y[keep]), 1)[0])
 
 
+def readable_log_ticks(ax: Any) -> None:
+    """Label a log axis without overlaps: minor ticks unlabelled, and on an axis spanning
+    less than two decades the majors at 1, 2 and 5 times the powers of ten."""
+    from matplotlib.ticker import LogFormatterSciNotation, LogLocator, NullFormatter
+
+    for axis, (lo, hi) in ((ax.xaxis, ax.get_xlim()), (ax.yaxis, ax.get_ylim())):
+        if axis.get_scale() != "log" or not 0 < lo < hi:
+            continue
+        if np.log10(hi / lo) < 2.0:
+            axis.set_major_locator(LogLocator(base=10.0, subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(LogFormatterSciNotation(labelOnlyBase=False))
+        axis.set_minor_formatter(NullFormatter())
+
+
 def finish_figure(
     fig: Any, ax: Any, path: Path, xlabel: str, ylabel: str, title: str, loglog: bool = True
 ) -> Path:
@@ -108,6 +122,8 @@ def finish_figure(
     ax.set_ylabel(ylabel)
     ax.set_title(title)
     ax.grid(True, which="both" if loglog else "major", alpha=0.3)
+    if loglog:
+        readable_log_ticks(ax)
     ax.legend(fontsize=8)
     fig.tight_layout()
     if MPI.COMM_WORLD.rank == 0:

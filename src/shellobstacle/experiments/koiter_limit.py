@@ -305,6 +305,15 @@ def plot_distance(study: KoiterLimit, path: Path) -> Path:
         ax.loglog(e, w, "s--", label=f"layer width (slope {study.width_rate():.2f})")
         k = int(np.flatnonzero(np.isfinite(w))[-1])
         ax.loglog(e, w[k] * np.sqrt(e / e[k]), ":", color="0.4", label="∝ √ε")
+    if not np.isfinite(w).all():  # no layer: ζ_K,3 never reaches half the membrane's ζ_3
+        ax.plot(
+            e[~np.isfinite(w)],
+            np.full(int((~np.isfinite(w)).sum()), 0.04),
+            "x",
+            color="C1",
+            transform=ax.get_xaxis_transform(),
+            label="no layer width: ζ_K,3 never reaches half of ζ_M,3 (bending dominates)",
+        )
     return finish_figure(fig, ax, path, "ε", "", "Koiter → membrane as ε → 0")
 
 

@@ -29,7 +29,7 @@ __all__ = ["EXIT_NO_PYVISTA", "main", "plane_frame", "render"]
 EXIT_NO_PYVISTA = 3
 #: the size in pixels of each 3D view, and the camera's elevations above the plane (degrees)
 WINDOW = (1000, 800)
-ELEVATIONS = (35.0, 90.0)
+ELEVATIONS = (15.0, 90.0)
 CMAP = "viridis"
 PLANE = "#b0b0b0"
 CONTACT = "#e31a1c"
@@ -122,9 +122,9 @@ def _crop(image: np.ndarray, pad: int = 8) -> np.ndarray:
 def render(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     """The two views of the module docstring as RGB images.
 
-    The whole shell from 35° above the plane, and the part of the shell around the contact
-    zone from straight above (the zone lies at the bottom of a dimple, hidden from low views);
-    with no contact, around the lowest vertex instead.
+    The whole shell from 15° above the plane (low enough that its rise shows), and the part of
+    the shell around the contact zone from straight above (the zone lies at the bottom of a
+    dimple, hidden from low views); with no contact, around the lowest vertex instead.
 
     Args:
         data: ``points`` (deformed nodes ``θ + U``, shape ``(n, 3)``), ``triangles``
