@@ -2,7 +2,7 @@
 
 For one gmsh target size of the paper's disk and several coarsening levels k (gmsh at 2^k h,
 then k uniform refinements of the distributed mesh), one JSON line on rank 0 per k: gmsh
-seconds and vertices (rank 0), distribution of the coarse mesh (``create_mesh``), the k
+seconds and vertices (rank 0), distribution of the coarse mesh (``model_to_mesh``), the k
 refinements, the whole mesh, the fine mesh's cells, dofs (3 per vertex) and h; and, for
 comparison, ``create_mesh`` of the fine mesh's cells (what distributing the refined arrays
 would cost).
@@ -14,10 +14,13 @@ would cost).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import time
 
 from mpi4py import MPI
 
+import dolfinx.io.gmsh
+import dolfinx.mesh
 import numpy as np
 from record import PAPER, emit
 
@@ -33,13 +36,15 @@ def phases(spec: DomainSpec, steps: int, comm: MPI.Comm) -> dict:
     rec: dict = {"target": spec.h, "ranks": comm.size, "steps": steps}
     comm.Barrier()
     t0 = time.perf_counter()
-    x, cells = meshing._gmsh_arrays(spec, comm, steps)
-    rec["gmsh_s"], rec["gmsh_vertices"] = time.perf_counter() - t0, comm.bcast(len(x), root=0)
-    t = time.perf_counter()
-    domain = meshing.dolfinx.io.gmsh.ufl_mesh(meshing._TRIANGLE, 2, dtype=np.float64)
-    mesh = meshing.dolfinx.mesh.create_mesh(comm, cells, domain, x, meshing._partitioner())
-    comm.Barrier()
-    rec["distribute_s"] = time.perf_counter() - t
+    with contextlib.ExitStack() as stack:
+        model = meshing._gmsh_on_rank0(spec, comm, steps, stack)
+        rec["gmsh_s"] = time.perf_counter() - t0
+        gmsh_nodes = len(model.mesh.getNodes()[0]) if model is not None else 0
+        rec["gmsh_vertices"] = comm.bcast(gmsh_nodes, root=0)
+        t = time.perf_counter()
+        mesh = dolfinx.io.gmsh.model_to_mesh(model, comm, 0, 2, meshing._partitioner()).mesh
+        comm.Barrier()
+        rec["distribute_s"] = time.perf_counter() - t
     t = time.perf_counter()
     for _ in range(steps):
         mesh = red_refinement(mesh, spec)
@@ -56,7 +61,8 @@ def phases(spec: DomainSpec, steps: int, comm: MPI.Comm) -> dict:
     fine_x = mesh.geometry.x[: nodes.size_local, :2]
     comm.Barrier()
     t = time.perf_counter()
-    meshing.dolfinx.mesh.create_mesh(
+    domain = dolfinx.io.gmsh.ufl_mesh(2, 2, dtype=np.float64)  # linear triangles
+    dolfinx.mesh.create_mesh(
         comm, fine_cells.reshape(-1, 3), domain, fine_x, meshing._partitioner()
     )
     comm.Barrier()

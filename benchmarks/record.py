@@ -50,6 +50,14 @@ def petsc_blas() -> str:
         return "unknown"
 
 
+def numpy_blas_threads() -> list[int]:
+    """The threads of each BLAS NumPy loaded (threadpoolctl), as the ``threads`` knob left
+    them."""
+    from threadpoolctl import threadpool_info
+
+    return [p["num_threads"] for p in threadpool_info() if "numpy" in p["filepath"]]
+
+
 # the paper's section 10 problem (docs/model.md §7), the configuration most benchmarks run
 PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 
@@ -81,6 +89,7 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     rec["prefaulted_gib_total"] = comm.allreduce(prefaulted_gib(), op=MPI.SUM)
     rec["petsc_blas"] = petsc_blas()
     rec["openblas_num_threads"] = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
+    rec["numpy_blas_threads"] = numpy_blas_threads()
     if comm.rank == 0:
         values = {k: float(f"{v:.6g}") if isinstance(v, float) else v for k, v in rec.items()}
         print(json.dumps(values), flush=True)

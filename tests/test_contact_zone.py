@@ -195,16 +195,44 @@ def test_zone_max_fraction_is_checked() -> None:
         ZoneStrategy(max_fraction=0.0)
 
 
+def _without(monkeypatch: pytest.MonkeyPatch, name: str) -> None:
+    """Make the symbol lookup of PETSc's C function ``name`` fail, as in a PETSc without it."""
+    from shellobstacle.solvers import libpetsc
+
+    lookup = libpetsc._lookup
+
+    def failing(wanted: str):
+        if wanted == name:
+            raise AttributeError(f"undefined symbol: {name}")
+        return lookup(wanted)
+
+    monkeypatch.setattr(libpetsc, "_lookup", failing)
+
+
+def test_petscs_mumps_functions_are_found_through_petsc4py() -> None:
+    """Both functions are reached in the libpetsc petsc4py runs on; a name PETSc lacks is
+    reported missing and gives no function (the real lookup, nothing patched)."""
+    from shellobstacle.solvers import libpetsc, mumps
+
+    for name in libpetsc.SIGNATURES:
+        assert libpetsc.missing(name) is None
+        assert libpetsc.function(name) is not None
+    assert mumps.selected_inverse_available() is None
+    reason = libpetsc.missing("MatMumpsNoSuchFunction")
+    assert reason is not None and "MatMumpsNoSuchFunction" in reason
+    assert libpetsc.function("MatMumpsNoSuchFunction") is None
+
+
 def test_without_mumps_selected_inverses_the_solver_warns_and_falls_back(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """No reachable MatMumpsGetInverse: a warning, and the factorization-reuse solver."""
-    from shellobstacle.solvers import mumps
-
-    def missing() -> None:
-        raise RuntimeError("cannot locate the loaded libpetsc")
-
-    monkeypatch.setattr(mumps, "_libpetsc", missing)
+    """No MatMumpsGetInverse in PETSc: a warning, the factorization-reuse solver, the zone's
+    answer."""
+    zone_problem = PenalizedProblem(paper_shell(), square(n=8))
+    zone_solver = NewtonSolver(zone_problem, NewtonOptions())
+    assert zone_solver.zone is not None
+    continuation(zone_problem, zone_solver, [1e-2], predictor=False)
+    _without(monkeypatch, "MatMumpsGetInverse")
     problem = PenalizedProblem(paper_shell(), square(n=8))
     with pytest.warns(RuntimeWarning, match="selected inverse entries are not reachable"):
         solver = NewtonSolver(problem, NewtonOptions())
@@ -212,6 +240,9 @@ def test_without_mumps_selected_inverses_the_solver_warns_and_falls_back(
     assert solver.linear.reuse
     steps = continuation(problem, solver, [1e-2], predictor=False)
     assert steps[0].converged
+    d = problem.zeta.x.petsc_vec.copy()
+    d.axpy(-1.0, zone_problem.zeta.x.petsc_vec)
+    assert d.norm() <= 1e-10 * zone_problem.zeta.x.petsc_vec.norm()
 
 
 @pytest.mark.mpi

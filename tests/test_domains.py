@@ -213,6 +213,52 @@ def test_msh_file_roundtrip(tmp_path, physical):
     assert _extent(mesh) == pytest.approx([2.0, 1.0], rel=1e-12)
 
 
+def _write_two_surfaces_msh(path: str, groups: list[list[int]], save_all: bool) -> int:
+    """Rank 0 writes the rectangle [0, 2] x [0, 1] (surface 1), a disk beside it (surface 2)
+    and a lone point (a node of no triangle), with 2D physical ``groups`` of surfaces; return
+    (on every rank) how many nodes the triangles of the groups (of all surfaces if none) use."""
+    used = 0
+    if COMM.rank == 0:
+        gmsh.initialize(readConfigFiles=False, interruptible=False)
+        gmsh.option.setNumber("General.Terminal", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", 0.2)
+        gmsh.option.setNumber("Mesh.SaveAll", int(save_all))
+        gmsh.model.add("writer")
+        gmsh.model.occ.addRectangle(0, 0, 0, 2, 1)
+        gmsh.model.occ.addDisk(4, 0, 0, 0.5, 0.5)
+        gmsh.model.occ.addPoint(9, 9, 0)
+        gmsh.model.occ.synchronize()
+        for group in groups:
+            gmsh.model.addPhysicalGroup(2, group)
+        gmsh.model.mesh.generate(2)
+        marked = sorted({s for group in groups for s in group}) or [1, 2]
+        used = len({int(n) for s in marked for n in gmsh.model.mesh.getElements(2, s)[2][0]})
+        gmsh.write(path)
+        gmsh.finalize()
+    return COMM.bcast(used, root=0)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize(
+    ("groups", "save_all", "area"),
+    [
+        ([], False, None),  # unmarked: every surface; the lone point's node is in the file
+        ([[1]], True, 2.0),  # the disk's triangles and nodes are in the file, unmarked
+        ([[1], [1]], False, 2.0),  # the rectangle in two groups
+    ],
+    ids=["unmarked", "one-of-two-marked", "marked-twice"],
+)
+def test_msh_file_mesh_is_the_marked_triangles(tmp_path, groups, save_all, area):
+    path = COMM.bcast(str(tmp_path / "two.msh"), root=0)
+    used = _write_two_surfaces_msh(path, groups, save_all)
+    mesh = create_mesh(DomainSpec("file", path=path))
+    assert mesh.topology.index_map(0).size_global == used
+    if area is not None:
+        assert domain_area(mesh) == pytest.approx(area, rel=1e-12)
+    else:  # the rectangle and the disk's inscribed polygon
+        assert 2.0 < domain_area(mesh) < 2.0 + math.pi / 4
+
+
 @pytest.mark.parametrize(
     ("options", "found"),
     [({"Mesh.RecombineAll": 1}, "Quadrilateral"), ({"Mesh.ElementOrder": 2}, "Triangle 6")],
@@ -332,12 +378,16 @@ def test_large_mesh_is_the_coarse_gmsh_mesh_refined_twice(spec: DomainSpec):
     cells, node for node."""
     import dataclasses
 
+    import dolfinx.io.gmsh
+
     from shellobstacle.mesh import meshing as domains
 
     coarse_spec = dataclasses.replace(spec, h=4 * spec.h, gmsh_max_vertices=0)
     with domains._gmsh_model("reference", domains._gmsh_options(coarse_spec)) as model:
         domains._build_model(model, coarse_spec)
-        x, cells = domains._gmsh_triangles(model)
+        x = dolfinx.io.gmsh.extract_geometry(model)[:, :2]
+        cells = dolfinx.io.gmsh.extract_topology_and_markers(model)[0][2]["topology"]
+        cells = cells.astype(np.int64)
     for _ in range(2):
         x, cells = _red_refinement_of_arrays(x, cells, spec)
     expected = _sorted_cells(x[cells])

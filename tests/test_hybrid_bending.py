@@ -27,7 +27,7 @@ from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.contact_zone import ContactZone
 from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
-from tests.test_contact_zone import lu_solve
+from tests.test_contact_zone import _without, lu_solve
 
 COMM = MPI.COMM_WORLD
 PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
@@ -202,6 +202,25 @@ def test_zone_steps_with_and_without_the_multipliers_agree(
         runs.append(([s.newton.iterations for s in steps], problem.zeta.x.petsc_vec.copy()))
     (with_t, zeta), (without_t, reference) = runs
     assert with_t == without_t
+    zeta.axpy(-1.0, reference)
+    assert zeta.norm() <= 1e-9 * reference.norm()
+
+
+@pytest.mark.mpi
+def test_without_mumps_variable_blocks_the_same_steps_and_solution(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """No MatMumpsSetBlk in PETSc: MUMPS orders single variables instead of the nodes' blocks
+    (ICNTL(15) stays 0), with the same Newton steps and solution."""
+    runs = []
+    for blocks in (True, False):
+        if not blocks:
+            _without(monkeypatch, "MatMumpsSetBlk")
+        problem, solver, steps = koiter_solved(COMM, 0.05)
+        assert (solver.zone.cond.F_I.F.getMumpsIcntl(15) == 1) == blocks
+        runs.append(([s.newton.iterations for s in steps], problem.zeta.x.petsc_vec.copy()))
+    (with_blocks, reference), (without_blocks, zeta) = runs
+    assert without_blocks == with_blocks
     zeta.axpy(-1.0, reference)
     assert zeta.norm() <= 1e-9 * reference.norm()
 

@@ -10,6 +10,8 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
+import tomli_w
+
 from shellobstacle.messages import ConfigError
 
 __all__ = ["apply_overrides", "read_toml", "to_toml"]
@@ -77,27 +79,7 @@ def apply_overrides(data: dict[str, Any], items: list[str]) -> dict[str, str]:
     return given
 
 
-def _toml_value(v: Any) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, int | float):
-        return repr(v)
-    if isinstance(v, str):
-        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(v, list | tuple):
-        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{ " + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + " }"
-    raise TypeError(f"cannot write {v!r} to TOML")
-
-
 def to_toml(resolved: Mapping[str, Mapping[str, Any]]) -> str:
-    """Serialize a resolved configuration (what was used, defaults included)."""
-    parts = []
-    for section, keys in resolved.items():
-        if not keys:
-            continue
-        parts.append(f"[{section}]")
-        parts += [f"{k} = {_toml_value(v)}" for k, v in keys.items()]
-        parts.append("")
-    return "\n".join(parts)
+    """Serialize a resolved configuration (what was used, defaults included) by
+    :mod:`tomli_w`: a table per section, a sub-table per table-valued key."""
+    return tomli_w.dumps({section: keys for section, keys in resolved.items() if keys})

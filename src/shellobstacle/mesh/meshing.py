@@ -1,10 +1,10 @@
 """Triangle meshes of the parameter domain ω (:class:`~shellobstacle.mesh.domains.DomainSpec`).
 
 Curved and polygonal domains are meshed by gmsh on rank 0 only and distributed over the
-communicator by :func:`dolfinx.mesh.create_mesh`; a large mesh is gmsh's mesh at a coarser size,
-distributed, then refined uniformly in parallel (new boundary nodes moved onto the curve,
-:mod:`shellobstacle.mesh.refinement`). Rectangles get a structured DOLFINx mesh. All meshes are
-affine (linear) triangles with geometric dimension 2.
+communicator by :func:`dolfinx.io.gmsh.model_to_mesh`; a large mesh is gmsh's mesh at a
+coarser size, distributed, then refined uniformly in parallel (new boundary nodes moved onto
+the curve, :mod:`shellobstacle.mesh.refinement`). Rectangles get a structured DOLFINx mesh. All
+meshes are affine (linear) triangles with geometric dimension 2.
 """
 
 from __future__ import annotations
@@ -147,9 +147,33 @@ def _check_file(model, path: str) -> str:
     if types != {_TRIANGLE}:
         found = ", ".join(model.mesh.getElementProperties(t)[0] for t in sorted(types))
         return f"mesh file {path!r} is not made of linear triangles (found: {found or 'none'})"
-    if not model.getPhysicalGroups(2):  # unmarked file: mark every surface
-        model.addPhysicalGroup(2, [tag for _, tag in model.getEntities(2)], name="domain")
+    _only_the_domain(model)
     return ""
+
+
+def _only_the_domain(model) -> None:
+    """Reduce a read model to what :func:`dolfinx.io.gmsh.model_to_mesh` makes the mesh of:
+    the triangles of the 2D physical groups (of every surface if there is none) in one
+    physical group, and only the nodes they use, numbered 1..n.
+
+    (``model_to_mesh`` distributes every node of the model, and DOLFINx 0.11 aborts the MPI
+    job on a node that no cell uses, such as a circle's centre in a file saved without
+    physical groups; it also wants each triangle in exactly one physical group.)
+    """
+    groups = model.getPhysicalGroups(2)
+    surfaces = sorted({int(e) for _, g in groups for e in model.getEntitiesForPhysicalGroup(2, g)})
+    surfaces = surfaces or sorted(tag for _, tag in model.getEntities(2))
+    for dim, tag in model.getEntities(2):
+        if tag not in surfaces:
+            model.mesh.removeElements(dim, tag)
+    for dim, tag in model.getEntities(1) + model.getEntities(0):
+        model.mesh.removeElements(dim, tag)
+    model.mesh.reclassifyNodes()  # drops the nodes of no element
+    model.removePhysicalGroups()
+    model.addPhysicalGroup(2, surfaces, name="domain")
+    tags = np.sort(model.mesh.getNodes()[0])
+    if len(tags) and tags[-1] != len(tags):  # model_to_mesh wants the node tags 1..n
+        model.mesh.renumberNodes(tags, np.arange(1, len(tags) + 1, dtype=tags.dtype))
 
 
 def _partitioner():
@@ -157,66 +181,73 @@ def _partitioner():
     return dolfinx.mesh.create_cell_partitioner(dolfinx.mesh.GhostMode.shared_facet, 2)
 
 
-def _gmsh_triangles(model) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes ``(n, 2)`` and triangles ``(m, 3)`` (numbered from 0) of the 2D physical groups."""
-    tags, coords, _ = model.mesh.getNodes()
-    index = np.full(int(tags.max(initial=0)) + 1, -1, dtype=np.int64)
-    index[tags] = np.arange(len(tags))
+def _coarsened(spec: DomainSpec, steps: int) -> DomainSpec:
+    """``spec`` with every mesh size ``2^steps`` times larger."""
+    if not steps:
+        return spec
+    grow = 2.0**steps
+    return dataclasses.replace(
+        spec,
+        h=spec.h * grow,
+        central_h=spec.central_h and spec.central_h * grow,
+        edge_h=spec.edge_h and spec.edge_h * grow,
+    )
+
+
+def _tagged_triangles(model) -> int:
+    """The number of triangles in the 2D physical groups (the cells of the mesh)."""
     groups = model.getPhysicalGroups(2)
-    entities = sorted({int(e) for _, g in groups for e in model.getEntitiesForPhysicalGroup(2, g)})
-    cells = [
-        index[nodes.astype(np.int64)].reshape(-1, 3)
-        for e in entities
-        for etype, _, nodes in zip(*model.mesh.getElements(2, e), strict=True)
-        if etype == _TRIANGLE
-    ]
-    cells = np.concatenate(cells) if cells else np.zeros((0, 3), dtype=np.int64)
-    used, cells = np.unique(cells, return_inverse=True)  # drop nodes of no triangle
-    return coords.reshape(-1, 3)[used, :2].copy(), cells.reshape(-1, 3)
+    entities = {int(e) for _, g in groups for e in model.getEntitiesForPhysicalGroup(2, g)}
+    return sum(len(tags) for e in entities for tags in model.mesh.getElements(2, e)[1])
 
 
-def _gmsh_arrays(spec: DomainSpec, comm: MPI.Comm, steps: int = 0) -> tuple[np.ndarray, np.ndarray]:
-    """Nodes and triangles of the gmsh mesh of ``spec`` at ``2^steps`` times its sizes (or of
-    its file), on rank 0; empty arrays on the other ranks. Errors are raised on every rank."""
-    x, cells = np.zeros((0, 2)), np.zeros((0, 3), dtype=np.int64)
-    error = ""
+def _fill_model(model, spec: DomainSpec, steps: int) -> str:
+    """Mesh ``spec`` at ``2^steps`` times its sizes (or read its file) into ``model``; return
+    an error message ("" if the model holds a mesh for :func:`dolfinx.io.gmsh.model_to_mesh`)."""
+    try:
+        if spec.kind == "file":
+            error = _check_file(model, str(spec.path))
+            if error:
+                return error
+        else:
+            _build_model(model, _coarsened(spec, steps))
+        if not _tagged_triangles(model):
+            return f"gmsh made no triangles for {spec}"
+    except Exception as exc:  # let the other ranks fail too instead of hanging
+        return f"gmsh failed for {spec}: {exc}"
+    return ""
+
+
+def _gmsh_on_rank0(
+    spec: DomainSpec, comm: MPI.Comm, steps: int, stack: contextlib.ExitStack
+) -> object | None:
+    """The gmsh model of ``spec`` on rank 0 (None on the other ranks), open until ``stack``
+    closes.
+
+    Raises:
+        ValueError: On every rank, if gmsh fails or the file is unusable.
+    """
+    model, error = None, ""
     if comm.rank == 0:
-        coarse = spec
-        if steps:
-            grow = 2.0**steps
-            coarse = dataclasses.replace(
-                spec,
-                h=spec.h * grow,
-                central_h=spec.central_h and spec.central_h * grow,
-                edge_h=spec.edge_h and spec.edge_h * grow,
-            )
-        with _gmsh_model("shellobstacle-domain", _gmsh_options(coarse)) as model:
-            try:
-                if spec.kind == "file":
-                    error = _check_file(model, str(spec.path))
-                else:
-                    _build_model(model, coarse)
-                if not error:
-                    x, cells = _gmsh_triangles(model)
-                    if not len(cells):
-                        error = f"gmsh made no triangles for {spec}"
-            except Exception as exc:  # let the other ranks fail too instead of hanging
-                error = f"gmsh failed for {spec}: {exc}"
+        options = _gmsh_options(_coarsened(spec, steps))
+        model = stack.enter_context(_gmsh_model("shellobstacle-domain", options))
+        error = _fill_model(model, spec, steps)
     error = comm.bcast(error, root=0)
     if error:
         raise ValueError(error)
-    return x, cells
+    return model
 
 
 def _gmsh_mesh(
     spec: DomainSpec, comm: MPI.Comm, steps: int = 0, ghosted: bool = False
 ) -> dolfinx.mesh.Mesh:
-    """Build (or read) the gmsh mesh on rank 0, distribute it, refine it ``steps`` times."""
-    with phase("gmsh"):
-        x, cells = _gmsh_arrays(spec, comm, steps)
-    with phase("distributing the mesh"):
-        domain = dolfinx.io.gmsh.ufl_mesh(_TRIANGLE, 2, dtype=np.float64)
-        mesh = dolfinx.mesh.create_mesh(comm, cells, domain, x, _partitioner())
+    """Build (or read) the gmsh mesh on rank 0, distribute it
+    (:func:`dolfinx.io.gmsh.model_to_mesh`), refine it ``steps`` times."""
+    with contextlib.ExitStack() as stack:
+        with phase("gmsh"):
+            model = _gmsh_on_rank0(spec, comm, steps, stack)
+        with phase("distributing the mesh"):
+            mesh = dolfinx.io.gmsh.model_to_mesh(model, comm, 0, 2, _partitioner()).mesh
     for k in range(steps):
         with phase(f"refining {k + 1}/{steps}"):
             mesh = red_refinement(mesh, spec, ghosted)

@@ -5,19 +5,18 @@ factorization of a matrix every rank holds whole, made by all ranks together.
 ``[K_II⁻¹]_{I'I'}`` on the few hundred to few thousand dofs ``I'`` that couple to the zone.
 MUMPS computes exactly those (ICNTL(30)) far faster than as many solves, exploiting the
 sparsity of the right-hand sides and of the entries asked. PETSc offers it as
-``MatMumpsGetInverse``, which petsc4py does not wrap: it is called through ``ctypes`` on the
-PETSc library petsc4py runs on, found among the process' mapped files (Linux). Where that
-fails, :func:`selected_inverse_available` says so and the caller uses another strategy.
+``MatMumpsGetInverse``, which petsc4py does not wrap (:mod:`shellobstacle.solvers.libpetsc`
+calls it). Where PETSc lacks it, :func:`selected_inverse_available` says so and the caller
+uses another strategy.
 
 **Variable blocks.** MUMPS orders a matrix on its graph with each block of variables as one
 node (ICNTL(15)); PETSc passes a matrix' block size as such blocks, and
 :func:`set_variable_blocks` passes blocks of several sizes (``MatMumpsSetBlk``, through
-``ctypes`` too).
+:mod:`~shellobstacle.solvers.libpetsc` too; without it MUMPS orders single variables).
 """
 
 from __future__ import annotations
 
-import ctypes
 from collections.abc import Callable
 
 from mpi4py import MPI
@@ -25,6 +24,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
+from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.base import ConvergenceError, direct_solver, factorize
 
 __all__ = [
@@ -41,31 +41,10 @@ __all__ = [
 #: memory
 INVERSE_BLOCK = 256
 
-_LIB: ctypes.CDLL | None = None
-
-
-def _libpetsc() -> ctypes.CDLL:
-    """The PETSc library petsc4py runs on, with ``MatMumpsGetInverse`` declared."""
-    global _LIB
-    if _LIB is None:
-        with open("/proc/self/maps") as maps:  # (OSError off Linux)
-            paths = {line.split()[-1] for line in maps if "libpetsc.so" in line}
-        if len(paths) != 1:
-            raise RuntimeError(f"cannot locate the loaded libpetsc (found {sorted(paths)})")
-        lib = ctypes.CDLL(paths.pop())
-        lib.MatMumpsGetInverse.argtypes = [ctypes.c_void_p, ctypes.c_void_p]
-        lib.MatMumpsGetInverse.restype = ctypes.c_int
-        _LIB = lib
-    return _LIB
-
 
 def selected_inverse_available() -> str | None:
     """None when ``MatMumpsGetInverse`` can be called, else why not."""
-    try:
-        _libpetsc()
-    except (OSError, RuntimeError, AttributeError) as err:
-        return str(err)
-    return None
+    return libpetsc.missing("MatMumpsGetInverse")
 
 
 def set_variable_blocks(F: PETSc.Mat, sizes: np.ndarray) -> np.ndarray | None:
@@ -77,13 +56,9 @@ def set_variable_blocks(F: PETSc.Mat, sizes: np.ndarray) -> np.ndarray | None:
     analysis). Returns the block pointers handed over (keep them until ``F`` is
     analysed), or None, leaving ``F`` as it was, where PETSc has no ``MatMumpsSetBlk``.
     """
-    try:
-        function = _libpetsc().MatMumpsSetBlk
-    except (OSError, RuntimeError, AttributeError):
+    function = libpetsc.function("MatMumpsSetBlk")
+    if function is None:
         return None
-    integer = ctypes.c_int64 if PETSc.IntType == np.int64 else ctypes.c_int32
-    function.argtypes = [ctypes.c_void_p, integer, ctypes.c_void_p, ctypes.c_void_p]
-    function.restype = ctypes.c_int
     pointers = np.concatenate([[1], 1 + np.cumsum(sizes)]).astype(PETSc.IntType)
     F.setMumpsIcntl(15, 1)
     if function(F.handle, sizes.size, None, pointers.ctypes.data) != 0:
@@ -123,6 +98,9 @@ def inverse_block(F: PETSc.Mat, rows: np.ndarray, size: int) -> np.ndarray | Non
     Raises:
         ConvergenceError: MUMPS failed.
     """
+    get_inverse = libpetsc.function("MatMumpsGetInverse")
+    if get_inverse is None:  # callers check selected_inverse_available() first
+        raise RuntimeError(selected_inverse_available())
     comm = F.getComm()
     root = comm.tompi4py().rank == 0
     # the request: a parallel matrix whose rows and columns all live on rank 0 (MUMPS takes
@@ -141,7 +119,7 @@ def inverse_block(F: PETSc.Mat, rows: np.ndarray, size: int) -> np.ndarray | Non
     request = PETSc.Mat().createTranspose(transposed)
     saved = {i: F.getMumpsIcntl(i) for i in (20, 21, 27, 30)}
     F.setMumpsIcntl(27, INVERSE_BLOCK)
-    err = _libpetsc().MatMumpsGetInverse(F.handle, request.handle)
+    err = get_inverse(F.handle, request.handle)
     for i, value in saved.items():  # back to ordinary solves
         F.setMumpsIcntl(i, value)
     if comm.tompi4py().allreduce(err, op=MPI.MAX) != 0:

@@ -13,7 +13,8 @@ or a comma-separated list of the knobs below. ``shellobstacle doctor`` says what
 * ``gemmt`` (:mod:`.gemmt`): MUMPS' Cholesky factorizations call DGEMMT, which the DOLFINx
   wheel's OpenBLAS computes column by column; a DGEMMT made of DGEMM blocks replaces it.
 * ``threads`` (:mod:`.threads`): under ``mpiexec``, NumPy's BLAS gets one thread per rank
-  unless ``OMP_NUM_THREADS`` or ``OPENBLAS_NUM_THREADS`` is set.
+  (threadpoolctl) unless ``OMP_NUM_THREADS``, ``OPENBLAS_NUM_THREADS`` or
+  ``MKL_NUM_THREADS`` is set.
 """
 
 from __future__ import annotations
@@ -61,14 +62,14 @@ def apply(world_size: int, environ: Mapping[str, str] = os.environ) -> dict[str,
     wanted = requested(environ)
     for name in KNOBS:
         _applied[name] = f"off ({ENV}={environ.get(ENV, '')})"
-    if "threads" in wanted:
-        _applied["threads"] = threads.limit_blas_threads(world_size, environ)
     if "gemmt" in wanted:
         _applied["gemmt"] = gemmt.block_gemmt(environ)
     if "heap" in wanted:
         kept = malloc.keep_freed_memory(environ)
         helper = prefault.start_prefault(world_size, kept == malloc.KEPT, environ)
         _applied["heap"] = f"malloc {kept}; prefault {helper}"
+    if "threads" in wanted:  # loads NumPy: last
+        _applied["threads"] = threads.limit_blas_threads(world_size, environ)
     return policies()
 
 
