@@ -34,7 +34,7 @@ _EXPORTS = {
     "load_config": "shellobstacle.config",
     "NewtonOptions": "shellobstacle.solvers.options",
     "NewtonSolver": "shellobstacle.solvers.newton",
-    "ConvergenceError": "shellobstacle.solvers.base",
+    "ConvergenceError": "shellobstacle.solvers.result",
     "continuation": "shellobstacle.solvers.continuation",
     "exact_solution": "shellobstacle.pipeline",
     "make_mesh": "shellobstacle.pipeline",
