@@ -105,7 +105,7 @@ def test_a_registered_method_solves_through_the_config(zero: Zero) -> None:
 
 def test_an_unregistered_method_is_refused_with_the_registered_ones() -> None:
     data = tomllib.loads(CONFIG)
-    with pytest.raises(ConfigError, match="solver.method = 'zero' is not one of") as err:
+    with pytest.raises(ConfigError, match=r"solver\.method = 'zero' is not one of") as err:
         parse_config(data)
     for name in METHODS:
         assert repr(name) in str(err.value)

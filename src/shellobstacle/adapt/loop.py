@@ -38,7 +38,7 @@ from shellobstacle.problem import PenalizedProblem
 from shellobstacle.refinement import refine_marked
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS, Method, options_for
-from shellobstacle.solvers.result import SolveResult, Step
+from shellobstacle.solvers.result import MethodResult, SolveResult, Step
 
 __all__ = [
     "AdaptLevel",
@@ -271,7 +271,7 @@ def _solve_level(
     warm: bool,
     options: Any,
     newton_progress: Callable[[int, float], Any] | None,
-) -> Any:
+) -> MethodResult:
     """Solve one level by ``method`` (its :class:`~shellobstacle.solvers.result.MethodResult`):
     the κ ladder of the mesh size ``h``, only its last κ when ``warm``."""
     kappas = [0.0]
