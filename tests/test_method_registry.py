@@ -78,6 +78,7 @@ def zero() -> Iterator[Zero]:
     del METHODS["zero"]
 
 
+@pytest.mark.mpi
 def test_a_registered_method_solves_through_the_config(zero: Zero) -> None:
     from shellobstacle.pipeline import solve_config
 
