@@ -34,7 +34,7 @@ _EXPORTS = {
     "load_config": "shellobstacle.config.loader",
     "NewtonOptions": "shellobstacle.solvers.options",
     "NewtonSolver": "shellobstacle.solvers.newton",
-    "ConvergenceError": "shellobstacle.solvers.base",
+    "ConvergenceError": "shellobstacle.solvers.result",
     "continuation": "shellobstacle.solvers.continuation",
     "exact_solution": "shellobstacle.api",
     "make_mesh": "shellobstacle.api",

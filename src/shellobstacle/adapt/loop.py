@@ -35,8 +35,9 @@ from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.mesh.measures import mesh_size, mesh_size_min, num_cells_global
 from shellobstacle.mesh.refinement import refine_marked
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.solvers.registry import METHODS, Method, options_for
+from shellobstacle.solvers.result import MethodResult, SolveResult, Step
 from shellobstacle.spec import Discretization, PenaltySpec, Shell
 
 __all__ = [
@@ -83,17 +84,17 @@ class AdaptiveResult:
     Attributes:
         levels: one record per solved mesh.
         problem: the last level's problem.
-        steps: the last level's solver steps (``KappaStep`` or ``MethodStep``).
+        steps: the last level's solver steps.
         reason: why the loop stopped.
         converged: whether every solve converged.
         error: the solver's message when one did not.
         indicators: the last level's indicators.
-        extra: the exact solver's multiplier and contact pressure (method ``"active-set"``).
+        extra: the exact solver's contact pressure (a method of κ = 0).
     """
 
     levels: list[AdaptLevel]
     problem: PenalizedProblem
-    steps: list[Any]
+    steps: list[Step]
     reason: str
     converged: bool = True
     error: str | None = None
@@ -150,11 +151,13 @@ def adaptive_solve(
         mesh: the first mesh; a ghosted one (facet-sharing ghost cells) in parallel, so that
             the jump terms across process boundaries are integrated.
         discretization: degree, boundary condition of ζ_3, penalty quadrature.
-        penalty: ``κ`` or ``h^exponent``; None for ``method = "active-set"``.
+        penalty: ``κ`` or ``h^exponent``; None for a method of κ = 0 (``"active-set"``).
         adapt: marking fraction, targets, how κ follows the mesh.
         options: Newton's options.
-        method: ``"newton"`` (penalized) or ``"active-set"`` (the exact discrete VI).
-        method_options: ``ActiveSetOptions`` for the exact solver.
+        method: a key of :data:`~shellobstacle.solvers.registry.METHODS` whose method is
+            ``adaptive``: ``"newton"`` (penalized) or ``"active-set"`` (the exact discrete VI).
+        method_options: its options (e.g. ``ActiveSetOptions``); None: ``options`` for
+            Newton, the defaults otherwise.
         progress: called with one line per level.
         newton_progress: called after every Newton iteration.
         on_level: called with each level's record and problem once it is estimated (e.g. to
@@ -171,12 +174,15 @@ def adaptive_solve(
     """
     if shell.model != "membrane":
         raise ValueError("adaptive refinement needs model.kind = 'membrane' (its indicators)")
-    if method not in ("newton", "active-set"):
-        raise ValueError(f"adaptive refinement solves by 'newton' or 'active-set', not {method!r}")
+    chosen = METHODS.get(method)
+    if chosen is None or not chosen.adaptive:
+        adaptive = [m.name for m in METHODS.values() if m.adaptive]
+        raise ValueError(f"adaptive refinement solves by one of {adaptive}, not {method!r}")
     say = progress or (lambda _m: None)
     disc = discretization or Discretization()
-    if method == "active-set" and disc.degree == 1:  # the exact solver's nodal constraint
+    if not chosen.penalized and disc.degree == 1:  # the exact solver's nodal constraint
         disc = dataclasses.replace(disc, penalty_quadrature="vertex")
+    opts = options_for(chosen, method_options, options)
     comm: MPI.Comm = mesh.comm
     levels: list[AdaptLevel] = []
     previous: dolfinx.fem.Function | None = start
@@ -192,14 +198,14 @@ def adaptive_solve(
                 carry[:] = moved[1:]
         seconds = {"setup": time.perf_counter() - t0}
         t0 = time.perf_counter()
-        try:
-            steps, iterations, force = _solve_level(
-                problem, penalty, h_ladder, previous is not None, options, method,
-                method_options, newton_progress,
-            )  # fmt: skip
-        except ConvergenceError as err:
-            steps = getattr(err, "steps", [])
-            return AdaptiveResult(levels, problem, steps, "solver failure", False, str(err))
+        done = _solve_level(
+            chosen, problem, penalty, h_ladder, previous is not None, opts, newton_progress
+        )
+        steps, iterations = done.steps, done.iterations
+        if not done.converged:
+            return AdaptiveResult(levels, problem, steps, "solver failure", False, done.error)
+        force = done.extra.get("contact_pressure")
+        force = None if force is None else force.copy()
         seconds["solve"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         estimator = (
@@ -258,39 +264,22 @@ def carry_over(
 
 
 def _solve_level(
+    method: Method,
     problem: PenalizedProblem,
     penalty: PenaltySpec | None,
     h: float,
     warm: bool,
-    options: NewtonOptions | None,
-    method: str,
-    method_options: Any,
+    options: Any,
     newton_progress: Callable[[int, float], Any] | None,
-) -> tuple[list[Any], int, Any]:
-    """Solve one level: ``(steps, iterations, contact pressure or None)``."""
-    if method == "active-set":
-        from shellobstacle.api import MethodStep
-        from shellobstacle.solvers.active_set import ActiveSetSolver
-
-        t0 = time.perf_counter()
-        r = ActiveSetSolver(problem, method_options).solve()
-        rel = r.kkt.get("stationarity", float("nan"))
-        step = MethodStep(
-            "active-set", 0.0, r.iterations, r.converged, r.reason, rel,
-            time.perf_counter() - t0,
-        )  # fmt: skip
-        pressure = r.contact_pressure.copy()
-        return [step], r.iterations, pressure
-    from shellobstacle.solvers.continuation import continuation
-    from shellobstacle.solvers.newton import NewtonSolver
-
-    assert penalty is not None
-    ladder = penalty.ladder(h)
-    solver = NewtonSolver(problem, options)
-    steps = continuation(
-        problem, solver, ladder[-1:] if warm else ladder, None, True, newton_progress
-    )
-    return steps, sum(s.iterations for s in steps), None
+) -> MethodResult:
+    """Solve one level by ``method`` (its :class:`~shellobstacle.solvers.result.MethodResult`):
+    the κ ladder of the mesh size ``h``, only its last κ when ``warm``."""
+    kappas = [0.0]
+    if method.penalized:
+        assert penalty is not None
+        kappas = penalty.ladder(h)
+        kappas = kappas[-1:] if warm else kappas
+    return method.solve(problem, h, kappas, options, lambda _m: None, newton_progress)
 
 
 def _free_boundary(problem: PenalizedProblem) -> np.ndarray:
@@ -337,12 +326,10 @@ def solve_adaptively(
     newton_progress: Callable[[int, float], Any] | None,
     checks: list[Any],
     timings: dict[str, float],
-) -> Any:
-    """:func:`adaptive_solve` as a :class:`~shellobstacle.api.SolveResult` (what
+) -> SolveResult:
+    """:func:`adaptive_solve` as a :class:`~shellobstacle.solvers.result.SolveResult` (what
     :func:`~shellobstacle.api.solve` returns with ``adapt``): the last level's problem
     and steps, the levels in ``extra["adapt"]``."""
-    from shellobstacle.api import SolveResult
-
     t = time.perf_counter()
     r = adaptive_solve(
         shell, mesh, discretization, penalty, adapt, options, method, method_options, say,
@@ -350,7 +337,7 @@ def solve_adaptively(
     )  # fmt: skip
     timings["solve"] = time.perf_counter() - t
     problem = r.problem
-    kappa = 0.0 if method == "active-set" else float(problem.kappa.value)
+    kappa = float(problem.kappa.value) if METHODS[method].penalized else 0.0
     result = SolveResult(
         problem, mesh_size(problem.mesh), kappa, r.steps, checks, timings, r.converged,
         r.error, method,

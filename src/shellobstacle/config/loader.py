@@ -23,6 +23,7 @@ from shellobstacle.geometry.surface import Surface
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.messages import ConfigError, not_one_of, suggest
 from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import (
     Discretization,
     Load,
@@ -33,7 +34,6 @@ from shellobstacle.spec import (
 )
 
 __all__ = [
-    "NODAL_METHODS",
     "Config",
     "ConfigError",
     "apply_overrides",
@@ -41,9 +41,6 @@ __all__ = [
     "parse_config",
     "to_toml",
 ]
-
-#: the methods that solve the exact nodal problem (κ = 0): no [penalty]
-NODAL_METHODS = ("active-set", "snes-vi", "proximal-galerkin")
 
 
 @dataclass(frozen=True)
@@ -54,7 +51,7 @@ class Config:
     shell: Shell
     domain: DomainSpec
     discretization: Discretization
-    penalty: PenaltySpec | None  # None for the nodal methods (NODAL_METHODS)
+    penalty: PenaltySpec | None  # None for the methods of κ = 0 (not METHODS[m].penalized)
     solver: NewtonOptions
     method: str
     output: Mapping[str, bool]
@@ -257,7 +254,7 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
 
     p = r.get("penalty", {})
     penalty = None
-    if sv["method"] in NODAL_METHODS:
+    if not METHODS[sv["method"]].penalized:
         if "kappa" in p or "exponent" in p:
             warnings.warn(
                 f"{source}: solver.method = {sv['method']!r} solves the nodal constraint "

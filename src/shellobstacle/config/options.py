@@ -14,6 +14,7 @@ from shellobstacle.solvers.options import (
     ProximalGalerkinOptions,
     SnesVIOptions,
 )
+from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import PenaltySpec, Shell
 
 __all__ = ["adapt_options", "method_options"]
@@ -69,10 +70,11 @@ def adapt_options(
             "[adapt] refines by the membrane model's error indicators: remove [adapt] or set "
             "model.kind = 'membrane'"
         )
-    if method not in ("newton", "active-set"):
+    if not METHODS[method].adaptive:
+        names = " or ".join(repr(m.name) for m in METHODS.values() if m.adaptive)
         raise ConfigError(
-            f"[adapt] solves each mesh by Newton or the active-set method, not solver.method = "
-            f"{method!r}: remove [adapt] or change solver.method"
+            f"[adapt] solves each mesh by {names}, not solver.method = {method!r}: remove "
+            "[adapt] or change solver.method"
         )
     if adapt.kappa != "largest" and penalty is not None and penalty.exponent is None:
         raise ConfigError(

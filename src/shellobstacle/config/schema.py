@@ -7,12 +7,14 @@ cannot drift from the loader.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from typing import Any
 
 from shellobstacle.adapt.options import KAPPA_MODES
 from shellobstacle.geometry.surface import SURFACE_KINDS
 from shellobstacle.solvers.options import VI_LINE_SEARCHES, VI_TYPES
+from shellobstacle.solvers.registry import METHODS, method_help
 from shellobstacle.spec import BENDING_FORMS, MODELS, PENALTY_QUADRATURES, TRANSVERSE
 
 __all__ = [
@@ -33,7 +35,7 @@ class Key:
     type: str  # "float", "int", "str", "bool", "float[n]", "str|float[3]", "table", "points"
     default: Any
     help: str
-    choices: tuple[str, ...] = ()
+    choices: Collection[str] = ()  # a live view for solver.method (the registry's names)
 
 
 REQUIRED = object()
@@ -119,15 +121,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
     },
     "solver": {
-        "method": Key(
-            "str",
-            "newton",
-            "newton: penalized problem by Newton; brezis-sibony: the paper's iteration (38); "
-            "active-set: the exact nodal variational inequality (κ = 0, no [penalty]); "
-            "snes-vi, proximal-galerkin: the same nodal problem by PETSc's VI Newton or by "
-            "Keith & Surowiec's latent-variable proximal point method",
-            ("newton", "brezis-sibony", "active-set", "snes-vi", "proximal-galerkin"),
-        ),
+        "method": Key("str", "newton", method_help(), METHODS.keys()),
         "linear_solver": Key(
             "str",
             "direct",

@@ -37,6 +37,8 @@ from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.post.nonmatching import SampledNorms
 from shellobstacle.post.norms import DifferenceNorms
+from shellobstacle.solvers.registry import METHODS
+from shellobstacle.solvers.result import ConvergenceError
 
 __all__ = ["COLUMNS", "AdaptiveStudy", "AdaptiveStudyOptions", "adaptive_study", "run_adaptive"]
 
@@ -140,14 +142,12 @@ def _adaptive(
         if keep:
             carried.append(zeta)
 
-    penalty = None if method == "active-set" else cfg.penalty
+    penalty = cfg.penalty if METHODS[method].penalized else None
     result = adaptive_solve(
         cfg.shell, mesh, cfg.discretization, penalty, adapt, cfg.solver, method, None,
         say, newton_progress, on_level, start, carried,
     )  # fmt: skip
     if not result.converged and not last:
-        from shellobstacle.solvers.base import ConvergenceError
-
         raise ConvergenceError(f"adaptive level 0: {result.error}")
     result.problem = last[1]  # the last level solved
     return result, last[0]

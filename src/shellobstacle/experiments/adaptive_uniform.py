@@ -19,6 +19,8 @@ from shellobstacle.mesh.measures import mesh_size, mesh_size_min
 from shellobstacle.mesh.refinement import refine_uniformly
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.nonmatching import SampledNorms
+from shellobstacle.solvers.registry import METHODS, options_for
+from shellobstacle.solvers.result import ConvergenceError
 
 __all__ = ["uniform_sequence"]
 
@@ -82,18 +84,19 @@ def _solve(
     """Solve on ``mesh`` by the config's method from ζ = 0: ``(problem, steps, contact
     pressure or None, κ)``."""
     h = mesh_size(mesh)
-    if cfg.method == "active-set":
-        from shellobstacle.solvers.active_set import ActiveSetSolver
-
-        problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization)
-        r = ActiveSetSolver(problem).solve()
-        return problem, r.iterations, r.contact_pressure.copy(), 0.0
-    from shellobstacle.solvers.continuation import continuation
-    from shellobstacle.solvers.newton import NewtonSolver
-
-    assert cfg.penalty is not None
-    kappas = cfg.penalty.ladder(h)
-    problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappas[0])
-    solver = NewtonSolver(problem, cfg.solver)
-    steps = continuation(problem, solver, kappas, newton_progress=newton_progress)
-    return problem, sum(s.iterations for s in steps), None, kappas[-1]
+    method = METHODS[cfg.method]
+    kappas = [0.0]
+    if method.penalized:
+        assert cfg.penalty is not None
+        kappas = cfg.penalty.ladder(h)
+    problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappas[0] or 1.0)
+    # Newton's options from [solver]; another method's defaults, as the adaptive levels use
+    done = method.solve(
+        problem, h, kappas, options_for(method, None, cfg.solver), lambda _m: None,
+        newton_progress,
+    )  # fmt: skip
+    if not done.converged:
+        raise ConvergenceError(done.error or f"{cfg.method} did not converge", done, done.steps)
+    pressure = done.extra.get("contact_pressure")
+    pressure = None if pressure is None else pressure.copy()
+    return problem, done.iterations, pressure, kappas[-1]

@@ -15,6 +15,7 @@ from typing import Any
 
 from shellobstacle.config.loader import Config, ConfigError
 from shellobstacle.mesh.domains import DomainSpec, validate
+from shellobstacle.solvers.registry import METHODS
 
 __all__ = [
     "MAX_STEPS",
@@ -161,11 +162,9 @@ def _adaptive_options(args: argparse.Namespace, cfg: Config) -> dict[str, Any]:
             "experiment adaptive refines by the membrane model's error indicators: set "
             "model.kind = 'membrane'"
         )
-    if cfg.method not in ("newton", "active-set"):
-        raise ConfigError(
-            "experiment adaptive solves by Newton or the active-set method: set "
-            "solver.method = 'newton' or 'active-set'"
-        )
+    if not METHODS[cfg.method].adaptive:
+        names = " or ".join(repr(m.name) for m in METHODS.values() if m.adaptive)
+        raise ConfigError(f"experiment adaptive solves by {names}: set solver.method = {names}")
     return {
         "--refinements": args.refinements,
         "--reference-dofs": args.reference_dofs,

@@ -6,7 +6,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from mpi4py import MPI
 
@@ -14,11 +14,14 @@ from shellobstacle.geometry.assumptions import format_checks
 from shellobstacle.io.folders import versions, write_json
 from shellobstacle.progress import phase
 
+if TYPE_CHECKING:
+    from shellobstacle.solvers.result import SolveResult
+
 __all__ = ["write_solution"]
 
 
 def write_solution(
-    result: Any,
+    result: SolveResult,
     cfg: Any,
     folder: Path,
     say: Callable[[str], Any],

@@ -1,4 +1,5 @@
-"""What every solver shares: one failure type, PETSc options prefixes, direct solvers.
+"""What every solver shares: PETSc options prefixes, direct solvers, and the failure type
+(:class:`~shellobstacle.solvers.result.ConvergenceError`, defined with the results).
 
 Every sparse direct solve of the package (Newton's Jacobian, the contact zone's ``K_II`` and
 Schur complement, the coarse seed, the active-set matrix, Brezis–Sibony's mass matrix and
@@ -16,6 +17,8 @@ from typing import Any
 from mpi4py import MPI  # noqa: F401  (before PETSc: the MPI runtime PETSc links to)
 from petsc4py import PETSc
 
+from shellobstacle.solvers.result import ConvergenceError
+
 __all__ = [
     "ConvergenceError",
     "direct_solver",
@@ -25,18 +28,6 @@ __all__ = [
     "set_options",
     "unique_prefix",
 ]
-
-
-class ConvergenceError(RuntimeError):
-    """A solver did not reach its answer: no convergence, a failed factorization or solve.
-
-    ``result`` holds what the solver did (its result object with the history, or None when
-    it failed before iterating); a solver that iterates leaves its last iterate in place.
-    """
-
-    def __init__(self, message: str, result: Any = None) -> None:
-        super().__init__(message)
-        self.result = result
 
 
 _NUMBERS = itertools.count()

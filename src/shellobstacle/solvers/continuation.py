@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from typing import Any
 
 from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
@@ -23,48 +22,38 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import phase
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.newton import NewtonResult, NewtonSolver
+from shellobstacle.solvers.result import Step
 
 __all__ = ["KappaStep", "continuation", "predict"]
 
 
-@dataclass
-class KappaStep:
-    """One κ of a continuation: its Newton statistics and time."""
+class KappaStep(Step):
+    """One κ of a continuation: a :class:`~shellobstacle.solvers.result.Step` whose
+    ``record`` is Newton's :class:`NewtonResult` (also as :attr:`newton`)."""
 
-    kappa: float
-    newton: NewtonResult
-    seconds: float
+    def __init__(self, kappa: float, newton: NewtonResult, seconds: float) -> None:
+        super().__init__(
+            kappa,
+            newton.iterations,
+            newton.converged,
+            newton.reason,
+            newton.relative_residual,
+            seconds,
+            newton.residual_norms,
+            {
+                "round_off_limited": newton.round_off_limited,
+                "line_search_evaluations": newton.line_search_evaluations,
+                "linear_iterations": newton.linear_iterations,
+                "step_lengths": newton.step_lengths,
+            },
+            None,
+            newton,
+        )
 
     @property
-    def iterations(self) -> int:
-        """Newton steps at this κ."""
-        return self.newton.iterations
-
-    @property
-    def converged(self) -> bool:
-        """Whether Newton converged at this κ."""
-        return self.newton.converged
-
-    @property
-    def residual_norms(self) -> list[float]:
-        """Residual norms of the Newton iterates."""
-        return self.newton.residual_norms
-
-    def as_dict(self) -> dict[str, Any]:
-        """JSON-friendly record."""
-        r = self.newton
-        return {
-            "kappa": self.kappa,
-            "converged": r.converged,
-            "iterations": r.iterations,
-            "reason": r.reason,
-            "relative_residual": r.relative_residual,
-            "round_off_limited": r.round_off_limited,
-            "line_search_evaluations": r.line_search_evaluations,
-            "linear_iterations": r.linear_iterations,
-            "step_lengths": r.step_lengths,
-            "seconds": self.seconds,
-        }
+    def newton(self) -> NewtonResult:
+        """Newton's statistics at this κ."""
+        return self.record
 
 
 def predict(solver: NewtonSolver, kappa_new: float) -> bool:
@@ -110,7 +99,8 @@ def continuation(
     κ's :class:`NewtonResult`.
 
     Raises:
-        ConvergenceError: from the first κ that fails (earlier steps are in ``err.steps``).
+        ConvergenceError: from the first κ that fails, with the earlier κ's steps in its
+            ``steps`` (and Newton's :class:`NewtonResult` of the failed κ in its ``result``).
     """
     steps: list[KappaStep] = []
     for k, kappa in enumerate(kappas):
@@ -122,8 +112,7 @@ def continuation(
             try:
                 result = solver.solve(newton_progress)
             except ConvergenceError as err:
-                err.steps = steps  # type: ignore[attr-defined]
-                raise
+                raise err.after(steps) from err
         if hasattr(newton_progress, "finished"):
             newton_progress.finished(result)
         steps.append(KappaStep(kappa, result, time.perf_counter() - t0))

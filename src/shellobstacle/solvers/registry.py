@@ -1,0 +1,154 @@
+"""The methods that solve the obstacle problem, by name: ``solver.method`` in the config.
+
+A method is a small class (:class:`Method`) that solves one compiled problem and returns a
+:class:`~shellobstacle.solvers.result.MethodResult`; :data:`METHODS` maps each name to one.
+:func:`~shellobstacle.api.solve`, the adaptive loop and the experiments take the method
+from here, the configuration takes its choices, and the documentation its table
+(:func:`method_table`). Adding a method is one class and one :func:`register` call.
+
+Importing this module loads neither DOLFINx nor PETSc: the methods import their solvers when
+they solve.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any, Protocol, runtime_checkable
+
+from shellobstacle.solvers.result import MethodResult
+
+__all__ = ["METHODS", "Method", "method_help", "method_table", "options_for", "register"]
+
+Say = Callable[[str], Any]
+NewtonProgress = Callable[[int, float], Any]
+
+
+@runtime_checkable
+class Method(Protocol):
+    """A way to solve the obstacle problem on one compiled problem.
+
+    Attributes:
+        name: the value of ``solver.method`` that chooses it.
+        penalized: it solves the penalized problem at κ > 0 (the config needs
+            ``[penalty]``); False: the exact nodal problem (κ = 0, no ``[penalty]``).
+        adaptive: it may solve the meshes of ``[adapt]`` (from the previous mesh's solution).
+        options_type: the dataclass of its options (None: it takes none).
+        summary: one line on what it does (the config reference, the docs' table).
+    """
+
+    name: str
+    penalized: bool
+    adaptive: bool
+    options_type: type | None
+    summary: str
+
+    def solve(
+        self,
+        problem: Any,
+        h: float,
+        kappas: Sequence[float],
+        options: Any,
+        say: Say,
+        newton_progress: NewtonProgress | None = None,
+    ) -> MethodResult:
+        """Solve ``problem`` (a :class:`~shellobstacle.models.problem.PenalizedProblem`) from its
+        current ``zeta``, which then holds the answer (or the last iterate).
+
+        Args:
+            problem: the compiled problem.
+            h: the mesh size.
+            kappas: the κ ladder to go through, the target last (``[0.0]`` for a method
+                that is not ``penalized``).
+            options: an instance of ``options_type``, or None for its defaults.
+            say: called with one-line progress messages.
+            newton_progress: called as ``(iteration, relative residual)`` after every Newton
+                iteration, by the methods that iterate Newton's method.
+
+        Returns:
+            The steps; a method that does not converge says so in the result (``converged``
+            and ``error``), it does not raise.
+        """
+        ...
+
+
+#: every method, by name (the order of the config reference and the docs' table)
+METHODS: dict[str, Method] = {}
+
+
+def register(method: Method, replace: bool = False) -> Method:
+    """Add ``method`` to :data:`METHODS` under ``method.name`` and return it.
+
+    Raises:
+        ValueError: the name is taken (unless ``replace``), or ``method`` lacks part of the
+            :class:`Method` protocol.
+    """
+    if not isinstance(method, Method):
+        raise ValueError(f"{method!r} is not a Method: it needs {', '.join(_PROTOCOL)}")
+    if method.name in METHODS and not replace:
+        raise ValueError(f"a method named {method.name!r} is already registered")
+    METHODS[method.name] = method
+    return method
+
+
+_PROTOCOL = ("name", "penalized", "adaptive", "options_type", "summary", "solve")
+
+
+def options_for(method: Method, given: Any, fallback: Any = None) -> Any:
+    """The options ``method`` solves with: ``given`` (which must be of its ``options_type``),
+    else ``fallback`` when it is (e.g. Newton's options for Newton), else None (its defaults).
+
+    Raises:
+        TypeError: ``given`` is not of the method's options type.
+    """
+    kind = method.options_type
+    if given is not None:
+        if kind is None or not isinstance(given, kind):
+            expected = "no options" if kind is None else kind.__name__
+            raise TypeError(
+                f"solver.method = {method.name!r} takes {expected}, got {type(given).__name__}"
+            )
+        return given
+    if kind is not None and isinstance(fallback, kind):
+        return fallback
+    return None
+
+
+def method_table() -> str:
+    """The Markdown table of :data:`METHODS` (the user guide's, between its markers)."""
+    lines = [
+        "| `solver.method` | κ | options | what it solves |",
+        "|---|---|---|---|",
+    ]
+    for m in METHODS.values():
+        kappa = "κ > 0 (`[penalty]`)" if m.penalized else "κ = 0 (no `[penalty]`)"
+        options = "—" if m.options_type is None else f"`{m.options_type.__name__}`"
+        lines.append(f"| `{m.name}` | {kappa} | {options} | {m.summary} |")
+    return "\n".join(lines)
+
+
+def method_help() -> str:
+    """What each method does, in one line (``solver.method`` in the config reference)."""
+    return "; ".join(
+        f"{m.name}: {m.summary}" + ("" if m.penalized else " (κ = 0, no [penalty])")
+        for m in METHODS.values()
+    )
+
+
+def _builtin() -> None:
+    """Register the package's methods."""
+    from shellobstacle.solvers.methods.brezis_sibony import BrezisSibonyMethod
+    from shellobstacle.solvers.methods.newton import NewtonContinuation
+    from shellobstacle.solvers.methods.nodal_vi import (
+        ActiveSetMethod,
+        ProximalGalerkinMethod,
+        SnesVIMethod,
+    )
+
+    register(NewtonContinuation())
+    register(BrezisSibonyMethod())
+    register(ActiveSetMethod())
+    register(SnesVIMethod())
+    register(ProximalGalerkinMethod())
+
+
+_builtin()

@@ -1,0 +1,158 @@
+"""What a solve returns and how it fails: one step record, one method result, one solve
+result and one error, shared by every method of :mod:`~shellobstacle.solvers.registry`.
+
+Plain data, importable without DOLFINx or PETSc (the registry and the configuration import
+it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from shellobstacle.geometry.assumptions import Check
+    from shellobstacle.models.problem import PenalizedProblem
+
+__all__ = ["ConvergenceError", "MethodResult", "SolveResult", "Step"]
+
+
+@dataclass
+class Step:
+    """One solve by a method at one κ (0: the exact nodal problem): a row of
+    ``summary.json``'s ``continuation``.
+
+    Attributes:
+        kappa: the penalty parameter solved for (0 for the exact nodal problem).
+        iterations: the method's iterations (Newton steps, linear solves, steps (38)).
+        converged: whether the method's stopping rule was met.
+        reason: why it stopped.
+        relative_residual: the method's relative residual at the answer.
+        seconds: wall time of this step.
+        residual_norms: the residual norm after each iteration, if the method records it.
+        details: the method's own fields of the row, after the common ones.
+        method: the method's name, written in the row (None: Newton's continuation, whose
+            rows carry no name).
+        record: the method's own result object (``NewtonResult``, ``BrezisSibonyResult``,
+            ``ActiveSetResult`` …), for callers that need more than the row.
+    """
+
+    kappa: float | None
+    iterations: int
+    converged: bool
+    reason: str
+    relative_residual: float
+    seconds: float
+    residual_norms: list[float] = field(default_factory=list)
+    details: dict[str, Any] = field(default_factory=dict)
+    method: str | None = None
+    record: Any = None
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-friendly record."""
+        head = {} if self.method is None else {"method": self.method}
+        return {
+            **head,
+            "kappa": self.kappa,
+            "converged": self.converged,
+            "iterations": self.iterations,
+            "reason": self.reason,
+            "relative_residual": self.relative_residual,
+            **self.details,
+            "seconds": self.seconds,
+        }
+
+
+@dataclass
+class MethodResult:
+    """What a method did on one problem (its answer is in ``problem.zeta``).
+
+    Attributes:
+        steps: one :class:`Step` per κ solved (the failed one last, when one failed).
+        converged: whether every step converged.
+        error: the failure's message when one did not.
+        extra: results beside ζ, e.g. the exact methods' ``multiplier`` and
+            ``contact_pressure`` (Functions).
+        timings: seconds of the method's parts (e.g. ``setup``, ``solve.<part>``).
+    """
+
+    steps: list[Step] = field(default_factory=list)
+    converged: bool = True
+    error: str | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def iterations(self) -> int:
+        """Iterations summed over all steps."""
+        return sum(s.iterations for s in self.steps)
+
+
+class ConvergenceError(RuntimeError):
+    """A solver did not reach its answer: no convergence, a failed factorization or solve.
+
+    Attributes:
+        result: what the failing solver did (its result object with the history, or a
+            :class:`MethodResult`; None when it failed before iterating). A solver that
+            iterates leaves its last iterate in place.
+        steps: the steps completed before the failure (e.g. the κ of a continuation that
+            converged before the one that failed).
+    """
+
+    def __init__(self, message: str, result: Any = None, steps: Sequence[Step] = ()) -> None:
+        super().__init__(message)
+        self.result = result
+        self.steps: list[Step] = list(steps)
+
+    def after(self, steps: Sequence[Step]) -> ConvergenceError:
+        """The same failure, preceded by ``steps`` (raise it ``from`` this one)."""
+        return ConvergenceError(str(self), self.result, [*steps, *self.steps])
+
+
+@dataclass
+class SolveResult:
+    """A finished (or failed) solve: the problem holding ζ, steps, checks and timings.
+
+    Attributes:
+        problem: the compiled problem; ``problem.zeta`` is the answer (or the last iterate).
+        h: the mesh size.
+        kappa: the target κ (0 for the exact nodal problem).
+        steps: the method's steps.
+        checks: the assumptions checked on the mesh.
+        timings: seconds per phase.
+        converged: whether the method converged.
+        error: its message when it did not.
+        method: the method's name (a key of :data:`~shellobstacle.solvers.registry.METHODS`).
+        extra: the method's results beside ζ, and ``adapt``'s levels.
+    """
+
+    problem: PenalizedProblem
+    h: float
+    kappa: float
+    steps: list[Step]
+    checks: list[Check]
+    timings: dict[str, float] = field(default_factory=dict)
+    converged: bool = True
+    error: str | None = None
+    method: str = "newton"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def iterations(self) -> int:
+        """Iterations summed over all steps (Newton steps over the continuation)."""
+        return sum(s.iterations for s in self.steps)
+
+    @property
+    def solved_kappa(self) -> float:
+        """The κ of the solution held (0 for the exact nodal problem's solution)."""
+        return 0.0 if self.kappa == 0.0 else float(self.problem.kappa.value)
+
+    def validity(self, post: Any = None) -> Any:
+        """The solution's :class:`~shellobstacle.post.validity.Validity` (penetration,
+        displacement, orientation against their thresholds); ``post``: the problem's
+        :class:`~shellobstacle.post.contact.Postprocessor` if one exists. Collective."""
+        from shellobstacle.post.contact import Postprocessor
+        from shellobstacle.post.validity import assess
+
+        return assess(post or Postprocessor(self.problem), self.solved_kappa)
