@@ -87,7 +87,7 @@ def test_unfinished_compilations_are_a_problem_with_the_files_named(tmp_path, mo
 
     import dolfinx.jit
 
-    from shellobstacle.cli.main import doctor
+    from shellobstacle.cli import doctor
 
     monkeypatch.setattr(dolfinx.jit, "get_options", lambda: {"cache_dir": tmp_path})
     for name in ("finished", "killed", "compiling"):

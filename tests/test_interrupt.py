@@ -21,7 +21,7 @@ pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="runs its own pr
 PRELUDE = textwrap.dedent(
     """
     import sys, time
-    from shellobstacle.cli.main import interrupt
+    from shellobstacle.cli import interrupt
     assert interrupt.install(grace=1.0)
     print("ready", flush=True)
     """

@@ -12,8 +12,8 @@ from typing import Any
 import pytest
 
 from shellobstacle.config.loader import parse_config
-from shellobstacle.messages import ConfigError
 from shellobstacle.config.schema import reference_text
+from shellobstacle.messages import ConfigError
 from shellobstacle.solvers import METHODS, register
 from shellobstacle.solvers.registry import method_table, options_for
 from shellobstacle.solvers.result import ConvergenceError, MethodResult, Step

@@ -330,7 +330,7 @@ def test_experiments_draw_their_finest_solution(
 def test_the_doctor_names_what_draws_the_pictures(monkeypatch: pytest.MonkeyPatch) -> None:
     import importlib.metadata
 
-    from shellobstacle.cli.main import doctor
+    from shellobstacle.cli import doctor
 
     assert doctor._pictures().startswith(f"pyvista {importlib.metadata.version('pyvista')}, vtk ")
     version = importlib.metadata.version

@@ -29,7 +29,7 @@ def main() -> int:
         if MPI.COMM_WORLD.rank == 0:
             print(f"shellobstacle: error: {err}", file=sys.stderr)
         return 2
-    from shellobstacle.cli.main import interrupt
+    from shellobstacle.cli import interrupt
     from shellobstacle.cli.main import main as cli_main
 
     interrupt.install()

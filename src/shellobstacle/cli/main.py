@@ -17,6 +17,7 @@ from collections.abc import Sequence
 from mpi4py import MPI
 
 import shellobstacle
+from shellobstacle.cli import commands
 from shellobstacle.cli.commands import (
     EXIT_FAILED,
     EXIT_INTERRUPTED,
@@ -24,7 +25,6 @@ from shellobstacle.cli.commands import (
     EXIT_OK,
     EXIT_USAGE,
 )
-from shellobstacle.cli.main import commands
 
 __all__ = ["EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_INVALID", "EXIT_OK", "EXIT_USAGE", "main"]
 
@@ -274,7 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             )
         return EXIT_FAILED
     except KeyboardInterrupt:
-        from shellobstacle.cli.main import interrupt
+        from shellobstacle.cli import interrupt
 
         interrupt.acknowledge()
         interrupt.remove_unfinished_compilations(since=started)
