@@ -16,7 +16,7 @@ from pathlib import Path
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config_options import adapt_options, method_options
+from shellobstacle.config_options import adapt_options, method_options, solver_options
 from shellobstacle.domains import DomainSpec
 from shellobstacle.expressions import ExpressionError
 from shellobstacle.messages import ConfigError, not_one_of, suggest
@@ -70,6 +70,11 @@ class Config:
     source: str
     method_options: Any = None  # the options of solver.method when it is not Newton's
     adapt: AdaptOptions | None = None  # [adapt]: solve on adaptively refined meshes
+
+    def options_of(self, method: str) -> Any:
+        """The options of ``method`` (any of them, e.g. Brezis–Sibony beside Newton in an
+        experiment) from the keys of ``[solver]`` it reads; the others keep its defaults."""
+        return solver_options(method, self.resolved["solver"], self.resolved["solver"])
 
 
 class _Origins:
@@ -174,15 +179,23 @@ def _coerce(value: Any, key: Key, where: str, origin: str, dotted: str) -> Any:
 
 
 def parse_config(
-    data: Mapping[str, Any], source: str = "<config>", overrides: Mapping[str, str] | None = None
+    data: Mapping[str, Any],
+    source: str = "<config>",
+    overrides: Mapping[str, str] | None = None,
+    reads: Mapping[str, tuple[str, ...]] | None = None,
 ) -> Config:
     """Validate a parsed TOML document and build a :class:`Config`.
+
+    A given key that the chosen kind or method does not read (``Key.when``) is reported in a
+    warning naming the key and the choice.
 
     Args:
         data: the document.
         source: the file it came from, named in errors.
         overrides: dotted key → the ``--set`` text that gave it (:func:`apply_overrides`);
             errors about those keys name the ``--set`` instead of the file.
+        reads: selector (e.g. ``"solver.method"``) → the other values whose keys the command
+            reads too (an experiment that runs Brezis–Sibony beside the config's method).
 
     Raises:
         ConfigError: naming the file (or ``--set``), the section, the key and the fix.
@@ -224,7 +237,8 @@ def parse_config(
             if name in given:
                 out[name] = _coerce(given[name], key, f"{origin}: {dotted}", origin, dotted)
                 given_keys.add(name if section == "solver" else dotted)
-                if selector and value is not None and not key.used_by(value):
+                also = (reads or {}).get(selector, ())
+                if selector and value is not None and not any(map(key.used_by, (value, *also))):
                     warnings.warn(
                         f"{origin}: {dotted} is ignored: {selector} = {value!r} {reason}"
                         + (f" (read with {' or '.join(map(repr, key.when))})" if key.when else ""),
@@ -363,9 +377,13 @@ def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
         )
 
 
-def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
+def load_config(
+    path: str | Path,
+    overrides: list[str] | None = None,
+    reads: Mapping[str, tuple[str, ...]] | None = None,
+) -> Config:
     """Read a TOML file, apply ``section.key=value`` overrides (:func:`apply_overrides`),
-    validate.
+    validate (``reads``: see :func:`parse_config`).
 
     Raises:
         ConfigError: for a missing, unreadable or malformed file and every validation problem.
@@ -373,4 +391,4 @@ def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
     path = Path(path)
     data = read_toml(path)
     given = apply_overrides(data, overrides or [])
-    return parse_config(data, str(path), given)
+    return parse_config(data, str(path), given, reads)

@@ -17,6 +17,7 @@ from shellobstacle.config import Config, ConfigError
 from shellobstacle.domains import DomainSpec, validate
 
 __all__ = [
+    "EXPERIMENT_READS",
     "MAX_STEPS",
     "experiment_domains",
     "experiment_options",
@@ -28,6 +29,13 @@ __all__ = [
 MAX_STEPS = 200
 #: The most uniform refinements of ``experiment mesh`` (each quadruples the cells).
 MAX_REFINEMENTS = 8
+#: the kinds and methods whose keys a batch reads besides the config's own choice (its
+#: warnings about keys that are not read leave them out): koiter-limit solves Koiter's model
+#: on any config, solvers runs Brezis–Sibony beside Newton
+EXPERIMENT_READS: dict[str, dict[str, tuple[str, ...]]] = {
+    "koiter-limit": {"model.kind": ("koiter",)},
+    "solvers": {"solver.method": ("newton", "brezis-sibony")},
+}
 
 
 def numbers(text: str, what: str, positive: bool = False) -> list[float]:

@@ -142,7 +142,8 @@ def _adaptive(
 
     penalty = None if method == "active-set" else cfg.penalty
     result = adaptive_solve(
-        cfg.shell, mesh, cfg.discretization, penalty, adapt, cfg.solver, method, None,
+        cfg.shell, mesh, cfg.discretization, penalty, adapt, cfg.solver, method,
+        cfg.method_options if method == cfg.method else None,
         say, newton_progress, on_level, start, carried,
     )  # fmt: skip
     if not result.converged and not last:

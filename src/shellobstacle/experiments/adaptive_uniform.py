@@ -86,7 +86,7 @@ def _solve(
         from shellobstacle.solvers.active_set import ActiveSetSolver
 
         problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization)
-        r = ActiveSetSolver(problem).solve()
+        r = ActiveSetSolver(problem, cfg.method_options).solve()
         return problem, r.iterations, r.contact_pressure.copy(), 0.0
     from shellobstacle.solvers.continuation import continuation
     from shellobstacle.solvers.newton import NewtonSolver
