@@ -28,6 +28,7 @@ from shellobstacle.solvers.options import ActiveSetOptions, SnesVIOptions
 from shellobstacle.solvers.snes_vi import SnesVISolver
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
+pytestmark = pytest.mark.mpi
 COARSE = ["domain.h=0.08"]
 
 
