@@ -123,3 +123,18 @@ def test_solve_prints_the_warning(tmp_path: Path, capsys) -> None:
     text = err.out + err.err
     assert "solver.vi_type is ignored: solver.method = 'newton' does not use it" in text
     assert "solver.vi_type is ignored" in (out / "log.txt").read_text()
+
+
+def test_an_experiment_names_the_methods_it_runs_besides_the_configs() -> None:
+    """``experiment solvers`` runs Brezis–Sibony beside Newton: its keys are read (and reach
+    its options), not reported."""
+    from shellobstacle.options import EXPERIMENT_READS
+
+    sets = ["solver.bs_rtol=1e-6", "solver.mass=lumped"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        cfg = load_config(PAPER, sets, EXPERIMENT_READS["solvers"])
+    options = cfg.options_of("brezis-sibony")
+    assert (options.rtol, options.mass, options.start) == (1e-6, "lumped", "linearized")
+    with pytest.warns(UserWarning, match="solver.bs_rtol is ignored"):
+        load_config(PAPER, sets, EXPERIMENT_READS["koiter-limit"])

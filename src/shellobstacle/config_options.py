@@ -1,5 +1,6 @@
-"""The options of ``[solver]``'s non-Newton methods and of ``[adapt]``, built from the
-resolved config and checked against each other (:mod:`shellobstacle.config` calls them)."""
+"""The options of every ``solver.method`` and of ``[adapt]``, built from the resolved config
+(the fields no key sets keep their classes' defaults) and checked against each other
+(:mod:`shellobstacle.config` calls them)."""
 
 from __future__ import annotations
 
