@@ -263,6 +263,10 @@ def _typed(dotted: str) -> st.SearchStrategy[str]:
         return st.sampled_from(["{ ell = 1 }", "{ P = 3e-3 }", "{}", "{ r = 1 }"])
     if t == "points":
         return st.sampled_from(["[[0, 0], [1, 0], [0, 1]]", "[[-0.3, -0.4], [0.3, 0.4]]", "[]"])
+    if t == "options":  # PETSc options: valid, misspelled, refused by PETSc, not a name
+        return st.sampled_from(
+            ['{ ksp_type = "cg" }', "{}", "{ ksp_tyep = 1 }", '{ pc_type = "x" }', '{ "-a" = 1 }']
+        )
     n = int(t[t.index("[") + 1 : -1])
     return st.lists(TOML_NUMBER, min_size=n, max_size=n).map(lambda v: f"[{', '.join(v)}]")
 

@@ -146,3 +146,25 @@ def test_koiter_limit_verbose_prints_each_newton_step(tmp_path: Path) -> None:
     assert main(args) == 0
     log = (out / "log.txt").read_text()
     assert "Newton 1: relative residual" in log and "Newton: " in log
+
+
+@pytest.mark.skipif(COMM.size > 1, reason="two runs, serial")
+def test_the_bending_form_of_the_config_reaches_the_experiment(tmp_path: Path, capsys) -> None:
+    """``discretization.bending`` of a membrane config sets Koiter's bending form in
+    koiter-limit (not a constant of the experiment), without a warning that it is ignored."""
+    rows = {}
+    for bending in ("hybrid", "c0ip"):
+        out = tmp_path / bending
+        args = ["experiment", "koiter-limit", str(PAPER), "-o", str(out), "-q"]
+        args += ["--set", "domain.h=0.1", "--set", "output.pictures=false"]
+        args += ["--set", f"discretization.bending={bending}", "--epsilons", "1e-2"]
+        assert main([*args, "--edge-h", "0.05"]) == 0
+        assert "ignored" not in capsys.readouterr().err
+        with open(out / "koiter_limit.csv") as f:
+            rows[bending] = {k: float(v) for k, v in next(csv.DictReader(f)).items()}
+        assert f'bending = "{bending}"' in (out / "config.toml").read_text()
+    hybrid, c0ip = rows["hybrid"], rows["c0ip"]
+    # the membrane solutions do not depend on the bending form, Koiter's does (O(h) apart)
+    assert hybrid["contact_area_membrane"] == c0ip["contact_area_membrane"]
+    assert hybrid["distance_VM"] != c0ip["distance_VM"]
+    assert hybrid["distance_VM"] == pytest.approx(c0ip["distance_VM"], rel=0.05)

@@ -222,7 +222,7 @@ def test_config_builds_the_peers_options() -> None:
     assert cfg.penalty is None
     assert cfg.discretization.penalty_quadrature == "vertex"
     assert cfg.method_options == SnesVIOptions(vi_type="ssls", line_search="bt")
-    with pytest.warns(UserWarning, match="penalty.kappa / penalty.exponent are ignored"):
+    with pytest.warns(UserWarning, match="penalty.exponent is ignored"):
         cfg = load_config(
             SMALL,
             ["solver.method=proximal-galerkin", "solver.proximal_tol=1e-7",

@@ -21,6 +21,7 @@ from shellobstacle.geometry.surface import Surface
 from shellobstacle.messages import not_one_of
 
 __all__ = [
+    "BENDING_FORMS",
     "MODELS",
     "PENALTY_QUADRATURES",
     "TRANSVERSE",
@@ -132,7 +133,7 @@ class Shell:
     material: Material
     load: Load
     obstacle: Obstacle = field(default_factory=Obstacle)
-    model: str = "membrane"
+    model: str = field(default="membrane", metadata={"choices": MODELS})
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
@@ -166,11 +167,11 @@ class Discretization:
     """
 
     degree: int = 1
-    transverse: str = "clamped"
-    penalty_quadrature: str = "gauss"
+    transverse: str = field(default="clamped", metadata={"choices": TRANSVERSE})
+    penalty_quadrature: str = field(default="gauss", metadata={"choices": PENALTY_QUADRATURES})
     quadrature_degree: int | None = None
     interior_penalty: float | None = None
-    bending: str = "hybrid"
+    bending: str = field(default="hybrid", metadata={"choices": BENDING_FORMS})
 
     def __post_init__(self) -> None:
         if self.degree not in (1, 2):

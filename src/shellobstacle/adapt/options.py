@@ -3,7 +3,7 @@ importable without DOLFINx (the configuration builds them)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from shellobstacle.messages import not_one_of
 
@@ -40,7 +40,7 @@ class AdaptOptions:
     max_levels: int = 10
     target_error: float | None = None
     target_dofs: int | None = None
-    kappa: str = "largest"
+    kappa: str = field(default="largest", metadata={"choices": KAPPA_MODES})
     free_boundary: bool = False
 
     def __post_init__(self) -> None:

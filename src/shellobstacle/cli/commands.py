@@ -63,10 +63,11 @@ def _load(args: argparse.Namespace) -> tuple[Any, list[str]]:
     """The config of ``args`` and the warnings of loading it, which the command reports once
     every check has passed (a refused command prints its one error line only)."""
     from shellobstacle.config.loader import load_config
+    from shellobstacle.experiments.options import EXPERIMENT_READS
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        cfg = load_config(args.config, args.set)
+        cfg = load_config(args.config, args.set, EXPERIMENT_READS.get(getattr(args, "batch", "")))
     return cfg, [str(w.message) for w in caught]
 
 

@@ -5,6 +5,7 @@ Keys, types and defaults come from :mod:`shellobstacle.config.schema`.
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 import math
 import re
@@ -15,8 +16,15 @@ from pathlib import Path
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config.options import adapt_options, method_options
-from shellobstacle.config.schema import OPTIONAL_SECTIONS, REQUIRED, REQUIRED_SECTIONS, SCHEMA, Key
+from shellobstacle.config.options import adapt_options, method_options, solver_options
+from shellobstacle.config.schema import (
+    OPTIONAL_SECTIONS,
+    REQUIRED,
+    REQUIRED_SECTIONS,
+    SCHEMA,
+    SELECTORS,
+    Key,
+)
 from shellobstacle.config.toml_io import apply_overrides, read_toml, to_toml
 from shellobstacle.geometry.expressions import ExpressionError
 from shellobstacle.geometry.surface import Surface
@@ -59,6 +67,11 @@ class Config:
     source: str
     method_options: Any = None  # the options of solver.method when it is not Newton's
     adapt: AdaptOptions | None = None  # [adapt]: solve on adaptively refined meshes
+
+    def options_of(self, method: str) -> Any:
+        """The options of ``method`` (any of them, e.g. Brezis–Sibony beside Newton in an
+        experiment) from the keys of ``[solver]`` it reads; the others keep its defaults."""
+        return solver_options(method, self.resolved["solver"], self.resolved["solver"])
 
 
 class _Origins:
@@ -144,19 +157,42 @@ def _coerce(value: Any, key: Key, where: str, origin: str, dotted: str) -> Any:
         if not isinstance(value, dict):
             raise ConfigError(f"{where} must be a table of name = number, got {value!r}")
         return {k: number(v, f"{where}.{k}") for k, v in value.items()}
+    if t == "options":
+        if not isinstance(value, dict):
+            raise ConfigError(
+                f"{where} must be a table of PETSc options (name = value), got {value!r}"
+            )
+        out = {}
+        for k, v in value.items():
+            if isinstance(v, float):
+                v = number(v, f"{where}.{k}")
+            elif not isinstance(v, str | int | bool):
+                raise ConfigError(
+                    f"{where}.{k} must be a string, a number or true/false, got {v!r}"
+                )
+            out[k] = v
+        return out
     raise AssertionError(t)
 
 
 def parse_config(
-    data: Mapping[str, Any], source: str = "<config>", overrides: Mapping[str, str] | None = None
+    data: Mapping[str, Any],
+    source: str = "<config>",
+    overrides: Mapping[str, str] | None = None,
+    reads: Mapping[str, tuple[str, ...]] | None = None,
 ) -> Config:
     """Validate a parsed TOML document and build a :class:`Config`.
+
+    A given key that the chosen kind or method does not read (``Key.when``) is reported in a
+    warning naming the key and the choice.
 
     Args:
         data: the document.
         source: the file it came from, named in errors.
         overrides: dotted key → the ``--set`` text that gave it (:func:`apply_overrides`);
             errors about those keys name the ``--set`` instead of the file.
+        reads: selector (e.g. ``"solver.method"``) → the other values whose keys the command
+            reads too (an experiment that runs Brezis–Sibony beside the config's method).
 
     Raises:
         ConfigError: naming the file (or ``--set``), the section, the key and the fix.
@@ -175,6 +211,8 @@ def parse_config(
         if section not in data:
             raise ConfigError(f"{source}: missing section [{section}]")
     koiter = isinstance(data.get("model"), dict) and data["model"].get("kind") == "koiter"
+    selected = _selected(data, origins)
+    given_keys: set[str] = set()
     for section, keys in SCHEMA.items():
         if section in OPTIONAL_SECTIONS and section not in data:
             continue
@@ -187,21 +225,47 @@ def parse_config(
                     f"{origins.of(f'{section}.{name}')}: unknown key '{name}' in [{section}]"
                     + suggest(name, list(keys))
                 )
+        selector, reason = SELECTORS.get(section, ("", ""))
+        value = selected.get(selector)
         out: dict[str, Any] = {}
         for name, key in keys.items():
             dotted = f"{section}.{name}"
             origin = origins.of(dotted)
             if name in given:
                 out[name] = _coerce(given[name], key, f"{origin}: {dotted}", origin, dotted)
+                given_keys.add(name if section == "solver" else dotted)
+                also = (reads or {}).get(selector, ())
+                if selector and value is not None and not any(map(key.used_by, (value, *also))):
+                    warnings.warn(
+                        f"{origin}: {dotted} is ignored: {selector} = {value!r} {reason}"
+                        + (f" (read with {' or '.join(map(repr, key.when))})" if key.when else ""),
+                        stacklevel=2,
+                    )
             elif key.default is REQUIRED:
                 raise ConfigError(f"{source}: missing key '{name}' in [{section}] ({key.help})")
-            elif key.default is not None:
-                out[name] = key.default
+            elif key.used_by(value) and key.default_for(value) is not None:
+                out[name] = copy.deepcopy(key.default_for(value))
         resolved[section] = out
     try:
-        return _build(resolved, source)
+        return _build(resolved, source, given_keys)
     except (ValueError, ExpressionError) as err:  # ConfigError is a ValueError
         raise ConfigError(f"{origins.named_in(str(err))}: {err}") from None
+
+
+def _selected(data: Mapping[str, Any], origins: _Origins) -> dict[str, Any]:
+    """The value of every selector (:data:`~shellobstacle.config.schema.SELECTORS`) that ``data``
+    gives or defaults: which keys of a section are read depends on it."""
+    out: dict[str, Any] = {}
+    for selector, _ in SELECTORS.values():
+        section, name = selector.split(".")
+        key = SCHEMA[section][name]
+        if name in data.get(section, {}):
+            origin = origins.of(selector)
+            where = f"{origin}: {selector}"
+            out[selector] = _coerce(data[section][name], key, where, origin, selector)
+        elif key.default is not REQUIRED:
+            out[selector] = key.default
+    return out
 
 
 def _need(sec: Mapping[str, Any], section: str, names: tuple[str, ...], why: str) -> None:
@@ -226,9 +290,10 @@ def _surface(s: Mapping[str, Any]) -> Surface:
     return Surface.from_strings(s["theta"])
 
 
-def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
+def _build(r: dict[str, dict[str, Any]], source: str, given: set[str]) -> Config:
     """The objects of a resolved configuration; their constructors validate (the API's
-    messages, which :func:`parse_config` prefixes with the file or the ``--set``)."""
+    messages, which :func:`parse_config` prefixes with the file or the ``--set``). ``given``:
+    the keys of ``[solver]`` and the dotted others the file or a ``--set`` gives."""
     surface = _surface(r["surface"])
     m = r["material"]
     material = Material(m["epsilon"], m["lambda"], m["mu"])
@@ -255,12 +320,6 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
     p = r.get("penalty", {})
     penalty = None
     if not METHODS[sv["method"]].penalized:
-        if "kappa" in p or "exponent" in p:
-            warnings.warn(
-                f"{source}: solver.method = {sv['method']!r} solves the nodal constraint "
-                "exactly (κ = 0); penalty.kappa / penalty.exponent are ignored",
-                stacklevel=3,
-            )
         if disc.degree == 1:
             # the nodal methods' constraint is the one P1's vertex penalty has
             disc = dataclasses.replace(disc, penalty_quadrature="vertex")
@@ -268,14 +327,7 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         r["penalty"] = {}
     else:
         penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
-    solver = NewtonOptions(
-        rtol=sv["rtol"],
-        stol=sv["stol"],
-        max_iterations=sv["max_iterations"],
-        linear_solver=sv["linear_solver"],
-        factorization=sv["factorization"],
-        contact_zone=sv["contact_zone"],
-    )
+    solver, options = method_options(sv, given)
     adapt = adapt_options(r, shell, penalty, sv["method"]) if "adapt" in r else None
     return Config(
         shell,
@@ -287,7 +339,7 @@ def _build(r: dict[str, dict[str, Any]], source: str) -> Config:
         dict(r["output"]),
         r,
         source,
-        method_options(sv),
+        options,
         adapt,
     )
 
@@ -305,7 +357,7 @@ def _require_mesh_file(path: str) -> None:
 
 def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
     """The solver and discretization choices Koiter's model cannot take."""
-    if sv["linear_solver"] == "iterative":
+    if sv.get("linear_solver") == "iterative":
         raise ConfigError(
             "solver.linear_solver = 'iterative' preconditions ζ_3 as the "
             "membrane's L² unknown, not Koiter's bending: use linear_solver = 'direct'"
@@ -322,9 +374,13 @@ def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
         )
 
 
-def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
+def load_config(
+    path: str | Path,
+    overrides: list[str] | None = None,
+    reads: Mapping[str, tuple[str, ...]] | None = None,
+) -> Config:
     """Read a TOML file, apply ``section.key=value`` overrides (:func:`apply_overrides`),
-    validate.
+    validate (``reads``: see :func:`parse_config`).
 
     Raises:
         ConfigError: for a missing, unreadable or malformed file and every validation problem.
@@ -332,4 +388,4 @@ def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
     path = Path(path)
     data = read_toml(path)
     given = apply_overrides(data, overrides or [])
-    return parse_config(data, str(path), given)
+    return parse_config(data, str(path), given, reads)

@@ -1,63 +1,57 @@
-"""The options of ``[solver]``'s non-Newton methods and of ``[adapt]``, built from the
-resolved config and checked against each other (:mod:`shellobstacle.config.loader` calls them)."""
+"""The options of every ``solver.method`` and of ``[adapt]``, built from the resolved config
+(the fields no key sets keep their classes' defaults) and checked against each other
+(:mod:`shellobstacle.config.loader` calls them)."""
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
+from shellobstacle.config.schema import METHOD_OPTIONS, SOLVER_FIELDS
 from shellobstacle.messages import ConfigError
 from shellobstacle.solvers.options import (
-    ActiveSetOptions,
-    BrezisSibonyOptions,
-    ProximalGalerkinOptions,
-    SnesVIOptions,
+    NewtonOptions,
 )
 from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import PenaltySpec, Shell
 
-__all__ = ["adapt_options", "method_options"]
+__all__ = ["adapt_options", "method_options", "solver_options"]
 
 
-def method_options(sv: Mapping[str, Any]) -> Any:
-    """The options of ``solver.method`` when it is not Newton's, from ``[solver]``; the keys
-    of Brezis–Sibony and proximal Galerkin are checked whichever method is chosen."""
-    if sv["bs_rtol"] < 0:
+def solver_options(method: str, sv: Mapping[str, Any], given: Collection[str]) -> Any:
+    """The options of ``method`` from ``[solver]``
+    (:data:`~shellobstacle.config.schema.SOLVER_FIELDS`; None for a method that takes none):
+    the keys it reads that are in ``sv`` when it is ``sv["method"]``, else those in ``given``;
+    the fields no key sets keep the options class's defaults."""
+    if method not in METHOD_OPTIONS:  # a method that takes no options
+        return None
+    names = [
+        k
+        for k, fields in SOLVER_FIELDS.items()
+        if method in fields and k in sv and (method == sv["method"] or k in given)
+    ]
+    return METHOD_OPTIONS[method](**{SOLVER_FIELDS[k][method]: sv[k] for k in names})
+
+
+def method_options(sv: Mapping[str, Any], given: Collection[str]) -> tuple[NewtonOptions, Any]:
+    """Newton's options (the experiments' Newton uses them whatever ``solver.method``) and
+    those of ``solver.method`` when it is not Newton's, from ``[solver]``; the given keys that
+    only another method reads are checked too."""
+    if sv.get("bs_rtol", 0) < 0:
         raise ConfigError(f"solver.bs_rtol must be >= 0, got {sv['bs_rtol']}")
     method = sv["method"]
-    brezis_sibony = {"xi": sv.get("xi"), "mass": sv["mass"], "start": sv["start"]}
-    BrezisSibonyOptions(**brezis_sibony)
-    proximal = {"tol": sv["proximal_tol"], "alpha_max": sv["proximal_alpha_max"]}
-    ProximalGalerkinOptions(**proximal)
-    if method == "brezis-sibony":
-        return BrezisSibonyOptions(
-            **brezis_sibony, max_iterations=sv["bs_max_iterations"], rtol=sv["bs_rtol"]
+    if method == "proximal-galerkin" and not sv["rtol"] > 0:
+        raise ConfigError(
+            "solver.rtol must be > 0 with solver.method = 'proximal-galerkin' (the "
+            f"Newton iteration of each proximal step stops there), got {sv['rtol']}"
         )
-    if method == "active-set":
-        return ActiveSetOptions(max_iterations=sv["max_iterations"])
-    if method == "snes-vi":
-        return SnesVIOptions(
-            vi_type=sv["vi_type"],
-            line_search=sv["vi_line_search"],
-            rtol=sv["rtol"],
-            stol=sv["stol"],
-            max_iterations=sv["max_iterations"],
-            factorization=sv["factorization"],
-        )
-    if method == "proximal-galerkin":
-        if not sv["rtol"] > 0:
-            raise ConfigError(
-                "solver.rtol must be > 0 with solver.method = 'proximal-galerkin' (the "
-                f"Newton iteration of each proximal step stops there), got {sv['rtol']}"
-            )
-        return ProximalGalerkinOptions(
-            **proximal,
-            newton_rtol=sv["rtol"],
-            max_iterations=sv["max_iterations"],
-            factorization=sv["factorization"],
-        )
-    return None
+    for other in METHOD_OPTIONS:
+        if other not in (method, "newton"):
+            alone = [k for k in given if list(SOLVER_FIELDS.get(k, ())) == [other]]
+            solver_options(other, {**{k: sv[k] for k in alone}, "method": method}, alone)
+    newton = solver_options("newton", sv, given)
+    return newton, (None if method == "newton" else solver_options(method, sv, given))
 
 
 def adapt_options(

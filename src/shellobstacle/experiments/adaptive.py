@@ -144,7 +144,8 @@ def _adaptive(
 
     penalty = cfg.penalty if METHODS[method].penalized else None
     result = adaptive_solve(
-        cfg.shell, mesh, cfg.discretization, penalty, adapt, cfg.solver, method, None,
+        cfg.shell, mesh, cfg.discretization, penalty, adapt, cfg.solver, method,
+        cfg.method_options if method == cfg.method else None,
         say, newton_progress, on_level, start, carried,
     )  # fmt: skip
     if not result.converged and not last:

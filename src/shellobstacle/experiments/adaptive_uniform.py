@@ -90,10 +90,9 @@ def _solve(
         assert cfg.penalty is not None
         kappas = cfg.penalty.ladder(h)
     problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappas[0] or 1.0)
-    # Newton's options from [solver]; another method's defaults, as the adaptive levels use
     done = method.solve(
-        problem, h, kappas, options_for(method, None, cfg.solver), lambda _m: None,
-        newton_progress,
+        problem, h, kappas, options_for(method, cfg.method_options, cfg.solver),
+        lambda _m: None, newton_progress,
     )  # fmt: skip
     if not done.converged:
         raise ConvergenceError(done.error or f"{cfg.method} did not converge", done, done.steps)

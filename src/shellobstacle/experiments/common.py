@@ -4,6 +4,7 @@ CSV tables, rate fits."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import io
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -15,6 +16,7 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.io.folders import atomic_write
+from shellobstacle.spec import PenaltySpec
 
 Say = Callable[[str], Any]
 NewtonProgress = Callable[[int, float], Any] | None
@@ -25,10 +27,18 @@ __all__ = [
     "Say",
     "fit_rate",
     "newton_finished",
+    "penalty_at",
     "reference_of",
     "transfer",
     "write_csv",
 ]
+
+
+def penalty_at(penalty: PenaltySpec | None, exponent: float) -> PenaltySpec:
+    """``κ = h^exponent`` (the exponent an experiment sweeps or sets) with the config's other
+    penalty choices (``penalty``: its ``continuation``; None: the defaults)."""
+    base = penalty or PenaltySpec(exponent=exponent)
+    return dataclasses.replace(base, kappa=None, exponent=exponent)
 
 
 class LazyReference:

@@ -193,10 +193,14 @@ def koiter_limit(
     checkpoint: Checkpoint | None = None,
     newton_progress: NewtonProgress = None,
     draw: Callable[[Postprocessor, float], Any] | None = None,
+    discretization: Discretization | None = None,
 ) -> KoiterLimit:
     """Solve the membrane problem (ζ_3 clamped and free) and Koiter's for every ε' on
     ``mesh`` (P2, ghosted), each by continuation along ``kappas`` from ζ = 0.
 
+    ``discretization`` (the config's) gives the quadrature and Koiter's bending form and
+    interior penalty; the experiment sets what it compares: P2 with the penalty at Gauss
+    points, ζ_3 clamped for Koiter and clamped or free for the membrane.
     ``draw(post, ε')`` is called with Koiter's solution for the ε' nearest the shell's own ε
     (on a log scale), if it is solved in this run (not read back)."""
     say = progress or (lambda _m: None)
@@ -214,10 +218,13 @@ def koiter_limit(
         solver = NewtonSolver(problem, newton)
         return continuation(problem, solver, kappas, newton_progress=newton_progress)
 
+    p2 = dataclasses.replace(
+        discretization or Discretization(), degree=2, penalty_quadrature="gauss"
+    )
     membrane = {}
     for transverse in ("clamped", "free"):
         m = dataclasses.replace(shell, model="membrane")
-        problem = PenalizedProblem(m, mesh, Discretization(degree=2, transverse=transverse))
+        problem = PenalizedProblem(m, mesh, dataclasses.replace(p2, transverse=transverse))
         solve(problem)
         membrane[transverse] = problem
     zeta_m = membrane["clamped"].zeta
@@ -235,7 +242,9 @@ def koiter_limit(
         f"clamping ζ_3 changes ζ_M by {study.clamping_effect:.3e} in V_M"
     )
     koiter = PenalizedProblem(
-        dataclasses.replace(shell, model="koiter"), mesh, Discretization(degree=2)
+        dataclasses.replace(shell, model="koiter"),
+        mesh,
+        dataclasses.replace(p2, transverse="clamped"),
     )
     to_boundary = distance_to_boundary(mesh)
 
@@ -356,7 +365,10 @@ def run_koiter_limit(
     def draw(post: Postprocessor, value: float) -> None:
         picture.draw(post, f"Koiter's model: the deformed shell over the plane at ε = {value:.3g}")
 
-    s = koiter_limit(cfg.shell, mesh, epsilons, kappas, cfg.solver, say, cp, newton_progress, draw)
+    s = koiter_limit(
+        cfg.shell, mesh, epsilons, kappas, cfg.solver, say, cp, newton_progress, draw,
+        cfg.discretization,
+    )  # fmt: skip
     s.edge_h = domain.edge_h or s.h
     write_csv(folder / "koiter_limit.csv", s.rows, COLUMNS)
     png_d, png_l = folder / "koiter_limit.png", folder / "koiter_limit_layer.png"

@@ -16,7 +16,13 @@ import numpy as np
 
 from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import Config
-from shellobstacle.experiments.common import NewtonProgress, Say, finish_figure, write_csv
+from shellobstacle.experiments.common import (
+    NewtonProgress,
+    Say,
+    finish_figure,
+    penalty_at,
+    write_csv,
+)
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
@@ -223,7 +229,7 @@ def run_load(
         cfg.shell,
         make_mesh(domain),
         cfg.discretization,
-        PenaltySpec(exponent=exponent),
+        penalty_at(cfg.penalty, exponent),
         values,
         parameter,
         cfg.solver,

@@ -18,6 +18,7 @@ from shellobstacle.mesh.domains import DomainSpec, validate
 from shellobstacle.solvers.registry import METHODS
 
 __all__ = [
+    "EXPERIMENT_READS",
     "MAX_STEPS",
     "experiment_domains",
     "experiment_options",
@@ -29,6 +30,17 @@ __all__ = [
 MAX_STEPS = 200
 #: The most uniform refinements of ``experiment mesh`` (each quadruples the cells).
 MAX_REFINEMENTS = 8
+#: the kinds and methods whose keys a batch reads besides the config's own choice (its
+#: warnings about keys that are not read leave them out): the sweeps solve by Newton whatever
+#: solver.method, koiter-limit solves Koiter's model on any config, solvers runs Brezis–Sibony
+#: beside Newton
+EXPERIMENT_READS: dict[str, dict[str, tuple[str, ...]]] = {
+    "penalty": {"solver.method": ("newton",)},
+    "mesh": {"solver.method": ("newton",)},
+    "load": {"solver.method": ("newton",)},
+    "koiter-limit": {"model.kind": ("koiter",), "solver.method": ("newton",)},
+    "solvers": {"solver.method": ("newton", "brezis-sibony")},
+}
 
 
 def numbers(text: str, what: str, positive: bool = False) -> list[float]:

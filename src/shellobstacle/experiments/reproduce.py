@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -119,8 +120,8 @@ def reproduce(
     t0 = time.perf_counter()
     sections, times = [], {}
 
-    def disk(h: float, **kw: Any) -> DomainSpec:
-        return DomainSpec("disk", h=GMSH_TARGET.get(h, h / 1.34), radius=0.5, **kw)
+    def disk(h: float, **kw: Any) -> DomainSpec:  # the config's disk at another size
+        return dataclasses.replace(cfg.domain, h=GMSH_TARGET.get(h, h / 1.34), **kw)
 
     penalty_rows: list[dict[str, Any]] = []
     mesh_rows: list[dict[str, Any]] = []
@@ -167,10 +168,9 @@ def reproduce(
     times["solvers"] = time.perf_counter() - t
     t = time.perf_counter()
     h, central_h, edge_h, edge_width = sizes.koiter_h
-    graded = DomainSpec(
-        "disk",
+    graded = dataclasses.replace(
+        cfg.domain,
         h=h,
-        radius=0.5,
         central_h=central_h,
         central_radius=0.1,
         edge_h=edge_h,

@@ -24,7 +24,7 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.config.loader import Config
-from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, write_csv
+from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, penalty_at, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
@@ -38,7 +38,7 @@ from shellobstacle.progress import note, phase
 from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions, BrezisSibonySolver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
-from shellobstacle.spec import Discretization, PenaltySpec, Shell
+from shellobstacle.spec import Discretization, Shell
 
 __all__ = ["COLUMNS", "DEFAULT_SIZES", "compare_solvers", "write_solver_comparison"]
 
@@ -83,14 +83,15 @@ def compare_solvers(
     """Solve ``κ = h^q`` with Newton and with Brezis–Sibony on each mesh; one row per mesh.
 
     Args:
-        source: a :class:`Config` (its shell, domain, discretization and Newton options are
-            used) or a :class:`Shell` (the paper's disk ``|y| < 0.5`` is meshed).
+        source: a :class:`Config` (its shell, domain, discretization, Newton's and
+            Brezis–Sibony's options are used) or a :class:`Shell` (the paper's disk
+            ``|y| < 0.5`` is meshed).
         meshes: gmsh target sizes of the domain, :class:`DomainSpec`\\ s or ready meshes.
         q: the exponent of ``κ = h^q`` (``h`` the largest cell diameter).
         discretization: overrides the config's (default P1, clamped, Gauss penalty).
         newton_options: overrides the config's Newton options.
-        bs_options: Brezis–Sibony options; default: linearized start, automatic step,
-            at most 200 000 iterations, its own stopping rules.
+        bs_options: overrides the config's Brezis–Sibony options (default: linearized start,
+            automatic step, at most 200 000 iterations, its own stopping rules).
         progress: called with one-line messages.
         checkpoint: records each mesh's row (keyed by the gmsh target size); a recorded mesh
             is not meshed or solved again. Ready meshes are not recorded.
@@ -108,11 +109,13 @@ def compare_solvers(
         shell, domain = source.shell, source.domain
         disc = discretization or source.discretization
         nopts = newton_options or source.solver
+        bopts = bs_options or source.options_of("brezis-sibony")
+        penalty = source.penalty
     else:
-        shell, domain = source, None
+        shell, domain, penalty = source, None, None
         disc = discretization or Discretization()
         nopts = newton_options or NewtonOptions()
-    bopts = bs_options or BrezisSibonyOptions(start="linearized", max_iterations=200_000)
+        bopts = bs_options or BrezisSibonyOptions()
 
     rows: list[dict[str, Any]] = []
     for i, item in enumerate(meshes):
@@ -130,7 +133,7 @@ def compare_solvers(
                 continue
         mesh, target = _mesh(item, domain)
         h = mesh_size(mesh)
-        kappas = PenaltySpec(exponent=q).ladder(h)
+        kappas = penalty_at(penalty, q).ladder(h)
         problem = PenalizedProblem(shell, mesh, disc, kappa=kappas[0])
         say(f"h = {h:.4g} ({problem.num_dofs} dofs), κ = h^{q:g} = {kappas[-1]:.3e}: Newton")
 

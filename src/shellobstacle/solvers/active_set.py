@@ -39,7 +39,13 @@ from petsc4py import PETSc
 import numpy as np
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.solvers.base import ConvergenceError, direct_solver, factorize
+from shellobstacle.solvers.base import (
+    ConvergenceError,
+    UserOptions,
+    direct_solver,
+    factorize,
+    with_user_options,
+)
 from shellobstacle.solvers.line_search import piecewise_linear_root
 from shellobstacle.solvers.nodal_qp import NodalQP, NodalResult, factor_mb
 from shellobstacle.solvers.options import ActiveSetOptions
@@ -95,6 +101,7 @@ class ActiveSetSolver:
     def __init__(self, problem: PenalizedProblem, options: ActiveSetOptions | None = None) -> None:
         self.problem = problem
         self.options = options or ActiveSetOptions()
+        self.user_options = UserOptions(self.options.petsc_options, ("as",), "active-set")
         self.timings: dict[str, float] = {"setup": 0.0, "assemble": 0.0, "solve": 0.0, "kkt": 0.0}
         t0 = time.perf_counter()
         self.qp = qp = NodalQP(problem, "ActiveSetSolver")
@@ -106,7 +113,8 @@ class ActiveSetSolver:
         # work matrix (K' modified per step, same sparsity) and the direct solver
         self.W = self.Kr.duplicate(copy=True)
         self.W.setOption(PETSc.Mat.Option.KEEP_NONZERO_PATTERN, True)
-        self.ksp = direct_solver(self.W, "lu", "as")
+        with self.user_options.applied():
+            self.ksp = direct_solver(self.W, "lu", "as")
         self.u = self.fr.duplicate()
         self.r, self.du, self.tmp = (self.fr.duplicate() for _ in range(3))
         self.timings["setup"] = time.perf_counter() - t0
@@ -234,6 +242,7 @@ class ActiveSetSolver:
         return self.qp.predicted_active(self.u, self.qp.bound_forces(self.u))
 
     # -- solve --------------------------------------------------------------------------------
+    @with_user_options
     def solve(self) -> ActiveSetResult:
         """Solve the discrete obstacle problem; leave ``ζ^h`` in ``problem.zeta``.
 

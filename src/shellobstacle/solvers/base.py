@@ -5,13 +5,21 @@ Every sparse direct solve of the package (Newton's Jacobian, the contact zone's 
 Schur complement, the coarse seed, the active-set matrix, Brezis–Sibony's mass matrix and
 start) is made by :func:`direct_solver` and factorized by :func:`factorize`, so options never
 leak between solvers and a MUMPS failure reads the same everywhere.
+
+Every PETSc object takes a prefix ``shellobstacle_<kind><n>_`` (:func:`unique_prefix`). The
+user's options (``solver.petsc_options``, the ``petsc_options`` of each options class) reach
+the objects of the kinds a solver names, as DOLFINx's ``NonlinearProblem`` puts its
+``petsc_options`` under its prefix: :class:`UserOptions`.
 """
 
 from __future__ import annotations
 
+import functools
 import itertools
+import warnings
 import weakref
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from typing import Any
 
 from mpi4py import MPI  # noqa: F401  (before PETSc: the MPI runtime PETSc links to)
@@ -21,12 +29,14 @@ from shellobstacle.solvers.result import ConvergenceError
 
 __all__ = [
     "ConvergenceError",
+    "UserOptions",
     "direct_solver",
     "factorization_pc",
     "factorize",
     "set_mumps_controls",
     "set_options",
     "unique_prefix",
+    "with_user_options",
 ]
 
 
@@ -39,7 +49,98 @@ def unique_prefix(kind: str) -> str:
     A prefix made from ``id()`` can come back once its object is freed, and with it whatever
     options an earlier solver put in PETSc's global options database.
     """
-    return f"shellobstacle_{kind}{next(_NUMBERS)}_"
+    prefix = f"shellobstacle_{kind}{next(_NUMBERS)}_"
+    for user in _APPLIED:
+        user.apply(prefix, kind)
+    return prefix
+
+
+#: the user's options in force (:meth:`UserOptions.applied`)
+_APPLIED: list[UserOptions] = []
+
+
+class UserOptions:
+    """The user's PETSc options for the objects a solver makes of the given ``kinds``.
+
+    While :meth:`applied`, every prefix :func:`unique_prefix` makes for one of ``kinds`` gets
+    ``values`` (option names without the leading ``-``: ``ksp_type``, ``pc_type``,
+    ``mat_mumps_icntl_14``, ...); they stay in PETSc's options database until this object is
+    freed (the solver keeps it), so that a factorization made later reads them too.
+
+    Args:
+        values: option name → value.
+        kinds: the prefix kinds that take them (e.g. ``("newton", "zone")``).
+        method: names the method in the warning about an option no object read.
+    """
+
+    def __init__(self, values: Mapping[str, Any], kinds: tuple[str, ...], method: str) -> None:
+        self.values, self.kinds, self.method = dict(values), kinds, method
+        self.prefixes: list[str] = []
+        self._names: list[str] = []
+        self._reported: set[str] = set()
+        weakref.finalize(self, _forget, self._names)
+
+    def apply(self, prefix: str, kind: str) -> None:
+        """Put the options under ``prefix`` if ``kind`` is one of this solver's."""
+        if kind not in self.kinds or not self.values:
+            return
+        options = PETSc.Options()
+        for key, value in self.values.items():
+            options[prefix + key] = value
+            self._names.append(prefix + key)
+        self.prefixes.append(prefix)
+
+    @contextmanager
+    def applied(self) -> Iterator[None]:
+        """The objects made in this block get the options; a PETSc error with options given
+        is reported as theirs (naming them)."""
+        if not self.values:
+            yield
+            return
+        _APPLIED.append(self)
+        try:
+            yield
+        except PETSc.Error as err:
+            from shellobstacle.messages import ConfigError
+
+            raise ConfigError(
+                f"solver.petsc_options: PETSc failed (error {err.ierr}) with the options "
+                f"{self.values} of {self.method}: check their names and values"
+            ) from None
+        finally:
+            _APPLIED.remove(self)
+
+    def report_unused(self) -> None:
+        """Warn once about each option that no object of the solver has read (misspelled,
+        or for an object the method does not make)."""
+        options = PETSc.Options()
+        for key in self.values:
+            if key in self._reported or any(options.used(p + key) for p in self.prefixes):
+                continue
+            self._reported.add(key)
+            warnings.warn(
+                f"solver.petsc_options.{key}: no PETSc object of {self.method} read it "
+                f"(prefixes shellobstacle_<{'|'.join(self.kinds)}><n>_): misspelled, or an "
+                "option of an object the method does not make",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+
+
+def with_user_options(solve: Callable[..., Any]) -> Callable[..., Any]:
+    """Decorate a solver's ``solve`` to run with ``self.user_options`` applied and report its
+    unused options afterwards."""
+
+    @functools.wraps(solve)
+    def wrapper(self: Any, *args: Any, **kwargs: Any) -> Any:
+        user: UserOptions = self.user_options
+        try:
+            with user.applied():
+                return solve(self, *args, **kwargs)
+        finally:
+            user.report_unused()
+
+    return wrapper
 
 
 def _forget(names: list[str]) -> None:

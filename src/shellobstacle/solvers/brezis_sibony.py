@@ -64,7 +64,12 @@ import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.quadrature import QuadraturePenalty, penalty_hessian
-from shellobstacle.solvers.base import ConvergenceError, direct_solver
+from shellobstacle.solvers.base import (
+    ConvergenceError,
+    UserOptions,
+    direct_solver,
+    with_user_options,
+)
 from shellobstacle.solvers.options import BrezisSibonyOptions
 from shellobstacle.solvers.spectrum import extreme_eigenvalue
 
@@ -155,6 +160,8 @@ class BrezisSibonySolver:
         self.problem = problem
         self.h = float(h)
         self.options = opts = options or BrezisSibonyOptions()
+        kinds = ("bs_mass", "bs_linearized")
+        self.user_options = UserOptions(opts.petsc_options, kinds, "brezis-sibony")
         V, mesh = problem.V, problem.mesh
         self.comm = mesh.comm
         degree = problem.disc.degree
@@ -191,10 +198,11 @@ class BrezisSibonySolver:
         else:
             # PETSc's own Cholesky serially, nested dissection: a solve at 1,152 dofs takes
             # 52 µs, against 73 µs in the natural order and 106 µs with MUMPS
-            if self.comm.size == 1:
-                self.ksp = direct_solver(self.M, "cholesky", "bs_mass", "petsc", ordering="nd")
-            else:
-                self.ksp = direct_solver(self.M, "cholesky", "bs_mass")
+            with self.user_options.applied():
+                if self.comm.size == 1:
+                    self.ksp = direct_solver(self.M, "cholesky", "bs_mass", "petsc", ordering="nd")
+                else:
+                    self.ksp = direct_solver(self.M, "cholesky", "bs_mass")
 
         # the residual's operators (as NewtonSolver's): K (Dirichlet rows identity), the
         # penalty at its points, the load vector L (Dirichlet rows 0; assembled per solve)
@@ -304,6 +312,7 @@ class BrezisSibonySolver:
         return self.problem.load_vector(self.L).norm()
 
     # -- the iteration ------------------------------------------------------------------------
+    @with_user_options
     def solve(self, progress: Progress | None = None) -> BrezisSibonyResult:
         """Run (38) from the chosen start until a stopping criterion or the iteration cap.
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import note
-from shellobstacle.solvers.base import ConvergenceError
+from shellobstacle.solvers.base import ConvergenceError, UserOptions, with_user_options
 from shellobstacle.solvers.linear import LinearSolveError, LinearStrategy, make_strategy
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.system import PenalizedSystem
@@ -129,7 +129,10 @@ class NewtonSolver:
             ("assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton"),
             0.0,
         )
-        self.linear.attach(self.system, self.timings)
+        # the Jacobian's solver and, by default, the zone's factorizations
+        self.user_options = UserOptions(opts.petsc_options, ("newton", "zone"), "newton")
+        with self.user_options.applied():
+            self.linear.attach(self.system, self.timings)
         self.timings["setup"] = time.perf_counter() - t0
 
     @property
@@ -172,6 +175,7 @@ class NewtonSolver:
             self.linear.set_zone_indicator(u)
 
     # -- the loop -----------------------------------------------------------------------------
+    @with_user_options
     def solve(self, progress: Progress | None = None) -> NewtonResult:
         """Solve the penalized problem for the current ``κ``, starting from ``problem.zeta``.
 

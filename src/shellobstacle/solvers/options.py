@@ -8,12 +8,16 @@ builds them).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
 
 from shellobstacle.messages import not_one_of
 
 __all__ = [
     "LINEAR_SOLVERS",
+    "PETSC_OPTIONS_HELP",
     "ActiveSetOptions",
     "BrezisSibonyOptions",
     "NewtonOptions",
@@ -28,6 +32,38 @@ STARTS = ("zero", "linearized", "current")
 VI_TYPES = ("rsls", "ssls")
 VI_LINE_SEARCHES = ("bt", "basic", "l2")
 LINEAR_SYSTEMS = ("condensed", "mixed")
+#: what ``petsc_options`` is, in every options class and in the config reference
+PETSC_OPTIONS_HELP = (
+    "PETSc options (names without the leading '-', e.g. ksp_type, pc_factor_mat_solver_type, "
+    "mat_mumps_icntl_14) set on the main linear solver of the method under its own prefix "
+    "shellobstacle_<kind><n>_ (kind: newton and zone for newton, bs_mass and bs_linearized "
+    "for brezis-sibony, as for active-set, vi for snes-vi: the SNES, its KSP and PC, pg for "
+    "proximal-galerkin); an option no object reads is reported in a warning"
+)
+_OPTION_NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]*")
+
+
+def petsc_options_field() -> Any:
+    """The ``petsc_options`` field of an options class: a table of PETSc options."""
+    return field(default_factory=dict, hash=False)
+
+
+def check_petsc_options(values: Mapping[str, Any]) -> None:
+    """Raise ValueError for a name that is not a PETSc option name or a value PETSc cannot
+    take (a string, a number or a boolean)."""
+    if not isinstance(values, Mapping):
+        raise ValueError(f"solver.petsc_options must be a table of options, got {values!r}")
+    for name, value in values.items():
+        if not isinstance(name, str) or not _OPTION_NAME.fullmatch(name):
+            raise ValueError(
+                f"solver.petsc_options: {name!r} is not a PETSc option name (letters, digits "
+                "and _, without the leading '-' and without a prefix, e.g. ksp_type)"
+            )
+        if not isinstance(value, str | int | float | bool):
+            raise ValueError(
+                f"solver.petsc_options.{name} must be a string, a number or true/false, "
+                f"got {value!r}"
+            )
 
 
 @dataclass(frozen=True)
@@ -55,6 +91,7 @@ class NewtonOptions:
             factorization per κ, reused by conjugate gradients at its later steps.
         linear_rtol: the smallest relative tolerance of the Krylov solves (the iterative
             solver's forcing terms, and CG preconditioned by a kept factorization).
+        petsc_options: PETSc options for the method's solvers (:data:`PETSC_OPTIONS_HELP`).
     """
 
     rtol: float = 1e-10
@@ -62,12 +99,14 @@ class NewtonOptions:
     stol: float = 1e-12
     floor_factor: float = 100.0
     max_iterations: int = 100
-    linear_solver: str = "direct"
-    factorization: str = "cholesky"
+    linear_solver: str = field(default="direct", metadata={"choices": LINEAR_SOLVERS})
+    factorization: str = field(default="cholesky", metadata={"choices": FACTORIZATIONS})
     contact_zone: bool = True
     linear_rtol: float = 1e-12
+    petsc_options: Mapping[str, Any] = petsc_options_field()
 
     def __post_init__(self) -> None:
+        check_petsc_options(self.petsc_options)
         if self.linear_solver not in LINEAR_SOLVERS:
             raise ValueError(not_one_of("solver.linear_solver", self.linear_solver, LINEAR_SOLVERS))
         if self.factorization not in FACTORIZATIONS:
@@ -97,6 +136,7 @@ class ActiveSetOptions:
             (``ActiveSetResult.relative_kkt``) are all at most this.
         warm_start: start from the current ``problem.zeta`` (first trying active-set steps
             from it) instead of from zero.
+        petsc_options: PETSc options for the method's solvers (:data:`PETSC_OPTIONS_HELP`).
     """
 
     max_iterations: int = 200
@@ -107,8 +147,10 @@ class ActiveSetOptions:
     max_pdas_iterations: int = 6
     kkt_rtol: float = 1e-10
     warm_start: bool = True
+    petsc_options: Mapping[str, Any] = petsc_options_field()
 
     def __post_init__(self) -> None:
+        check_petsc_options(self.petsc_options)
         if self.max_iterations < 1:
             raise ValueError(f"max_iterations must be >= 1, got {self.max_iterations}")
         if self.max_stage_iterations < 1 or self.max_pdas_iterations < 1:
@@ -149,12 +191,13 @@ class BrezisSibonyOptions:
         eigen_tol: relative tolerance of the SLEPc eigensolves.
         eigen_max_iterations: iteration cap of the SLEPc eigensolves.
         divergence_factor: give up when an increment exceeds this times the first one.
+        petsc_options: PETSc options for the method's solvers (:data:`PETSC_OPTIONS_HELP`).
     """
 
     xi: float | None = None
     safety: float = 0.1
-    mass: str = "consistent"
-    start: str = "linearized"
+    mass: str = field(default="consistent", metadata={"choices": MASSES})
+    start: str = field(default="linearized", metadata={"choices": STARTS})
     rtol: float = 1e-12
     rtol_residual: float = 1e-10
     max_iterations: int = 200_000
@@ -165,8 +208,10 @@ class BrezisSibonyOptions:
     eigen_tol: float = 1e-8
     eigen_max_iterations: int = 1000
     divergence_factor: float = 1e8
+    petsc_options: Mapping[str, Any] = petsc_options_field()
 
     def __post_init__(self) -> None:
+        check_petsc_options(self.petsc_options)
         if self.mass not in MASSES:
             raise ValueError(not_one_of("solver.mass", self.mass, MASSES))
         if self.start not in STARTS:
@@ -212,20 +257,23 @@ class SnesVIOptions:
         scaling: solve for ``v = D^{1/2} u`` (``D = diag K'``), so that ``F`` and the
             distance to a bound have the same units (Fischer–Burmeister compares them);
             ``False``: the rotated unknowns as they are.
+        petsc_options: PETSc options for the method's solvers (:data:`PETSC_OPTIONS_HELP`).
     """
 
-    vi_type: str = "rsls"
-    line_search: str = "l2"
+    vi_type: str = field(default="rsls", metadata={"choices": VI_TYPES})
+    line_search: str = field(default="l2", metadata={"choices": VI_LINE_SEARCHES})
     rtol: float = 1e-10
     atol: float = 1e-50
     stol: float = 1e-12
     max_iterations: int = 100
-    factorization: str = "cholesky"
+    factorization: str = field(default="cholesky", metadata={"choices": FACTORIZATIONS})
     kkt_rtol: float = 1e-6
     warm_start: bool = True
     scaling: bool = True
+    petsc_options: Mapping[str, Any] = petsc_options_field()
 
     def __post_init__(self) -> None:
+        check_petsc_options(self.petsc_options)
         if self.vi_type not in VI_TYPES:
             raise ValueError(not_one_of("solver.vi_type", self.vi_type, VI_TYPES))
         if self.line_search not in VI_LINE_SEARCHES:
@@ -282,6 +330,7 @@ class ProximalGalerkinOptions:
         kkt_rtol: a solve whose relative KKT measures exceed this is reported as not
             converged.
         warm_start: start from the current ``problem.zeta`` instead of from zero.
+        petsc_options: PETSc options for the method's solvers (:data:`PETSC_OPTIONS_HELP`).
     """
 
     tol: float = 1e-9
@@ -294,12 +343,14 @@ class ProximalGalerkinOptions:
     max_newton_iterations: int = 50
     max_rejections: int = 5
     regrowth: float = 2.0
-    linear_system: str = "condensed"
-    factorization: str = "cholesky"
+    linear_system: str = field(default="condensed", metadata={"choices": LINEAR_SYSTEMS})
+    factorization: str = field(default="cholesky", metadata={"choices": FACTORIZATIONS})
     kkt_rtol: float = 1e-6
     warm_start: bool = True
+    petsc_options: Mapping[str, Any] = petsc_options_field()
 
     def __post_init__(self) -> None:
+        check_petsc_options(self.petsc_options)
         if not self.tol > 0:
             raise ValueError(
                 f"solver.proximal_tol must be > 0, got {self.tol}: the relative increment "

@@ -41,9 +41,11 @@ import numpy as np
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import (
     ConvergenceError,
+    UserOptions,
     direct_solver,
     factorization_pc,
     unique_prefix,
+    with_user_options,
 )
 from shellobstacle.solvers.nodal_qp import NodalQP, NodalResult, factor_mb
 from shellobstacle.solvers.options import ProximalGalerkinOptions
@@ -105,12 +107,14 @@ class ProximalGalerkinSolver:
     ) -> None:
         self.problem = problem
         self.options = opts = options or ProximalGalerkinOptions()
+        self.user_options = UserOptions(opts.petsc_options, ("pg",), "proximal-galerkin")
         t0 = time.perf_counter()
         self.qp = qp = NodalQP(problem, "ProximalGalerkinSolver")
         self.m = qp.nodal.node_masses()[qp.nodes]  # the latent variable's weights
-        self.step = (_Condensed if opts.linear_system == "condensed" else _Mixed)(
-            qp, self.m, opts.factorization
-        )
+        with self.user_options.applied():
+            self.step = (_Condensed if opts.linear_system == "condensed" else _Mixed)(
+                qp, self.m, opts.factorization
+            )
         self.u, self.r, self.Fu = (qp.fr.duplicate() for _ in range(3))
         self.timings: dict[str, float] = {"setup": time.perf_counter() - t0}
 
@@ -150,6 +154,7 @@ class ProximalGalerkinSolver:
         return opts.max_newton_iterations, False
 
     # -- solve --------------------------------------------------------------------------------
+    @with_user_options
     def solve(self) -> ProximalGalerkinResult:
         """Solve the nodal problem; leave ``ζ^h`` in ``problem.zeta``.
 

@@ -29,7 +29,12 @@ from petsc4py import PETSc
 import numpy as np
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.solvers.base import factorization_pc, unique_prefix
+from shellobstacle.solvers.base import (
+    UserOptions,
+    factorization_pc,
+    unique_prefix,
+    with_user_options,
+)
 from shellobstacle.solvers.nodal_qp import NodalQP, NodalResult, factor_mb
 from shellobstacle.solvers.options import SnesVIOptions
 
@@ -91,6 +96,7 @@ class SnesVISolver:
     def __init__(self, problem: PenalizedProblem, options: SnesVIOptions | None = None) -> None:
         self.problem = problem
         self.options = opts = options or SnesVIOptions()
+        self.user_options = UserOptions(opts.petsc_options, ("vi",), "snes-vi")
         t0 = time.perf_counter()
         self.qp = qp = NodalQP(problem, "SnesVISolver")
         self.timings: dict[str, float] = {"setup": 0.0}
@@ -120,7 +126,8 @@ class SnesVISolver:
         upper.set(PETSc.INFINITY)
 
         snes = self.snes = PETSc.SNES().create(qp.comm)
-        snes.setOptionsPrefix(unique_prefix("vi"))
+        with self.user_options.applied():  # (the options stay: read at setFromOptions)
+            snes.setOptionsPrefix(unique_prefix("vi"))
         snes.setType(f"vinewton{opts.vi_type}")
         snes.setFunction(self._function, self.F)
         snes.setJacobian(self._jacobian, self.J, self.J)
@@ -134,7 +141,8 @@ class SnesVISolver:
         ksp.setType("preonly")
         factorization = "lu" if opts.vi_type == "ssls" else opts.factorization
         factorization_pc(ksp.getPC(), factorization)
-        snes.setFromOptions()
+        with self.user_options.applied():
+            snes.setFromOptions()
         self.timings["setup"] = time.perf_counter() - t0
 
     def _function(self, _snes: PETSc.SNES, x: PETSc.Vec, F: PETSc.Vec) -> None:
@@ -147,6 +155,7 @@ class SnesVISolver:
         if J is not self.A:
             self.A.copy(J, PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
 
+    @with_user_options
     def solve(self) -> SnesVIResult:
         """Solve the nodal problem; leave ``ζ^h`` in ``problem.zeta``.
 
