@@ -11,7 +11,20 @@ from __future__ import annotations
 import difflib
 from collections.abc import Sequence
 
-__all__ = ["ConfigError", "not_one_of", "suggest"]
+__all__ = ["ECHO_LIMIT", "ConfigError", "not_one_of", "shown", "suggest"]
+
+#: The most characters of user input a message echoes.
+ECHO_LIMIT = 80
+
+
+def shown(value: object, limit: int = ECHO_LIMIT) -> str:
+    """``repr(value)`` (a text quoted), cut after ``limit`` characters of the text or the
+    representation with ``… (N characters)``: a message about a huge input stays one line."""
+    text = value if isinstance(value, str) else repr(value)
+    if len(text) <= limit:
+        return repr(value)
+    head = repr(text[:limit]) if isinstance(value, str) else text[:limit]
+    return f"{head}… ({len(text)} characters)"
 
 
 def suggest(name: str, options: Sequence[str], what: str = "valid keys") -> str:
@@ -22,7 +35,7 @@ def suggest(name: str, options: Sequence[str], what: str = "valid keys") -> str:
 
 def not_one_of(key: str, value: object, choices: Sequence[str]) -> str:
     """The message for ``key = value`` outside ``choices`` (with a suggestion)."""
-    text = f"{key} = {value!r} is not one of {', '.join(map(repr, choices))}"
+    text = f"{key} = {shown(value)} is not one of {', '.join(map(repr, choices))}"
     close = difflib.get_close_matches(str(value), list(choices), n=1, cutoff=0.5)
     return text + (f"; did you mean {close[0]!r}?" if isinstance(value, str) and close else "")
 
