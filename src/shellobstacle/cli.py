@@ -225,7 +225,7 @@ def _parser() -> argparse.ArgumentParser:
         "--edge-h",
         type=float,
         default=None,
-        help="koiter-limit: mesh size along γ (default: domain.edge_h, else h/4)",
+        help="koiter-limit: mesh size along γ (default: domain.edge_h, else h/2)",
     )
     e.add_argument(
         "--edge-width",
