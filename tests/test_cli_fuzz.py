@@ -31,6 +31,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 import pytest
+from conftest import examples
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
@@ -44,7 +45,7 @@ EXAMPLE_FILES = sorted(EXAMPLES.glob("*.toml"))
 EXAMPLE_TEXTS = [p.read_text() for p in EXAMPLE_FILES]
 EXIT_CODES = {0, 1, 2, 3, 130}
 FUZZ = settings(
-    max_examples=2000,
+    max_examples=examples(2000),
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )

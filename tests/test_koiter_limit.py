@@ -11,12 +11,13 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 import pytest
+from conftest import make_paper_shell
 
 from shellobstacle.cli import main
 from shellobstacle.domains import DomainSpec
 from shellobstacle.experiments.koiter_limit import distance_to_boundary, layer_width
 from shellobstacle.meshing import create_mesh
-from shellobstacle.model import Discretization, Load, Material, Obstacle, Shell
+from shellobstacle.model import Discretization, Load, Material, Shell
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
@@ -24,7 +25,6 @@ from shellobstacle.surface import Surface
 
 COMM = MPI.COMM_WORLD
 PAPER = Path(__file__).parents[1] / "examples" / "paper.toml"
-PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 
 
 def test_layer_width_of_an_exponential_layer() -> None:
@@ -62,13 +62,7 @@ def test_bending_scale_is_koiter_at_another_thickness() -> None:
     )
 
     def solve(eps: float, scale: float | None = None) -> np.ndarray:
-        shell = Shell(
-            Surface.spherical_cap(1.0, 0.85),
-            Material(eps, 0.4, 0.012),
-            Load(("0", "0", PAPER_LOAD)),
-            Obstacle(),
-            "koiter",
-        )
+        shell = make_paper_shell(model="koiter", epsilon=eps)
         problem = PenalizedProblem(shell, mesh, Discretization(degree=2))
         if scale is not None:
             problem.set_bending_scale(scale)

@@ -7,6 +7,7 @@ estimate's error; a script may ``import dolfinx`` before ``shellobstacle`` in th
 
 from __future__ import annotations
 
+import os
 import shutil
 import subprocess
 import sys
@@ -130,3 +131,29 @@ def test_gitignore_covers_the_default_result_folders(folder: str) -> None:
         ["git", "check-ignore", "-q", f"{folder}/"], cwd=ROOT, capture_output=True, timeout=30
     )
     assert done.returncode == 0, f"{folder}/ is not ignored"
+
+
+def test_property_tests_are_deterministic_in_the_readme_command() -> None:
+    """``./run test`` (no HYPOTHESIS_PROFILE) draws the same examples on every run, from no
+    saved database; ``HYPOTHESIS_PROFILE=random`` draws new ones, ten times as many."""
+    from conftest import PROFILE, examples
+    from hypothesis import settings
+
+    if PROFILE == "random":
+        assert not settings.default.derandomize and examples(300) == 3000
+    else:
+        assert PROFILE == "deterministic", PROFILE
+        assert settings.default.derandomize and settings.default.database is None
+        assert examples(300) == 300
+    code = "import conftest, hypothesis; print(hypothesis.settings.default.derandomize)"
+    for profile, expected in (("deterministic", "True"), ("random", "False")):
+        env = {**os.environ, "HYPOTHESIS_PROFILE": profile}
+        done = subprocess.run(
+            [sys.executable, "-c", code],
+            cwd=Path(__file__).parent,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=120,
+        )
+        assert done.stdout.strip() == expected, done.stderr[-500:]
