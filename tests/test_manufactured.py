@@ -36,6 +36,8 @@ from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.surface import Surface
 
 COMM = MPI.COMM_WORLD
+#: convergence studies up to 128 × 128 squares (P1) and 32 × 32 (P2): minutes
+pytestmark = pytest.mark.slow
 EPS, LAM, MU = 0.001, 0.4, 0.012
 Q = (0.0, 0.0, 1.0)
 L = 0.3  # ω = [-L, L]²
