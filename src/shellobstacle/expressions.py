@@ -33,7 +33,7 @@ from sympy.parsing.sympy_parser import (
 )
 from sympy.utilities.exceptions import SymPyDeprecationWarning
 
-from shellobstacle.messages import shown
+from shellobstacle.messages import cut, shown
 
 __all__ = [
     "FUNCTIONS",
@@ -211,8 +211,7 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
 
 def _reason(err: Exception) -> str:
     """SymPy's message for ``err``, on one line and bounded (it may quote the input)."""
-    text = " ".join(str(err).split()) or type(err).__name__
-    return text if len(text) <= 200 else f"{text[:200]}… ({len(text)} characters)"
+    return cut(" ".join(str(err).split()) or type(err).__name__, 200)
 
 
 def _check_expr(expr: Any, what: str, text: str) -> None:

@@ -11,20 +11,25 @@ from __future__ import annotations
 import difflib
 from collections.abc import Sequence
 
-__all__ = ["ECHO_LIMIT", "ConfigError", "not_one_of", "shown", "suggest"]
+__all__ = ["ECHO_LIMIT", "ConfigError", "cut", "not_one_of", "shown", "suggest"]
 
 #: The most characters of user input a message echoes.
 ECHO_LIMIT = 80
 
 
+def cut(text: str, limit: int = ECHO_LIMIT) -> str:
+    """``text``, or its first ``limit`` characters and ``… (N characters)``."""
+    return text if len(text) <= limit else f"{text[:limit]}… ({len(text)} characters)"
+
+
 def shown(value: object, limit: int = ECHO_LIMIT) -> str:
     """``repr(value)`` (a text quoted), cut after ``limit`` characters of the text or the
-    representation with ``… (N characters)``: a message about a huge input stays one line."""
-    text = value if isinstance(value, str) else repr(value)
-    if len(text) <= limit:
+    representation (:func:`cut`): a message about a huge input stays one line."""
+    if not isinstance(value, str):
+        return cut(repr(value), limit)
+    if len(value) <= limit:
         return repr(value)
-    head = repr(text[:limit]) if isinstance(value, str) else text[:limit]
-    return f"{head}… ({len(text)} characters)"
+    return f"{value[:limit]!r}… ({len(value)} characters)"
 
 
 def suggest(name: str, options: Sequence[str], what: str = "valid keys") -> str:
