@@ -447,7 +447,7 @@ def test_found_refusals_name_the_problem_and_the_fix(argv: list[str], problem: s
     assert problem in err and fix in err, err
 
 
-@pytest.mark.slow  # 2000 command lines: 3-9 minutes
+@pytest.mark.slow  # 2000 command lines: minutes
 @FUZZ
 @given(command_lines(), config_texts())
 @example(FOUND[0][0], "")
