@@ -51,6 +51,7 @@ def test_distance_to_boundary_on_a_disk() -> None:
     assert dist.x.array[:n].min() > 0
 
 
+@pytest.mark.slow  # Koiter's P2 forms compiled and solved at three ε
 def test_bending_scale_is_koiter_at_another_thickness() -> None:
     """With the load and penalty ∝ ε, scaling the bending energy by (ε'/ε)² gives Koiter's
     solution at ε' (computed with its own compiled forms)."""
@@ -97,6 +98,7 @@ def koiter_limit_run(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow  # the experiment at three ε
 @pytest.mark.mpi
 def test_koiter_tends_to_the_membrane_on_the_papers_problem(koiter_limit_run: Path) -> None:
     """‖ζ_K(ε) − ζ_M‖_{V_M} falls as ε does; the thick shells do not reach the plane (the
