@@ -318,7 +318,7 @@ def test_interior_penalty_changes_less_than_the_error(convergence) -> None:
 
 
 # -- the membrane limit --------------------------------------------------------------------
-@pytest.mark.slow  # continuations at four ε and the membrane's
+@pytest.mark.slow  # continuations at three ε and the membrane's
 def test_koiter_tends_to_the_membrane_solution_as_epsilon_vanishes() -> None:
     """On the paper's problem (load ∝ ε, so the membrane solution does not depend on ε),
     ``ζ_K(ε) → ζ_M`` on a fixed mesh. The discrete bending terms weigh about ε²/h⁴ against
