@@ -7,13 +7,10 @@ from mpi4py import MPI
 
 import dolfinx.mesh
 import numpy as np
+from conftest import make_paper_shell
 
-from shellobstacle.geometry.surface import Surface
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.spec import Discretization, Load, Material, Shell
-
-#: the paper's load of section 10 (a pressure on the disk r < 0.06)
-PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
+from shellobstacle.spec import Discretization
 
 
 def cap_on_square(half: float, n: int, degree: int = 1, kappa: float = 1e-3) -> PenalizedProblem:
@@ -23,11 +20,7 @@ def cap_on_square(half: float, n: int, degree: int = 1, kappa: float = 1e-3) -> 
     mesh = dolfinx.mesh.create_rectangle(
         MPI.COMM_WORLD, [np.array([-half, -half]), np.array([half, half])], [n, n]
     )
-    shell = Shell(
-        Surface.spherical_cap(1.0, 0.85),
-        Material(epsilon=0.001, lam=0.4, mu=0.012),
-        Load(("0", "0", PAPER_LOAD)),
-    )
+    shell = make_paper_shell()
     quadrature = "vertex" if degree == 1 else "gauss"
     disc = Discretization(degree=degree, penalty_quadrature=quadrature, quadrature_degree=4)
     return PenalizedProblem(shell, mesh, disc, kappa=kappa)

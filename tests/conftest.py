@@ -1,14 +1,60 @@
-"""Test configuration: the DOLFINx wheel's environment is checked once, as the command does.
+"""Test configuration: the DOLFINx wheel's environment is checked once, as the command does;
+the paper's problem data shared by the tests; hypothesis made deterministic.
 
 The suite runs the plain library: ``./run test`` sets ``SHELLOBSTACLE_TUNING=off`` for the
 commands it starts, and the tuning's own tests start their processes with it set.
+
+Hypothesis draws the same examples on every run (profile ``deterministic``, the default), so
+that a random example can never fail CI by chance; ``HYPOTHESIS_PROFILE=random`` draws new
+ones and ten times as many (``HYPOTHESIS_PROFILE=random ./run test tests/test_config_fuzz.py``).
 """
 
+from __future__ import annotations
+
+import os
+
 import pytest
+from hypothesis import settings
 
 from shellobstacle.compat import bootstrap
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.spec import Load, Material, Obstacle, Shell
 
 bootstrap()
+
+PROFILE = os.environ.get("HYPOTHESIS_PROFILE", "deterministic")
+settings.register_profile("deterministic", derandomize=True, database=None)
+settings.register_profile("random", derandomize=False)
+settings.load_profile(PROFILE)
+
+
+def examples(n: int) -> int:
+    """How many examples a property test with ``n`` draws: ten times as many when random."""
+    return 10 * n if PROFILE == "random" else n
+
+
+#: The paper's load of section 10 (docs/model.md): a pressure ∝ ε on the disk r < 0.06.
+PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
+#: The paper's material: half-thickness ε and the Lamé constants λ, μ.
+PAPER_MATERIAL = {"epsilon": 1e-3, "lam": 0.4, "mu": 0.012}
+
+
+def make_paper_shell(
+    load: str = PAPER_LOAD,
+    model: str = "membrane",
+    epsilon: float = PAPER_MATERIAL["epsilon"],
+    parameters: dict[str, float] | None = None,
+) -> Shell:
+    """The paper's section 10 shell: the cap θ₃ = √(1 − |y|²) − 0.85, its material (at
+    ``epsilon``) and ``(0, 0, load)``, under the plane x₃ = 0, with ``model``."""
+    material = Material(epsilon, PAPER_MATERIAL["lam"], PAPER_MATERIAL["mu"])
+    return Shell(
+        Surface.spherical_cap(1.0, 0.85),
+        material,
+        Load(("0", "0", load), parameters or {}),
+        Obstacle(),
+        model,
+    )
 
 
 @pytest.fixture

@@ -8,8 +8,8 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 import pytest
+from conftest import make_paper_shell as paper_shell
 
-from shellobstacle.geometry.surface import Surface
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm, vm_norm
@@ -19,19 +19,11 @@ from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.nodal import nodal_rotations
 from shellobstacle.solvers.options import ActiveSetOptions
-from shellobstacle.spec import Discretization, Load, Material, Shell
+from shellobstacle.spec import Discretization
 
-PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 PULL_UP = "Piecewise(((2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 VERTEX = Discretization(penalty_quadrature="vertex")
 KKT_TOL = 1e-10
-
-
-def paper_shell(load: str = PAPER_LOAD) -> Shell:
-    """The paper's section 10 data (docs/model.md §7)."""
-    return Shell(
-        Surface.spherical_cap(1.0, 0.85), Material(1e-3, 0.4, 0.012), Load(("0", "0", load))
-    )
 
 
 def square(comm=MPI.COMM_WORLD, n: int = 24, half: float = 0.25) -> dolfinx.mesh.Mesh:

@@ -31,6 +31,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 import pytest
+from conftest import examples
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
@@ -44,7 +45,7 @@ EXAMPLE_FILES = sorted(EXAMPLES.glob("*.toml"))
 EXAMPLE_TEXTS = [p.read_text() for p in EXAMPLE_FILES]
 EXIT_CODES = {0, 1, 2, 3, 130}
 FUZZ = settings(
-    max_examples=2000,
+    max_examples=examples(2000),
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )
@@ -450,6 +451,7 @@ def test_found_refusals_name_the_problem_and_the_fix(argv: list[str], problem: s
     assert problem in err and fix in err, err
 
 
+@pytest.mark.slow  # 2000 command lines: minutes
 @FUZZ
 @given(command_lines(), config_texts())
 @example(FOUND[0][0], "")

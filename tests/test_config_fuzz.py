@@ -25,6 +25,7 @@ from mpi4py import MPI
 
 import pytest
 import sympy as sp
+from conftest import examples
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -44,7 +45,7 @@ pytestmark = [
 PAPER = Path(__file__).parents[1] / "examples" / "paper.toml"
 BASE: dict[str, Any] = tomllib.loads(PAPER.read_text())
 FUZZ = settings(
-    max_examples=300,
+    max_examples=examples(300),
     deadline=None,
     suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
 )

@@ -408,11 +408,11 @@ def test_a_mesh_too_large_for_the_machine_is_refused_on_every_rank(monkeypatch) 
     machine need their share of the run's memory); what fits passes everywhere."""
     from shellobstacle.mesh import resources
 
-    monkeypatch.setattr(resources, "machine_memory", lambda: 1.0e9)
-    spec = DomainSpec("disk", 0.002)  # about 2.3e5 vertices, 7e5 dofs: 2.4 GB
+    monkeypatch.setattr(resources, "machine_memory", lambda: 2.0**30)
+    spec = DomainSpec("disk", 0.002)  # about 2.3e5 vertices, 7e5 dofs: 2.2 GiB
     with pytest.raises(resources.ResourceError) as caught:
         resources.require_fits(spec)
     messages = COMM.allgather(str(caught.value))
-    assert len(set(messages)) == 1 and "which has 1 GB" in messages[0]
+    assert len(set(messages)) == 1 and "of its 1 GiB" in messages[0]
     assert "\n" not in messages[0]
     assert resources.require_fits(DomainSpec("disk", 0.1)) is not None

@@ -13,8 +13,8 @@ import dolfinx
 import numpy as np
 import pytest
 import ufl
+from conftest import make_paper_shell
 
-from shellobstacle.geometry.surface import Surface
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.models.hybrid_bending import facet_midpoints, facet_normals
@@ -26,21 +26,14 @@ from shellobstacle.solvers.linear.zone import ZoneStrategy
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.contact_zone import ContactZone
-from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
+from shellobstacle.spec import Discretization
 from tests.test_contact_zone import _without, lu_solve
 
 COMM = MPI.COMM_WORLD
-PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 
 
 def paper_koiter(comm: MPI.Comm, h: float, bending: str = "hybrid") -> PenalizedProblem:
-    shell = Shell(
-        Surface.spherical_cap(1.0, 0.85),
-        Material(1e-3, 0.4, 0.012),
-        Load(("0", "0", PAPER_LOAD)),
-        Obstacle(),
-        "koiter",
-    )
+    shell = make_paper_shell(model="koiter")
     mesh = create_mesh(DomainSpec(kind="disk", h=h, radius=0.5), comm, ghosted=True)
     return PenalizedProblem(shell, mesh, Discretization(degree=2, bending=bending))
 

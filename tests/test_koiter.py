@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 import sympy as sp
 import ufl
+from conftest import make_paper_shell
 
 from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import ConfigError, parse_config
@@ -321,9 +322,7 @@ def test_interior_penalty_changes_less_than_the_error(convergence) -> None:
 
 
 # -- the membrane limit --------------------------------------------------------------------
-PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
-
-
+@pytest.mark.slow  # continuations at three ε and the membrane's
 def test_koiter_tends_to_the_membrane_solution_as_epsilon_vanishes() -> None:
     """On the paper's problem (load ∝ ε, so the membrane solution does not depend on ε),
     ``ζ_K(ε) → ζ_M`` on a fixed mesh. The discrete bending terms weigh about ε²/h⁴ against
@@ -334,13 +333,7 @@ def test_koiter_tends_to_the_membrane_solution_as_epsilon_vanishes() -> None:
     kappas = [1e-1, 1e-2, 1e-3, 1e-4]
 
     def solve(model: str, eps: float) -> np.ndarray:
-        shell = Shell(
-            Surface.spherical_cap(1.0, 0.85),
-            Material(eps, 0.4, 0.012),
-            Load(("0", "0", PAPER_LOAD)),
-            Obstacle(),
-            model,
-        )
+        shell = make_paper_shell(model=model, epsilon=eps)
         problem = PenalizedProblem(shell, mesh, disc)
         continuation(problem, NewtonSolver(problem), kappas)
         return problem.zeta.x.array.copy()

@@ -11,6 +11,7 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 import pytest
+from conftest import make_paper_shell
 
 from shellobstacle.cli.main import main
 from shellobstacle.experiments.koiter_limit import distance_to_boundary, layer_width
@@ -20,11 +21,10 @@ from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
+from shellobstacle.spec import Discretization, Load, Material, Shell
 
 COMM = MPI.COMM_WORLD
 PAPER = Path(__file__).parents[1] / "examples" / "paper.toml"
-PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 
 
 def test_layer_width_of_an_exponential_layer() -> None:
@@ -51,6 +51,7 @@ def test_distance_to_boundary_on_a_disk() -> None:
     assert dist.x.array[:n].min() > 0
 
 
+@pytest.mark.slow  # Koiter's P2 forms compiled and solved at three ε
 def test_bending_scale_is_koiter_at_another_thickness() -> None:
     """With the load and penalty ∝ ε, scaling the bending energy by (ε'/ε)² gives Koiter's
     solution at ε' (computed with its own compiled forms)."""
@@ -62,13 +63,7 @@ def test_bending_scale_is_koiter_at_another_thickness() -> None:
     )
 
     def solve(eps: float, scale: float | None = None) -> np.ndarray:
-        shell = Shell(
-            Surface.spherical_cap(1.0, 0.85),
-            Material(eps, 0.4, 0.012),
-            Load(("0", "0", PAPER_LOAD)),
-            Obstacle(),
-            "koiter",
-        )
+        shell = make_paper_shell(model="koiter", epsilon=eps)
         problem = PenalizedProblem(shell, mesh, Discretization(degree=2))
         if scale is not None:
             problem.set_bending_scale(scale)
@@ -103,6 +98,7 @@ def koiter_limit_run(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow  # the experiment at three ε
 @pytest.mark.mpi
 def test_koiter_tends_to_the_membrane_on_the_papers_problem(koiter_limit_run: Path) -> None:
     """‖ζ_K(ε) − ζ_M‖_{V_M} falls as ε does; the thick shells do not reach the plane (the

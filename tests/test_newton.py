@@ -12,9 +12,9 @@ import basix
 import dolfinx
 import numpy as np
 import pytest
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.api import solve
-from shellobstacle.geometry.surface import Surface
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
@@ -24,16 +24,7 @@ from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear import iterative as iterative_module
 from shellobstacle.solvers.linear.iterative import WARM_FORCING, IterativeStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
-from shellobstacle.spec import Discretization, Load, Material, Obstacle, PenaltySpec, Shell
-
-PAPER_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
-
-
-def paper_shell(load: str = PAPER_LOAD) -> Shell:
-    """The paper's section 10 data (docs/model.md §7)."""
-    return Shell(
-        Surface.spherical_cap(1.0, 0.85), Material(1e-3, 0.4, 0.012), Load(("0", "0", load))
-    )
+from shellobstacle.spec import Discretization, Obstacle, PenaltySpec, Shell
 
 
 def square(comm=MPI.COMM_WORLD, n: int = 24, half: float = 0.25) -> dolfinx.mesh.Mesh:

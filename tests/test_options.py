@@ -128,10 +128,10 @@ def test_estimates_by_model() -> None:
 def test_too_large_for_this_machine_unless_force(
     command: str, tmp_path: Path, monkeypatch, capsys
 ) -> None:
-    """On a machine with 0.2 GB the paper's coarse mesh is refused (exit 2, one line with the
+    """On a machine with 0.25 GiB the paper's coarse mesh is refused (exit 2, one line with the
     estimate and the machine's memory, no folder); --force proceeds."""
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(resources, "machine_memory", lambda: 0.2e9)
+    monkeypatch.setattr(resources, "machine_memory", lambda: 0.25 * 2.0**30)
     args = [*([command] if command != "experiment" else ["experiment", "solvers"]), PAPER]
     args += ["-q", "--set", "domain.h=0.1", "--set", "output.paraview=false"]
     if command == "experiment":
@@ -140,7 +140,8 @@ def test_too_large_for_this_machine_unless_force(
         monkeypatch.setattr(resources, "BYTES_PER_VERTEX_MESH", 1e6)
     assert main(args) == 2
     err = capsys.readouterr().err
-    assert "GB on this machine, which has 0.2 GB" in err and "--force" in err
+    assert "GiB on this machine, more than 80% of its 0.25 GiB" in err and "--force" in err
+    assert " GB" not in err
     assert len(err.strip().splitlines()) == 1
     assert list(tmp_path.iterdir()) == []
     assert main([*args, "--force"]) == 0

@@ -24,7 +24,10 @@ from mpi4py import MPI
 
 import pytest
 
-pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fresh processes, serially")
+pytestmark = [
+    pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fresh processes, serially"),
+    pytest.mark.slow,  # a wheel build and a fresh environment: minutes
+]
 
 ROOT = Path(__file__).parents[1]
 PACKAGE = ROOT / "src" / "shellobstacle"

@@ -20,8 +20,8 @@ import dolfinx.mesh
 import numpy as np
 import pytest
 import ufl
+from conftest import PAPER_LOAD, make_paper_shell
 
-from shellobstacle.geometry.surface import Surface
 from shellobstacle.io.paraview import SurfaceMesh, write_paraview
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
@@ -29,13 +29,13 @@ from shellobstacle.post.norms import h1_norm, l2_norm, norms, vm_norm
 from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import cross_section
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.spec import Discretization, Load, Material, Shell
+from shellobstacle.spec import Discretization, Shell
 
 COMM = MPI.COMM_WORLD
 HALF = 0.25  # ω = [-HALF, HALF]²
 N = 20  # cells per side
 # the paper's load (docs/model.md §7) times a sign s: s = 1 pushes the cap down, s = -1 pulls it up
-PAPER_LOAD = "s*Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
+SIGNED_LOAD = f"s*{PAPER_LOAD}"
 KAPPAS = (1e-2, 1e-3, 1e-4)
 
 
@@ -45,12 +45,8 @@ def _square(n: int = N) -> dolfinx.mesh.Mesh:
     )
 
 
-def _shell(load: str = PAPER_LOAD, **parameters: float) -> Shell:
-    return Shell(
-        Surface.spherical_cap(1.0, 0.85),
-        Material(epsilon=0.001, lam=0.4, mu=0.012),
-        Load(("0", "0", load), parameters),
-    )
+def _shell(load: str = SIGNED_LOAD, **parameters: float) -> Shell:
+    return make_paper_shell(load, parameters=parameters)
 
 
 def _shared_dir(tmp_path: Path) -> Path:

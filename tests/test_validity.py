@@ -22,7 +22,7 @@ from shellobstacle.cli.main import EXIT_INVALID, EXIT_OK, main
 from shellobstacle.config.loader import load_config
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.post.validity import THRESHOLDS, assess
+from shellobstacle.post.validity import THRESHOLDS, TRIVIAL, assess
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 #: a uniform pressure 1000 times the peak of the paper's load (examples/small.toml)
@@ -58,7 +58,8 @@ def _theta_extent(problem: PenalizedProblem) -> tuple[float, float]:
 
 @pytest.mark.mpi
 def test_measures_of_known_displacements(paper_problem: PenalizedProblem) -> None:
-    """ζ = 0; a rigid translation by −0.2 e₃ (penetration 0.2 − min θ₃ over max θ₃,
+    """ζ = 0 (no response to the paper's load: trivial); a rigid translation by −0.2 e₃
+    (penetration 0.2 − min θ₃ over max θ₃,
     displacement 0.2 / diam θ(ω), orientation 1); the mirror image y1 → −y1 (orientation −1 at
     the centre, where the cap is flat)."""
     problem = paper_problem
@@ -68,7 +69,8 @@ def test_measures_of_known_displacements(paper_problem: PenalizedProblem) -> Non
     v = assess(post, 1e-3)
     assert v.penetration == 0.0 and v.displacement == 0.0
     assert v.orientation == pytest.approx(1.0, abs=1e-12)
-    assert v.valid
+    assert v.loaded and v.violations == ["trivial"]
+    assert "material.epsilon" in v.warnings()[0] and "solver.atol" in v.warnings()[0]
 
     x = ufl.SpatialCoordinate(problem.mesh)
     _set_cartesian(problem, ufl.as_vector([0.0, 0.0, -0.2 + 0.0 * x[0]]))
@@ -146,3 +148,34 @@ def test_the_python_api_measures_a_solve() -> None:
     outside = solve_config(load_config(SMALL, ["domain.h=0.06", CRUSHING])).validity()
     assert inside.valid and inside.warnings() == []
     assert set(outside.violations) == {"penetration", "displacement", "orientation"}
+
+
+#: the paper's load is ∝ ε: at ε = 1e-40 the load vector (about 1e-43) is below Newton's
+#: absolute tolerance (1e-30), which "converged" in 0 steps to ζ = 0 with exit 0
+TINY = ["domain.h=0.08", "material.epsilon=1e-40"]
+
+
+@pytest.mark.mpi
+def test_material_constants_too_small_give_an_invalid_trivial_solution(shared_dir) -> None:
+    """exit 3 and a warning naming the material keys (not "valid" and exit 0); the paper's
+    constants at the same size are valid (the test above)."""
+    out = shared_dir / "tiny"
+    args = ["solve", str(SMALL), "-o", str(out), "-q"]
+    code = main([*args, *(x for item in TINY for x in ("--set", item))])
+    MPI.COMM_WORLD.barrier()
+    summary = json.loads((out / "summary.json").read_text())
+    assert code == EXIT_INVALID, summary
+    assert summary["validity"]["violations"] == ["trivial"]
+    assert summary["validity"]["displacement"] < TRIVIAL
+    (warning,) = summary["warnings"]
+    assert all(k in warning for k in ("material.epsilon", "material.lambda", "material.mu"))
+
+
+@pytest.mark.mpi
+def test_an_unloaded_shell_at_rest_is_valid() -> None:
+    """p = 0: ζ = 0 is the solution, not a trivial one."""
+    from shellobstacle.api import solve_config
+
+    cfg = load_config(SMALL, ["domain.h=0.08", "load.p=['0', '0', '0']"])
+    validity = solve_config(cfg).validity()
+    assert not validity.loaded and validity.displacement == 0.0 and validity.valid

@@ -11,7 +11,25 @@ from __future__ import annotations
 import difflib
 from collections.abc import Sequence
 
-__all__ = ["ConfigError", "not_one_of", "suggest"]
+__all__ = ["ECHO_LIMIT", "ConfigError", "cut", "not_one_of", "shown", "suggest"]
+
+#: The most characters of user input a message echoes.
+ECHO_LIMIT = 80
+
+
+def cut(text: str, limit: int = ECHO_LIMIT) -> str:
+    """``text``, or its first ``limit`` characters and ``… (N characters)``."""
+    return text if len(text) <= limit else f"{text[:limit]}… ({len(text)} characters)"
+
+
+def shown(value: object, limit: int = ECHO_LIMIT) -> str:
+    """``repr(value)`` (a text quoted), cut after ``limit`` characters of the text or the
+    representation (:func:`cut`): a message about a huge input stays one line."""
+    if not isinstance(value, str):
+        return cut(repr(value), limit)
+    if len(value) <= limit:
+        return repr(value)
+    return f"{value[:limit]!r}… ({len(value)} characters)"
 
 
 def suggest(name: str, options: Sequence[str], what: str = "valid keys") -> str:
@@ -22,7 +40,7 @@ def suggest(name: str, options: Sequence[str], what: str = "valid keys") -> str:
 
 def not_one_of(key: str, value: object, choices: Sequence[str]) -> str:
     """The message for ``key = value`` outside ``choices`` (with a suggestion)."""
-    text = f"{key} = {value!r} is not one of {', '.join(map(repr, choices))}"
+    text = f"{key} = {shown(value)} is not one of {', '.join(map(repr, choices))}"
     close = difflib.get_close_matches(str(value), list(choices), n=1, cutoff=0.5)
     return text + (f"; did you mean {close[0]!r}?" if isinstance(value, str) and close else "")
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import re
 import sys
 import time
 import traceback
@@ -45,9 +46,24 @@ class _Version(argparse.Action):
         parser.exit()
 
 
+class _Parser(argparse.ArgumentParser):
+    """An argument parser that takes ``-1e-2`` and ``-0.5,1`` as values, not options.
+
+    argparse's own pattern knows ``-1`` and ``-.5`` only, so ``--epsilons -1e-2`` stopped at
+    "expected one argument" with the whole usage; the value now reaches the option's check,
+    which names what is wrong in one line. No option of this parser looks like a number.
+    """
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self._negative_number_matcher = re.compile(
+            r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?(,[-+.\deE]*)*$"
+        )
+
+
 def _parser() -> argparse.ArgumentParser:
     fmt = argparse.ArgumentDefaultsHelpFormatter
-    p = argparse.ArgumentParser(
+    p = _Parser(
         prog="shellobstacle",
         description="Elliptic membrane shells pushed against a plane: penalty method, "
         "finite elements, Newton (Meixner & Piersanti 2024).",
@@ -209,7 +225,7 @@ def _parser() -> argparse.ArgumentParser:
         "--edge-h",
         type=float,
         default=None,
-        help="koiter-limit: mesh size along γ (default: domain.edge_h, else h/4)",
+        help="koiter-limit: mesh size along γ (default: domain.edge_h, else h/2)",
     )
     e.add_argument(
         "--edge-width",

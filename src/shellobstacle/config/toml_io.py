@@ -18,7 +18,8 @@ __all__ = ["apply_overrides", "read_toml", "to_toml"]
 
 
 def read_toml(path: Path) -> dict[str, Any]:
-    """The TOML document in ``path``; a directory, a binary or unreadable file is refused."""
+    """The TOML document in ``path`` (UTF-8, with or without a byte-order mark); a directory,
+    a binary or unreadable file is refused."""
     if path.is_dir():
         raise ConfigError(f"config file {str(path)!r} is a directory: give a TOML file")
     if not path.exists():
@@ -30,7 +31,7 @@ def read_toml(path: Path) -> dict[str, Any]:
     except OSError as err:
         raise ConfigError(f"config file {str(path)!r} cannot be read: {err.strerror}") from None
     try:
-        text = raw.decode("utf-8")
+        text = raw.decode("utf-8-sig")  # a byte-order mark (Windows editors write one) is dropped
     except UnicodeDecodeError as err:
         raise ConfigError(
             f"{path}: not a text file (byte {err.start} is not UTF-8): give a TOML config file"

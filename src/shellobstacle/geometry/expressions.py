@@ -5,6 +5,11 @@ SymPy syntax. They are parsed against a whitelist of names (no arbitrary code is
 evaluated), differentiated symbolically where needed, and then either translated
 into UFL (exact values at quadrature points) or into NumPy functions (values at
 mesh nodes for checks and post-processing).
+
+Whatever SymPy raises on a user's text (while parsing, evaluating its constants, or
+translating it and its derivatives) becomes an :class:`ExpressionError`: the calls into SymPy
+are wrapped here, one by one, and the messages echo the text cut to a line
+(:func:`~shellobstacle.messages.shown`).
 """
 
 from __future__ import annotations
@@ -14,6 +19,7 @@ import keyword
 import math
 import re
 import tokenize
+import warnings
 from collections.abc import Callable, Mapping
 from io import StringIO
 from typing import Any
@@ -25,6 +31,9 @@ from sympy.parsing.sympy_parser import (
     parse_expr,
     standard_transformations,
 )
+from sympy.utilities.exceptions import SymPyDeprecationWarning
+
+from shellobstacle.messages import cut, shown
 
 __all__ = [
     "FUNCTIONS",
@@ -85,14 +94,14 @@ def _rename_keywords(text: str, what: str) -> tuple[str, dict[str, str]]:
     try:
         tokens = list(tokenize.generate_tokens(StringIO(text).readline))
     except (tokenize.TokenError, SyntaxError, UnicodeError, ValueError) as err:
-        raise ExpressionError(f"{what}: cannot read {text!r}: {err}") from None
+        raise ExpressionError(f"{what}: cannot read {shown(text)}: {err}") from None
     for tok in tokens:
         if tok.type == tokenize.NAME and tok.string in ("True", "False"):
             out.append((tok.type, tok.string))
         elif tok.type == tokenize.NAME and keyword.iskeyword(tok.string):
             if tok.string in ("and", "or", "not", "if", "else"):
                 raise ExpressionError(
-                    f"{what}: {text!r}: Python's {tok.string!r} is not allowed; "
+                    f"{what}: {shown(text)}: Python's {tok.string!r} is not allowed; "
                     "use Piecewise((value, condition), (other, True)), And(...), Or(...)"
                 )
             new = f"{tok.string}_"
@@ -121,7 +130,7 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
     if not isinstance(text, str):
         raise ExpressionError(f"{what}: expected a string expression, got {type(text).__name__}")
     if "__" in text or any(c in text for c in ";`$\\"):
-        raise ExpressionError(f"{what}: {text!r} contains characters that are not allowed")
+        raise ExpressionError(f"{what}: {shown(text)} contains characters that are not allowed")
     if not text.strip():
         raise ExpressionError(f"{what}: the expression is empty")
     code, renamed = _rename_keywords(text, what)
@@ -140,28 +149,29 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
     try:
         tokens = list(tokenize.generate_tokens(StringIO(code).readline))
     except (tokenize.TokenError, SyntaxError, UnicodeError, ValueError) as err:
-        raise ExpressionError(f"{what}: cannot read {text!r}: {err}") from None
+        raise ExpressionError(f"{what}: cannot read {shown(text)}: {err}") from None
     for tok in tokens:
         if tok.type == tokenize.NAME:
             if tok.string not in allowed:
                 known = ", ".join(sorted(str(n) for n in names))
                 raise ExpressionError(
-                    f"{what}: unknown name {renamed.get(tok.string, tok.string)!r} in {text!r}; "
+                    f"{what}: unknown name {shown(renamed.get(tok.string, tok.string))} in "
+                    f"{shown(text)}; "
                     f"allowed are {known} and the functions {', '.join(sorted(FUNCTIONS))}"
                 )
         elif tok.type == tokenize.OP:
             if tok.string not in _OPERATORS:
                 raise ExpressionError(
-                    f"{what}: the operator {tok.string!r} is not allowed in {text!r} "
+                    f"{what}: the operator {tok.string!r} is not allowed in {shown(text)} "
                     f"(allowed: {' '.join(sorted(_OPERATORS))})"
                 )
         elif tok.type == tokenize.NUMBER:
             if tok.string.lower().endswith("j"):
-                raise ExpressionError(f"{what}: complex numbers are not allowed in {text!r}")
+                raise ExpressionError(f"{what}: complex numbers are not allowed in {shown(text)}")
         elif tok.type not in ignorable:
             raise ExpressionError(
-                f"{what}: {tok.string!r} is not allowed in {text!r} (strings, comments and other "
-                "tokens are refused: write numbers, names, operators and function calls)"
+                f"{what}: {shown(tok.string)} is not allowed in {shown(text)} (strings, comments "
+                "and other tokens are refused: write numbers, names, operators and function calls)"
             )
     global_dict = {"__builtins__": {}, **FUNCTIONS, **_SYMPY_INTERNALS}
 
@@ -172,33 +182,53 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
     }  # fmt: skip
 
     def build(evaluate: bool) -> Any:
-        return parse_expr(
-            code,
-            local_dict=local,
-            global_dict=global_dict if evaluate else {**global_dict, **unevaluated},
-            transformations=(*standard_transformations, convert_xor),
-            evaluate=evaluate,
-        )
+        with warnings.catch_warnings():
+            # ``True*y1``: arithmetic on a condition, which SymPy only warns about
+            warnings.simplefilter("error", SymPyDeprecationWarning)
+            return parse_expr(
+                code,
+                local_dict=local,
+                global_dict=global_dict if evaluate else {**global_dict, **unevaluated},
+                transformations=(*standard_transformations, convert_xor),
+                evaluate=evaluate,
+            )
 
     try:
         _check_powers(build(False), what, text)  # before SymPy evaluates 9**9**9 exactly
         expr = build(True)
+        _check_expr(expr, what, text)
     except ExpressionError:
         raise
+    except SymPyDeprecationWarning:
+        raise ExpressionError(
+            f"{what}: {shown(text)} computes with a condition (True, False or a comparison): "
+            "write Piecewise((value, condition), (other, True))"
+        ) from None
     except Exception as err:  # SymPy raises many types for malformed input
-        raise ExpressionError(f"{what}: cannot parse {text!r}: {err}") from None
+        raise ExpressionError(f"{what}: cannot parse {shown(text)}: {_reason(err)}") from None
+    return expr
+
+
+def _reason(err: Exception) -> str:
+    """SymPy's message for ``err``, on one line and bounded (it may quote the input)."""
+    return cut(" ".join(str(err).split()) or type(err).__name__, 200)
+
+
+def _check_expr(expr: Any, what: str, text: str) -> None:
+    """Refuse a parsed ``expr`` that is no finite real scalar defined everywhere."""
     if not isinstance(expr, sp.Expr):
-        raise ExpressionError(f"{what}: {text!r} is not a scalar expression")
+        raise ExpressionError(f"{what}: {shown(text)} is not a scalar expression")
     if expr.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
-        raise ExpressionError(f"{what}: {text!r} is not finite (it evaluates to {expr})")
+        raise ExpressionError(
+            f"{what}: {shown(text)} is not finite (it evaluates to {shown(expr)})"
+        )
     _check_constants(expr, what, text)
     for pw in expr.atoms(sp.Piecewise):
         if pw.args[-1].cond != sp.true:
             raise ExpressionError(
-                f"{what}: the Piecewise in {text!r} needs a last branch (value, True) so that "
-                "it is defined everywhere"
+                f"{what}: the Piecewise in {shown(text)} needs a last branch (value, True) so "
+                "that it is defined everywhere"
             )
-    return expr
 
 
 def _check_constants(expr: sp.Expr, what: str, text: str) -> None:
@@ -212,13 +242,15 @@ def _check_constants(expr: sp.Expr, what: str, text: str) -> None:
         except (TypeError, ValueError, OverflowError):
             continue  # not a number (a condition's parts are checked on their own)
         if not (math.isfinite(value.real) and math.isfinite(value.imag)):
-            shown = f"{node.evalf(4)}" if node.is_Number else f"{node} ≈ {node.evalf(4)}"
+            part = f"{node.evalf(4)}" if node.is_Number else f"{shown(node)} ≈ {node.evalf(4)}"
             raise ExpressionError(
-                f"{what}: {shown} in {text!r} overflows double precision (at most 1.8e308): "
+                f"{what}: {part} in {shown(text)} overflows double precision (at most 1.8e308): "
                 "rescale the expression"
             )
         if value.imag != 0.0:
-            raise ExpressionError(f"{what}: {node} in {text!r} is not real ({value:.6g})")
+            raise ExpressionError(
+                f"{what}: {shown(node)} in {shown(text)} is not real ({value:.6g})"
+            )
 
 
 def _check_powers(tree: Any, what: str, text: str) -> None:
@@ -233,7 +265,7 @@ def _check_powers(tree: Any, what: str, text: str) -> None:
                 size = float("inf")
             if not size <= _MAX_EXPONENT:
                 raise ExpressionError(
-                    f"{what}: the exponent {node.exp} in {text!r} is too large "
+                    f"{what}: the exponent {node.exp} in {shown(text)} is too large "
                     f"(at most {_MAX_EXPONENT})"
                 )
 
@@ -261,7 +293,7 @@ def _ufl_relational(expr: sp.Basic, rec: Callable[[sp.Basic], Any]) -> Any:
     for cls, op in ops.items():
         if isinstance(expr, cls):
             return op(rec(expr.lhs), rec(expr.rhs))
-    raise ExpressionError(f"cannot translate the condition {expr} to UFL")
+    raise ExpressionError(f"cannot translate the condition {shown(expr)} to UFL")
 
 
 def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
@@ -289,6 +321,7 @@ def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
         sp.sign: ufl.sign,
     }
     cache: dict[sp.Basic, Any] = {}
+    _require_values(expr)
 
     def rec(e: sp.Basic) -> Any:
         if e in cache:
@@ -303,7 +336,7 @@ def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
         if e.is_Number or e in (sp.pi, sp.E):
             return float(e)
         if isinstance(e, sp.Symbol):
-            raise ExpressionError(f"no value for the symbol {e} in {expr}")
+            raise ExpressionError(f"no value for the symbol {e} in {shown(expr)}")
         if isinstance(e, sp.Add):
             terms = [rec(a) for a in e.args]
             out = terms[0]
@@ -344,29 +377,63 @@ def to_ufl(expr: sp.Expr, symbols: Mapping[sp.Symbol, Any]) -> Any:
                     out = rec(value)
                 elif out is None:
                     raise ExpressionError(
-                        f"Piecewise {e} needs a final (value, True) branch to be defined everywhere"
+                        f"Piecewise {shown(e)} needs a final (value, True) branch to be "
+                        "defined everywhere"
                     )
                 else:
                     out = ufl.conditional(_ufl_relational(cond, rec), rec(value), out)
             return out
-        raise ExpressionError(f"cannot translate {e.func.__name__} in {expr} to UFL")
+        raise ExpressionError(f"cannot translate {e.func.__name__} in {shown(expr)} to UFL")
 
     return rec(sp.sympify(expr))
+
+
+#: SymPy objects without a value at a point: the derivatives of a kink or a jump (of Abs,
+#: sign, Min, Max) and derivatives SymPy could not carry out. Only derivatives of θ can hold
+#: them (no user expression can name them, and the load is not differentiated).
+_NO_VALUE = (sp.DiracDelta, sp.Derivative, sp.Subs)
+
+
+def _require_values(expr: sp.Basic) -> None:
+    """Refuse an expression holding one of :data:`_NO_VALUE` (a θ that is not smooth)."""
+    found = sorted(sp.sympify(expr).atoms(*_NO_VALUE), key=str)
+    if found:
+        raise ExpressionError(
+            f"surface.theta: a derivative of θ, {shown(expr)}, holds {shown(found[0])}, which "
+            "has no value at a point: θ has a kink or a jump (Abs, sign, Min or Max of y1, y2); "
+            "θ must be smooth on ω̄ (twice differentiable, three times for Koiter's model): "
+            "write it without them, e.g. sqrt(y1**2 + c**2) for |y1|"
+        )
 
 
 @functools.lru_cache(maxsize=1024)
 def _lambdified(expr: sp.Expr, args: tuple[sp.Symbol, ...]) -> Callable[..., Any]:
     """``sympy.lambdify`` of ``expr``, made once per expression (lambdifying the geometry's
     42 expressions again in every chunk of the checks and every output would dominate)."""
-    return sp.lambdify(args, expr, modules="numpy")
+    _require_values(expr)
+    try:
+        return sp.lambdify(args, expr, modules="numpy")
+    except Exception as err:  # SymPy's printers raise several types for what they lack
+        raise ExpressionError(f"cannot evaluate {shown(expr)} with NumPy: {_reason(err)}") from None
 
 
 def to_numpy(expr: sp.Expr, args: tuple[sp.Symbol, ...] = (y1, y2)) -> Callable[..., np.ndarray]:
-    """A vectorized NumPy function of ``args`` evaluating ``expr`` (broadcast to the inputs)."""
+    """A vectorized NumPy function of ``args`` evaluating ``expr`` (broadcast to the inputs).
+
+    Raises:
+        ExpressionError: ``expr`` holds what has no value at a point (:data:`_NO_VALUE`) or
+            what SymPy's NumPy printer cannot translate (when made or first evaluated).
+    """
     fn = _lambdified(sp.sympify(expr), tuple(args))
 
     def evaluate(*values: np.ndarray) -> np.ndarray:
-        out = np.asarray(fn(*values), dtype=float)
+        try:
+            raw = fn(*values)  # the code SymPy generated: a name it printed may not exist
+        except (NameError, AttributeError, TypeError) as err:
+            raise ExpressionError(
+                f"cannot evaluate {shown(expr)} with NumPy: {_reason(err)}"
+            ) from None
+        out = np.asarray(raw, dtype=float)
         return np.broadcast_to(out, np.broadcast(*values).shape).copy()
 
     return evaluate

@@ -10,7 +10,8 @@ memory, ``docs/perf/koiter/`` and the 1.93 M-dof runs of ``docs/performance.md``
 per dof for the membrane model with P1, 3.4 kB with P2, 9.1 kB for Koiter's model with P2
 (whose factor fills more); a mesh alone costs 0.6–0.7 kB per vertex. The figures below round
 them up; they are estimates within a factor of about 1.5, good for refusing what is far out of
-reach, not for planning a run to the last gigabyte (``--force`` proceeds anyway).
+reach, not for planning a run to the last gigabyte (``--force`` proceeds anyway). Messages give
+memory in GiB (2³⁰ bytes), the unit ``free -g`` and the documentation use.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from mpi4py import MPI
 from shellobstacle.config.loader import ConfigError
 from shellobstacle.mesh.domains import DomainSpec, estimated_vertices
 
-__all__ = ["Estimate", "ResourceError", "estimate", "machine_memory", "require_fits"]
+__all__ = ["GIB", "Estimate", "ResourceError", "estimate", "machine_memory", "require_fits"]
 
 #: Peak memory per dof of a solve, bytes, by (model, degree).
 BYTES_PER_DOF = {("membrane", 1): 3.5e3, ("membrane", 2): 4.0e3, ("koiter", 2): 10.0e3}
@@ -36,6 +37,8 @@ BYTES_PER_VERTEX_MESH = 1.0e3
 BASE_BYTES = 0.3e9
 #: The share of this machine's memory an estimate may take.
 MEMORY_SHARE = 0.8
+#: Bytes in a GiB, the one unit of memory in messages.
+GIB = 2.0**30
 
 
 class ResourceError(ConfigError):
@@ -123,8 +126,9 @@ def require_fits(
             )
         raise ResourceError(
             f"{what}: {size} gives about {est.vertices:.2g} vertices and {est.dofs:.2g} dofs; "
-            f"{task} needs about {need / 1e9:.3g} GB on this machine, which has "
-            f"{have / 1e9:.3g} GB: use a larger h (or more machines under MPI), or pass --force"
+            f"{task} needs about {need / GIB:.3g} GiB on this machine, more than "
+            f"{MEMORY_SHARE:.0%} of its {have / GIB:.3g} GiB: use a larger h (or more machines "
+            "under MPI), or pass --force"
         )
     return est
 

@@ -12,6 +12,12 @@ over itself. Scale-free measures, computed after every solve:
 ``displacement``
     ``max |ζ_i a^i| / diam θ(ω)``: the linearized strain (docs/model.md §2) assumes displacements
     small against the shell; beyond a quarter of its size the linearization is not credible.
+    Below :data:`TRIVIAL` under a load that is not zero the solution is *trivial*: the shell
+    starts strictly inside the half-space, so ``ζ = 0`` solves only the unloaded problem, and
+    a displacement under the round-off of θ's coordinates is no response to the load. This is
+    what material constants and a load so small that the solver's absolute tolerance or
+    round-off stops it at its start (``material.epsilon = 1e-40`` with the paper's load ∝ ε:
+    "converged" in 0 Newton steps) leave.
 ``orientation``
     ``min a_3 · (ã_1 ∧ ã_2) / √a`` with the deformed tangent vectors ``ã_α = a_α + ∂_α U``,
     ``U = ζ_i a^i``: 1 for no deformation, ``≤ 0`` where the deformed surface folds over.
@@ -47,6 +53,9 @@ THRESHOLDS: dict[str, float] = {
     "displacement": 0.25,
     "orientation": 0.0,
 }
+#: Smallest displacement (of the shell's size) a loaded solution may have: a few hundred times
+#: the double-precision round-off of θ's coordinates.
+TRIVIAL = 1e-13
 
 _EXPLAIN = {
     "penetration": "of the shell's height above the plane (max θ·q): the constraint is not "
@@ -56,6 +65,10 @@ _EXPLAIN = {
     "reduce the load",
     "orientation": "the deformed surface folds over itself somewhere: the load is far beyond "
     "the linear model; reduce it",
+    "trivial": "of the shell's size under a load that is not zero: no response to the load "
+    "(the solver stopped at its start, its absolute tolerance solver.atol above the load "
+    "vector): material.epsilon, material.lambda, material.mu and the load are too small for "
+    "double precision; give them in units that make them of ordinary size",
 }
 
 
@@ -68,6 +81,7 @@ class Validity:
     orientation: float
     penalty_ratio: float | None
     thresholds: dict[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
+    loaded: bool = True  # the load is not zero everywhere (else ζ = 0 is the solution)
 
     @property
     def violations(self) -> list[str]:
@@ -80,6 +94,8 @@ class Validity:
             out.append("displacement")
         if self.orientation <= t["orientation"]:
             out.append("orientation")
+        if self.loaded and not self.displacement >= TRIVIAL:
+            out.append("trivial")
         return out
 
     @property
@@ -89,19 +105,15 @@ class Validity:
 
     def warnings(self) -> list[str]:
         """One line per violated measure: the value, the threshold and what to do."""
-        lines = []
+        t, lines = self.thresholds, []
         for name in self.violations:
-            value, limit = getattr(self, name), self.thresholds[name]
-            if name == "orientation":
-                lines.append(
-                    f"outside the model's validity: orientation {value:.3g} ≤ {limit:g}, "
-                    + _EXPLAIN[name]
-                )
+            if name == "trivial":
+                what = f"displacement {self.displacement:.3g} < {TRIVIAL:g} "
+            elif name == "orientation":
+                what = f"orientation {self.orientation:.3g} ≤ {t[name]:g}, "
             else:
-                lines.append(
-                    f"outside the model's validity: {name} {value:.3g} > {limit:g} "
-                    + _EXPLAIN[name]
-                )
+                what = f"{name} {getattr(self, name):.3g} > {t[name]:g} "
+            lines.append("outside the model's validity: " + what + _EXPLAIN[name])
         return lines
 
     def as_dict(self) -> dict[str, Any]:
@@ -113,6 +125,7 @@ class Validity:
             "orientation": self.orientation,
             "penalty_ratio": self.penalty_ratio,
             "thresholds": dict(self.thresholds),
+            "loaded": self.loaded,
             "violations": self.violations,
         }
 
@@ -155,7 +168,8 @@ def assess(post: Any, kappa: float) -> Validity:
     if kappa > 0 and pmax > 0:
         eps = float(problem.shell.material.epsilon)
         ratio = violation / (kappa * pmax / eps)
-    return Validity(penetration, umax / size if size > 0 else float("inf"), omin, ratio)
+    displacement = umax / size if size > 0 else float("inf")
+    return Validity(penetration, displacement, omin, ratio, loaded=pmax > 0)
 
 
 def _cell_values(expr: Any, space: dolfinx.fem.FunctionSpace, mesh: dolfinx.mesh.Mesh):
