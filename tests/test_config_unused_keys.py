@@ -13,7 +13,7 @@ from mpi4py import MPI
 
 import pytest
 
-from shellobstacle.cli import main
+from shellobstacle.cli.main import main
 from shellobstacle.config.loader import load_config, parse_config
 
 EXAMPLES = Path(__file__).parents[1] / "examples"

@@ -17,7 +17,7 @@ from mpi4py import MPI
 
 import pytest
 
-from shellobstacle.cli import main
+from shellobstacle.cli.main import main
 from shellobstacle.compat import PTH_NAME, install_pth
 from shellobstacle.mesh import resources
 
