@@ -98,25 +98,3 @@ def test_the_library_installs_nothing() -> None:
         "assert signal.set_wakeup_fd(-1) == -1\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
-
-
-def test_unfinished_compilations_of_this_process_are_removed(tmp_path, monkeypatch) -> None:
-    """Only sources written since the start and without FFCx's ``.c.cached`` marker go."""
-    import os
-
-    import dolfinx.jit
-
-    from shellobstacle.interrupt import remove_unfinished_compilations
-
-    monkeypatch.setattr(dolfinx.jit, "get_options", lambda: {"cache_dir": tmp_path})
-    for name in ("finished", "unfinished", "old"):
-        (tmp_path / f"{name}.c").write_text("/* source */")
-    (tmp_path / "finished.c.cached").write_text("")
-    os.utime(tmp_path / "old.c", (1.0, 1.0))  # written before this process started
-    removed = remove_unfinished_compilations(since=100.0)
-    assert removed == [tmp_path / "unfinished.c"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "finished.c",
-        "finished.c.cached",
-        "old.c",
-    ]

@@ -10,29 +10,24 @@ second Ctrl-C, the watcher says so on stderr and terminates it (SIGTERM, then SI
 
 Result folders stay consistent after such a stop: every file is written atomically, a staged
 ``--overwrite`` leaves the old folder untouched, and ``--resume`` continues from the recorded
-steps. An interrupted FFCx compilation leaves its ``.c`` file without the ``.c.cached``
-marker, which makes the next compilation of the same forms wait and fail (FFCx takes the file
-for another process's compilation): :func:`remove_unfinished_compilations` removes those this
-process started. Only the command line installs the watcher (:mod:`shellobstacle.__main__`);
-the library and :func:`shellobstacle.cli.main` leave the process's signals alone.
+steps; an interrupted FFCx compilation removes its own unfinished source
+(:func:`shellobstacle.jit_cache.guarded_compilations`). Only the command line installs the
+watcher (:mod:`shellobstacle.__main__`); the library and :func:`shellobstacle.cli.main` leave
+the process's signals alone.
 """
 
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import signal
 import subprocess
 import sys
-from pathlib import Path
 
 __all__ = [
     "GRACE",
     "acknowledge",
     "install",
-    "remove_unfinished_compilations",
-    "unfinished_compilations",
 ]
 
 #: Seconds a long call into C may keep running after Ctrl-C.
@@ -123,30 +118,3 @@ def acknowledge() -> None:
     if _ack_fd is not None:
         with contextlib.suppress(OSError):
             os.write(_ack_fd, b"a")
-
-
-def unfinished_compilations(
-    newer_than: float = -math.inf, older_than: float = math.inf
-) -> list[Path]:
-    """FFCx sources in DOLFINx's JIT cache without the ``.c.cached`` marker of a finished
-    compilation, last written after ``newer_than`` and before ``older_than`` (``time.time()``
-    values)."""
-    from dolfinx.jit import get_options
-
-    found = []
-    for c_file in sorted(Path(get_options()["cache_dir"]).glob("*.c")):
-        with contextlib.suppress(OSError):
-            done = c_file.with_suffix(".c.cached").exists()
-            if not done and newer_than <= c_file.stat().st_mtime < older_than:
-                found.append(c_file)
-    return found
-
-
-def remove_unfinished_compilations(since: float) -> list[Path]:
-    """Remove the unfinished FFCx sources written since ``since`` (a ``time.time()``)."""
-    removed = []
-    for c_file in unfinished_compilations(newer_than=since):
-        with contextlib.suppress(OSError):
-            c_file.unlink()
-            removed.append(c_file)
-    return removed
