@@ -25,6 +25,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
+from shellobstacle import interrupt
+
 __all__ = ["LiveStatus", "Phase", "note", "on_terminal", "phase"]
 
 
@@ -43,7 +45,12 @@ _live: LiveStatus | None = None
 
 @contextmanager
 def phase(text: str) -> Iterator[Phase]:
-    """Mark a long phase (nested in the running ones) while the ``with`` block runs."""
+    """Mark a long phase (nested in the running ones) while the ``with`` block runs.
+
+    Every rank runs the same phases: under MPI, the ranks stop at their starts and ends
+    together after Ctrl-C (:func:`shellobstacle.interrupt.agree`).
+    """
+    interrupt.agree()
     current = Phase(text, time.perf_counter())
     _stack.append(current)
     live = _live
@@ -54,12 +61,18 @@ def phase(text: str) -> Iterator[Phase]:
     finally:
         if current in _stack:
             _stack.remove(current)
+    interrupt.agree()  # (not after an exception: that one goes on)
 
 
 def note(text: str) -> None:
-    """Show ``text`` after the innermost phase (e.g. ``"Newton step 3"``); no phase, no note."""
+    """Show ``text`` after the innermost phase (e.g. ``"Newton step 3"``); no phase, no note.
+
+    Every rank notes the same steps (of Newton's or Brezis–Sibony's iteration): under MPI, the
+    ranks stop there together after Ctrl-C, as at a phase's start and end.
+    """
     if _stack:
         _stack[-1].detail = text
+    interrupt.agree()
 
 
 def on_terminal(quiet: bool = False) -> bool:
