@@ -9,7 +9,6 @@ blocks nothing.
 from __future__ import annotations
 
 import os
-import shutil
 import signal
 import socket
 import subprocess
@@ -20,7 +19,7 @@ from pathlib import Path
 from mpi4py import MPI
 
 import pytest
-from cli_helpers import assert_user_error, run
+from cli_helpers import assert_user_error, mpiexec, run
 
 ROOT = Path(__file__).parents[1]
 SMALL = str(ROOT / "examples" / "small.toml")
@@ -47,16 +46,6 @@ PAUSED_SOLVE = textwrap.dedent(
     sys.exit(main(sys.argv[1:]))
     """
 )
-
-
-def mpiexec() -> str | None:
-    """The mpiexec next to this Python (as ./run test finds it), else on PATH."""
-    beside = Path(sys.executable).parent / "mpiexec"
-    return (
-        os.environ.get("MPIEXEC")
-        or (str(beside) if beside.exists() else None)
-        or (shutil.which("mpiexec"))
-    )
 
 
 def start_paused(out: Path, ranks: int = 1) -> subprocess.Popen:
