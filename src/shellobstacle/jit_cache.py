@@ -29,7 +29,17 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-__all__ = ["BrokenEntry", "broken_entries", "cache_dir", "guarded_compilations", "repair"]
+__all__ = [
+    "NO_MODULE",
+    "NO_SOURCE",
+    "UNFINISHED",
+    "UNFINISHED_AGE",
+    "BrokenEntry",
+    "broken_entries",
+    "cache_dir",
+    "guarded_compilations",
+    "repair",
+]
 
 #: a source without its marker is taken for a dead compilation once this old (seconds)
 UNFINISHED_AGE = 600.0
@@ -109,12 +119,12 @@ _WRAPPED = {
 }
 
 
-#: why an entry is broken
-NO_SOURCE, NO_MODULE, UNFINISHED = (
-    "marker without its source",
-    "marker without its module",
-    ("source never finished (a killed run?)"),
-)
+#: why an entry is broken: a marker without its source, ...
+NO_SOURCE = "marker without its source"
+#: ... a marker without its module, ...
+NO_MODULE = "marker without its module"
+#: ... a source without its marker, older than :data:`UNFINISHED_AGE`
+UNFINISHED = "source never finished (a killed run?)"
 
 
 @dataclass(frozen=True)
