@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import sys
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -49,3 +51,12 @@ def shared_folder(tmp_path: Path) -> Iterator[Path]:
     COMM.barrier()
     if COMM.rank == 0:
         shutil.rmtree(path, ignore_errors=True)
+
+
+def mpiexec() -> str | None:
+    """The mpiexec that ``./run test`` uses (``MPIEXEC``, else the one beside this Python, else
+    the one on PATH), or None."""
+    beside = Path(sys.executable).parent / "mpiexec"
+    if os.environ.get("MPIEXEC"):
+        return os.environ["MPIEXEC"]
+    return str(beside) if beside.exists() else shutil.which("mpiexec")

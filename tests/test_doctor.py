@@ -81,7 +81,7 @@ def test_no_warning_for_other_kernels_or_releases(environ: dict, config: str) ->
 
 def test_unfinished_compilations_are_a_problem_with_the_files_named(tmp_path, monkeypatch):
     """A source without FFCx's ``.c.cached`` marker, older than ten minutes, is reported with
-    its path; a finished one and one still being compiled are not."""
+    its name and the fix; a finished one and one still being compiled are not."""
     import os
     import time
 
@@ -91,15 +91,18 @@ def test_unfinished_compilations_are_a_problem_with_the_files_named(tmp_path, mo
 
     monkeypatch.setattr(dolfinx.jit, "get_options", lambda: {"cache_dir": tmp_path})
     for name in ("finished", "killed", "compiling"):
-        (tmp_path / f"{name}.c").write_text("/* source */")
-    (tmp_path / "finished.c.cached").write_text("")
+        (tmp_path / f"libffcx_forms_{name}.c").write_text("/* source */")
+    (tmp_path / "libffcx_forms_finished.c.cached").write_text("")
+    (tmp_path / "libffcx_forms_finished.so").write_text("")
     old = time.time() - 3600
     for name in ("finished", "killed"):
-        os.utime(tmp_path / f"{name}.c", (old, old))
+        os.utime(tmp_path / f"libffcx_forms_{name}.c", (old, old))
     _, problems = doctor.report("test")
-    stale = [p for p in problems if "FFCx compilation" in p]
-    assert len(stale) == 1 and str(tmp_path / "killed.c") in stale[0]
+    stale = [p for p in problems if "FFCx cache" in p]
+    assert len(stale) == 1 and f"1 broken entry in the FFCx cache {tmp_path}" in stale[0]
+    assert "libffcx_forms_killed.c: source never finished" in stale[0]
     assert "compiling.c" not in stale[0] and "finished.c" not in stale[0]
+    assert "shellobstacle doctor --repair" in stale[0]
 
 
 REQUIRES = [

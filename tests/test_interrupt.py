@@ -7,16 +7,23 @@ in :mod:`shellobstacle.mesh.meshing`). The timeouts only bound a failing test.
 
 from __future__ import annotations
 
+import os
 import signal
 import subprocess
 import sys
 import textwrap
+import time
+from pathlib import Path
 
 from mpi4py import MPI
 
 import pytest
+from cli_helpers import mpiexec
+
+from shellobstacle.io.folders import has_step_records
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="runs its own processes")
+SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 
 PRELUDE = textwrap.dedent(
     """
@@ -100,23 +107,37 @@ def test_the_library_installs_nothing() -> None:
     subprocess.run([sys.executable, "-c", code], check=True, capture_output=True, timeout=120)
 
 
-def test_unfinished_compilations_of_this_process_are_removed(tmp_path, monkeypatch) -> None:
-    """Only sources written since the start and without FFCx's ``.c.cached`` marker go."""
-    import os
-
-    import dolfinx.jit
-
-    from shellobstacle.cli.interrupt import remove_unfinished_compilations
-
-    monkeypatch.setattr(dolfinx.jit, "get_options", lambda: {"cache_dir": tmp_path})
-    for name in ("finished", "unfinished", "old"):
-        (tmp_path / f"{name}.c").write_text("/* source */")
-    (tmp_path / "finished.c.cached").write_text("")
-    os.utime(tmp_path / "old.c", (1.0, 1.0))  # written before this process started
-    removed = remove_unfinished_compilations(since=100.0)
-    assert removed == [tmp_path / "unfinished.c"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "finished.c",
-        "finished.c.cached",
-        "old.c",
+@pytest.mark.skipif(mpiexec() is None, reason="no mpiexec")
+def test_ctrl_c_under_mpiexec_stops_every_rank_cleanly(tmp_path: Path) -> None:
+    """SIGINT to mpiexec (which passes it on to every rank, as Ctrl-C in a terminal) during a
+    sweep: exit 130, one line, no rank killed; --resume then completes the sweep."""
+    out = tmp_path / "b1"
+    command = [mpiexec(), "-n", "2", sys.executable, "-m", "shellobstacle", "experiment"]
+    command += ["penalty", str(SMALL), "-q", "--set", "domain.h=0.015", "-o", str(out)]
+    proc = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        while not has_step_records(out):  # a step is finished: the sweep is under way
+            assert proc.poll() is None, proc.communicate()
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    assert "PETSC ERROR" not in stdout + stderr and "BAD TERMINATION" not in stdout
+    assert stderr.splitlines() == [
+        f"shellobstacle: interrupted; the finished steps are recorded in {out}/steps/: continue "
+        f"with the same command and --resume -o {out}"
     ]
+    resumed = subprocess.run([*command, "--resume"], capture_output=True, text=True, timeout=600)
+    assert resumed.returncode == 0, resumed.stderr
+    assert "Resumed: " in (out / "report.md").read_text()

@@ -366,6 +366,7 @@ def test_a_failed_swap_leaves_the_old_folder(
     between its two renames is repaired by the next run (the old folder comes back)."""
     from shellobstacle.io import folders
     from shellobstacle.io.folders import ResultsError, prepare_folder
+    from shellobstacle.io.lock import release_folders
 
     out = tmp_path / "out"
     out.mkdir()
@@ -384,12 +385,13 @@ def test_a_failed_swap_leaves_the_old_folder(
         m.setattr(folders.os, "replace", failing)
         with pytest.raises(ResultsError, match=r"'.*out' is unchanged, the new results are in"):
             where.commit()
-    assert names(tmp_path) == [".out.partial", "out"]
+    assert names(tmp_path) == [".out.lock", ".out.partial", "out"]  # (held by this run)
     assert (out / "summary.json").read_text() == "old"
     where.commit()
-    assert names(tmp_path) == ["out"] and (out / "summary.json").read_text() == "new"
+    assert names(tmp_path) == [".out.lock", "out"] and (out / "summary.json").read_text() == "new"
 
     out.rename(tmp_path / ".out.old")  # as if cut short between the renames
     with pytest.raises(ResultsError, match="already holds results"):
         prepare_folder(out, "unused", overwrite=False)
+    release_folders()
     assert names(tmp_path) == ["out"] and (out / "summary.json").read_text() == "new"

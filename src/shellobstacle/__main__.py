@@ -32,7 +32,7 @@ def main() -> int:
     from shellobstacle.cli import interrupt
     from shellobstacle.cli.main import main as cli_main
 
-    interrupt.install()
+    interrupt.install(comm=MPI.COMM_WORLD)
     return cli_main()
 
 

@@ -20,12 +20,12 @@ from __future__ import annotations
 import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["LiveStatus", "Phase", "note", "on_terminal", "phase"]
+__all__ = ["LiveStatus", "Phase", "note", "on_terminal", "phase", "set_meeting_point"]
 
 
 @dataclass
@@ -41,9 +41,29 @@ _stack: list[Phase] = []
 _live: LiveStatus | None = None
 
 
+def _nowhere() -> None:
+    """No meeting point (serial runs, library use)."""
+
+
+_meet: Callable[[], None] = _nowhere
+
+
+def set_meeting_point(meet: Callable[[], None] | None) -> None:
+    """Call ``meet`` at every phase's start and end and at every note: the points all ranks
+    reach together (the command line's Ctrl-C under MPI,
+    :func:`shellobstacle.cli.interrupt.agree`); None: nothing."""
+    global _meet
+    _meet = meet or _nowhere
+
+
 @contextmanager
 def phase(text: str) -> Iterator[Phase]:
-    """Mark a long phase (nested in the running ones) while the ``with`` block runs."""
+    """Mark a long phase (nested in the running ones) while the ``with`` block runs.
+
+    Every rank runs the same phases: under MPI, the ranks stop at their starts and ends
+    together after Ctrl-C (:func:`shellobstacle.cli.interrupt.agree`).
+    """
+    _meet()
     current = Phase(text, time.perf_counter())
     _stack.append(current)
     live = _live
@@ -54,12 +74,18 @@ def phase(text: str) -> Iterator[Phase]:
     finally:
         if current in _stack:
             _stack.remove(current)
+    _meet()  # (not after an exception: that one goes on)
 
 
 def note(text: str) -> None:
-    """Show ``text`` after the innermost phase (e.g. ``"Newton step 3"``); no phase, no note."""
+    """Show ``text`` after the innermost phase (e.g. ``"Newton step 3"``); no phase, no note.
+
+    Every rank notes the same steps (of Newton's or Brezis–Sibony's iteration): under MPI, the
+    ranks stop there together after Ctrl-C, as at a phase's start and end.
+    """
     if _stack:
         _stack[-1].detail = text
+    _meet()
 
 
 def on_terminal(quiet: bool = False) -> bool:

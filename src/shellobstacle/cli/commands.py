@@ -314,13 +314,15 @@ def experiment(args: argparse.Namespace) -> int:
 
 
 def doctor(args: argparse.Namespace) -> int:
-    """The environment, versions and active tuning; exit 1 when a problem was found."""
-    from shellobstacle.cli.doctor import report
+    """The environment, versions and active tuning; exit 1 when a problem was found
+    (``--repair``: after repairing the FFCx cache)."""
+    from shellobstacle.cli.doctor import repair_cache, report
     from shellobstacle.compat import bootstrap
 
+    repaired = repair_cache() if args.repair and MPI.COMM_WORLD.rank == 0 else []
     lines, problems = report(bootstrap())
     if MPI.COMM_WORLD.rank == 0:
-        print("\n".join(lines))
+        print("\n".join([*lines, *repaired]))
         for problem in problems:
             print(f"problem: {problem}")
         if not problems:

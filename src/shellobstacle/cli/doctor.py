@@ -4,7 +4,8 @@ It prints the versions of the key dependencies and names known problems of an en
 with their fix: a release outside the range pyproject.toml pins (the tested one), a forced
 OpenBLAS kernel family that crashed NumPy's BLAS, MUMPS' selected inverse entries out of
 reach (the contact zone's condensation then falls back to one factorization per κ), no C
-compiler for the tuning's helpers.
+compiler for the tuning's helpers, broken entries of the FFCx cache (:mod:`.jit_cache`), which
+``--repair`` removes.
 """
 
 from __future__ import annotations
@@ -12,10 +13,17 @@ from __future__ import annotations
 import contextlib
 import os
 import platform
-import time
 from collections.abc import Mapping
 
-__all__ = ["CRASHING_CORETYPES", "coretype_warning", "numpy_blas_config", "report"]
+from shellobstacle.cli import jit_cache
+
+__all__ = [
+    "CRASHING_CORETYPES",
+    "coretype_warning",
+    "numpy_blas_config",
+    "repair_cache",
+    "report",
+]
 
 #: OPENBLAS_CORETYPE values (lower case) with which NumPy's OpenBLAS 0.3.34 (NumPy
 #: 2.5.2–2.5.5) died of a segmentation fault in a 500 × 500 matrix product on an AVX-512
@@ -106,13 +114,23 @@ def report(installed: str) -> tuple[list[str], list[str]]:
             f"MUMPS' selected inverse entries are out of reach ({reason}): the direct solver "
             "falls back to one factorization per κ (solver.contact_zone has no effect)"
         )
-    from shellobstacle.cli.interrupt import unfinished_compilations
-
-    if stale := unfinished_compilations(older_than=time.time() - 600.0):
-        problems.append(
-            f"{len(stale)} FFCx compilation(s) in {stale[0].parent} never finished (a killed "
-            "run?); the next compilation of the same forms waits for them and fails: remove "
-            + " ".join(str(p) for p in stale[:3])
-            + (" ..." if len(stale) > 3 else "")
-        )
+    if broken := jit_cache.broken_entries():
+        problems.append(_broken_cache(broken))
     return lines, problems
+
+
+def _broken_cache(broken: list[jit_cache.BrokenEntry]) -> str:
+    """The problem of broken FFCx cache entries, with the fix."""
+    shown = "; ".join(f"{e.source.name}: {e.why}" for e in broken[:3])
+    more = f"; {len(broken) - 3} more" if len(broken) > 3 else ""
+    return (
+        f"{len(broken)} broken entr{'y' if len(broken) == 1 else 'ies'} in the FFCx cache "
+        f"{broken[0].source.parent} ({shown}{more}): every compilation of those forms fails; "
+        "shellobstacle doctor --repair removes the files at fault"
+    )
+
+
+def repair_cache() -> list[str]:
+    """Repair the broken entries of the FFCx cache; what was removed, one line each."""
+    removed = jit_cache.repair(jit_cache.broken_entries())
+    return [f"repaired the FFCx cache: removed {path}" for path in removed]

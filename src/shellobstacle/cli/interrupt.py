@@ -8,37 +8,39 @@ each MPI rank. Python's C-level signal handler writes every signal it catches to
 has not handled the interrupt (:func:`acknowledge`) within :data:`GRACE` seconds, or at a
 second Ctrl-C, the watcher says so on stderr and terminates it (SIGTERM, then SIGKILL).
 
+Under MPI (several ranks; ``mpiexec`` passes Ctrl-C on to every rank) an interrupt must stop
+all ranks at the same point: a rank that stopped while another waits for it inside a collective
+call leaves that one stuck until the watcher kills it. There, Ctrl-C only marks the interrupt,
+and the ranks raise ``KeyboardInterrupt`` together at the next point that all of them reach
+together (:func:`agree`: the start and end of every phase and each Newton or Brezis–Sibony
+step, :mod:`shellobstacle.progress`).
+
 Result folders stay consistent after such a stop: every file is written atomically, a staged
 ``--overwrite`` leaves the old folder untouched, and ``--resume`` continues from the recorded
-steps. An interrupted FFCx compilation leaves its ``.c`` file without the ``.c.cached``
-marker, which makes the next compilation of the same forms wait and fail (FFCx takes the file
-for another process's compilation): :func:`remove_unfinished_compilations` removes those this
-process started. Only the command line installs the watcher (:mod:`shellobstacle.__main__`);
-the library and :func:`shellobstacle.cli.main` leave the process's signals alone.
+steps; an interrupted FFCx compilation removes its own unfinished source
+(:func:`shellobstacle.cli.jit_cache.guarded_compilations`). Only the command line installs the
+watcher (:mod:`shellobstacle.__main__`); the library and :func:`shellobstacle.cli.main` leave
+the process's signals alone.
 """
 
 from __future__ import annotations
 
 import contextlib
-import math
 import os
 import signal
 import subprocess
 import sys
-from pathlib import Path
+from typing import Any
 
-__all__ = [
-    "GRACE",
-    "acknowledge",
-    "install",
-    "remove_unfinished_compilations",
-    "unfinished_compilations",
-]
+__all__ = ["GRACE", "acknowledge", "agree", "install"]
 
 #: Seconds a long call into C may keep running after Ctrl-C.
 GRACE = 2.0
 
 _ack_fd: int | None = None
+#: under MPI: the communicator whose ranks stop together, and whether Ctrl-C came
+_comm: Any = None
+_pending = False
 
 # The watcher: argv = parent pid, grace, the acknowledgement's fd; fd 0 = the signals.
 _WATCHER = r"""
@@ -87,10 +89,11 @@ while True:
 """
 
 
-def install(grace: float = GRACE) -> bool:
+def install(grace: float = GRACE, comm: Any = None) -> bool:
     """Start the watcher of this process; False (and nothing changed) where it cannot run
-    (not the main thread, no SIGINT handler of Python's, no ``fork``)."""
-    global _ack_fd
+    (not the main thread, no SIGINT handler of Python's, no ``fork``). With ``comm`` of
+    several ranks, Ctrl-C takes effect at the next :func:`agree`."""
+    global _ack_fd, _comm
     if _ack_fd is not None:
         return True
     if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
@@ -113,9 +116,34 @@ def install(grace: float = GRACE) -> bool:
         return False
     os.close(sig_r)
     os.close(ack_r)
+    if comm is not None and comm.size > 1:
+        from shellobstacle.progress import set_meeting_point
+
+        signal.signal(signal.SIGINT, _mark)
+        _comm = comm
+        set_meeting_point(agree)  # every phase and step of the library is such a point
     signal.set_wakeup_fd(sig_w, warn_on_full_buffer=False)
     _ack_fd = ack_w
     return True
+
+
+def _mark(signum: int, frame: Any) -> None:
+    """Ctrl-C under MPI: remembered until the ranks agree (the watcher still times it)."""
+    global _pending
+    _pending = True
+
+
+def agree() -> None:
+    """A point that every rank reaches together: if Ctrl-C reached any of them, raise
+    ``KeyboardInterrupt`` on all. Nothing without MPI's deferral (:func:`install`)."""
+    global _pending
+    if _comm is None:
+        return
+    from mpi4py import MPI
+
+    if _comm.allreduce(_pending, op=MPI.LOR):
+        _pending = False
+        raise KeyboardInterrupt
 
 
 def acknowledge() -> None:
@@ -123,30 +151,3 @@ def acknowledge() -> None:
     if _ack_fd is not None:
         with contextlib.suppress(OSError):
             os.write(_ack_fd, b"a")
-
-
-def unfinished_compilations(
-    newer_than: float = -math.inf, older_than: float = math.inf
-) -> list[Path]:
-    """FFCx sources in DOLFINx's JIT cache without the ``.c.cached`` marker of a finished
-    compilation, last written after ``newer_than`` and before ``older_than`` (``time.time()``
-    values)."""
-    from dolfinx.jit import get_options
-
-    found = []
-    for c_file in sorted(Path(get_options()["cache_dir"]).glob("*.c")):
-        with contextlib.suppress(OSError):
-            done = c_file.with_suffix(".c.cached").exists()
-            if not done and newer_than <= c_file.stat().st_mtime < older_than:
-                found.append(c_file)
-    return found
-
-
-def remove_unfinished_compilations(since: float) -> list[Path]:
-    """Remove the unfinished FFCx sources written since ``since`` (a ``time.time()``)."""
-    removed = []
-    for c_file in unfinished_compilations(newer_than=since):
-        with contextlib.suppress(OSError):
-            c_file.unlink()
-            removed.append(c_file)
-    return removed

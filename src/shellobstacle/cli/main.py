@@ -11,7 +11,6 @@ import os
 import platform
 import re
 import sys
-import time
 import traceback
 from collections.abc import Sequence
 
@@ -240,11 +239,17 @@ def _parser() -> argparse.ArgumentParser:
         help="proceed although a mesh looks too large for this machine's memory",
     )
 
-    sub.add_parser(
+    d = sub.add_parser(
         "doctor",
         help="the environment, versions and what process tuning is active and why",
         epilog="example: shellobstacle doctor  (SHELLOBSTACLE_TUNING=off shellobstacle doctor: "
         "the plain library's process)",
+    )
+    d.add_argument(
+        "--repair",
+        action="store_true",
+        help="remove the files at fault in broken entries of the FFCx cache (a compilation "
+        "cut short, a marker without its source or module)",
     )
     sub.add_parser(
         "config-reference",
@@ -257,11 +262,11 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 solver failure, 2 user error, 3 a solution
     outside the model's validity, 130 interrupted)."""
-    started = time.time()
     args = _parser().parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.folder = None  # the ResultFolder, once known (for the messages below)
     args.report = None  # the Reporter, whose log.txt also gets how the run ended
+    from shellobstacle.cli.jit_cache import guarded_compilations
     from shellobstacle.config.loader import ConfigError
     from shellobstacle.geometry.assumptions import AssumptionError
     from shellobstacle.geometry.expressions import ExpressionError
@@ -270,7 +275,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     try:
         try:
-            return _dispatch(args)
+            with guarded_compilations():  # an interrupted compilation leaves the cache sound
+                return _dispatch(args)
         finally:  # the live status line goes before the last messages are printed
             if args.report is not None:
                 args.report.close()
@@ -293,7 +299,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         from shellobstacle.cli import interrupt
 
         interrupt.acknowledge()
-        interrupt.remove_unfinished_compilations(since=started)
         _record(args, "interrupted")
         if MPI.COMM_WORLD.rank == 0:
             print(f"shellobstacle: interrupted{_resume_hint(args) or _kept(args)}", file=sys.stderr)
@@ -308,6 +313,10 @@ def main(argv: Sequence[str] | None = None) -> int:
                 file=sys.stderr,
             )
         return EXIT_FAILED
+    finally:  # the result folder is free for the next run
+        from shellobstacle.io.lock import release_folders
+
+        release_folders()
 
 
 def _dispatch(args: argparse.Namespace) -> int:

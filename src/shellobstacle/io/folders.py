@@ -4,7 +4,9 @@ A folder *holds results* when it has ``summary.json`` (solve), ``report.md`` (ex
 reproduce) or a finished step in ``steps/`` (an interrupted experiment or reproduce, which
 ``--resume`` continues). A folder without them is the leftover of a run that failed early and
 does not block a rerun. Replacing results (``--overwrite``) writes the new run beside the old
-folder and swaps it in whole at the end (:class:`ResultFolder`).
+folder and swaps it in whole at the end (:class:`ResultFolder`). A run locks its folder before it
+looks into it (:mod:`shellobstacle.io.lock`): a second run into a folder that a live run is
+writing is refused.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from typing import Any
 from mpi4py import MPI
 
 import shellobstacle
+from shellobstacle.io.lock import FolderInUseError, lock_folder, release_folder
 
 __all__ = [
     "ResultFolder",
@@ -179,6 +182,8 @@ def prepare_folder(
       ``overwrite`` removes it; ``resume`` continues it).
     * ``resume``: continues ``.NAME.partial`` if it holds the records of an interrupted run
       (``steps/meta.json``), else ``out`` itself, which must hold them.
+    * ``out`` (with ``.NAME.partial``) being written by another live run: refused. Rank 0
+      keeps the folder's lock until :func:`shellobstacle.io.lock.release_folders`.
 
     Raises:
         ResultsError: the folder cannot be used as asked; the message names the path and fix.
@@ -204,10 +209,26 @@ def prepare_folder(
     return folder
 
 
+def _claim(target: Path) -> str | None:
+    """Lock ``target`` for this run (once its parent exists); why not, if another run holds it."""
+    if not target.parent.is_dir():
+        return None  # nothing there yet; _given claims it once the parents are made
+    try:
+        lock_folder(target)
+    except FolderInUseError as busy:
+        return (
+            f"output folder '{target}' is in use by another run ({busy.owner}): wait for it to "
+            "end, or choose another -o"
+        )
+    return None
+
+
 def _resumed(out: str | Path | None) -> tuple[ResultFolder | None, str | None]:
     if out is None:
         return None, "--resume needs -o OUT, the result folder of the interrupted run"
     target = Path(out)
+    if busy := _claim(target):
+        return None, busy
     partial = staging_folder(_real(target))
     if (partial / "steps" / "meta.json").is_file():
         return ResultFolder(target, partial), None
@@ -228,16 +249,18 @@ def _new(base: Path) -> tuple[ResultFolder | None, str | None]:
     path, k = base, 1
     while True:
         try:
-            path.mkdir(parents=True)  # claims the name (another run may be choosing too)
-            return ResultFolder(path, path), None
+            if _claim(path) is None:  # (a name another run is claiming is skipped)
+                path.mkdir(parents=True)
+                return ResultFolder(path, path), None
         except FileExistsError:
-            k += 1
-            path = base.with_name(f"{base.name}-{k}")
+            release_folder(path)
         except OSError as err:
             return None, (
                 f"cannot create the output folder '{path}' ({err.strerror or err}): run from "
                 "a writable folder or choose one with -o"
             )
+        k += 1
+        path = base.with_name(f"{base.name}-{k}")
 
 
 def _blocked_parent(path: Path) -> str | None:
@@ -265,6 +288,8 @@ def _given(path: Path, overwrite: bool) -> tuple[ResultFolder | None, str | None
         return None, f"{_dangling(path)}: create that folder or {again}"
     if path.exists() and not path.is_dir():
         return None, f"output path '{path}' is a file, not a folder: {again} or remove the file"
+    if busy := _claim(path):
+        return None, busy
     real = _real(path)
     old = _aside(real)
     if old.is_dir():  # a swap was cut short: keep whichever complete folder is in place
@@ -283,8 +308,11 @@ def _given(path: Path, overwrite: bool) -> tuple[ResultFolder | None, str | None
         blocked = _blocked_parent(path)
         if blocked:
             return None, f"{blocked}: {again}"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        if busy := _claim(path):
+            return None, busy
         _remove(partial)
-        path.mkdir(parents=True)
+        path.mkdir(exist_ok=True)
         return ResultFolder(path, path), None
     if not os.access(path, os.W_OK | os.X_OK):
         return None, f"output folder '{path}' is not writable: {again}"
