@@ -34,8 +34,11 @@ NAMES = {"y1": y1, "y2": y2}
 
 
 def write(folder: Path, changes: dict[str, Any], name: str = "c.toml") -> Path:
-    """``examples/small.toml`` at h = 0.1 with ``{"section.key": value}`` applied."""
+    """``examples/small.toml`` at h = 0.1 with ``{"section.key": value}`` applied (a θ by
+    expression without the spherical cap's keys, which it does not read)."""
     data = copy.deepcopy(BASE)
+    if changes.get("surface.kind") == "expression":
+        data["surface"] = {}
     for dotted, value in changes.items():
         section, _, key = dotted.partition(".")
         data.setdefault(section, {})[key] = value
