@@ -13,12 +13,12 @@ import pytest
 import ufl
 
 from shellobstacle.model import Discretization
+from shellobstacle.obstacle.points import lumped_mass_p2
 from shellobstacle.post.norms import l2_norm, vm_norm
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.active_set import ActiveSetSolver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.solvers.nodal import lumped_mass_p2
 from tests.test_active_set import KKT_TOL, paper_shell
 
 P2 = Discretization(degree=2)

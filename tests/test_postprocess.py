@@ -29,7 +29,7 @@ from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import cross_section
 from shellobstacle.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.surface import Surface
+from shellobstacle.surface import Surface, dot
 
 COMM = MPI.COMM_WORLD
 HALF = 0.25  # ω = [-HALF, HALF]²
@@ -176,7 +176,8 @@ def test_nodal_gap_and_cartesian_displacement_are_exact_at_the_nodes():
     G = surface.geometry_numpy(y)
     z = zeta_exact(y.T)
     expected = sum(np.broadcast_to(G.theta[k], len(y)) * q[k] for k in range(3))
-    expected = expected + sum(z[j] * np.broadcast_to(G.c(q)[j], len(y)) for j in range(3))
+    c = [dot(G.a_contra[j], q) for j in range(3)]  # c_j = a^j·q
+    expected = expected + sum(z[j] * np.broadcast_to(c[j], len(y)) for j in range(3))
     assert np.allclose(gap.x.array, expected, rtol=0, atol=1e-13)
 
     U = post.cartesian_displacement()

@@ -107,7 +107,8 @@ class SolveResult:
         from shellobstacle.post.contact import Postprocessor
         from shellobstacle.post.validity import assess
 
-        return assess(post or Postprocessor(self.problem), self.solved_kappa)
+        constraint = "nodes" if self.method in NODAL_METHODS else "penalty"
+        return assess(post or Postprocessor(self.problem, constraint), self.solved_kappa)
 
 
 def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:

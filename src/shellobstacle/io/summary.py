@@ -30,13 +30,14 @@ def write_solution(
     Returns:
         The summary dictionary.
     """
+    from shellobstacle.config import NODAL_METHODS
     from shellobstacle.io.paraview import write_paraview
     from shellobstacle.post.contact import Postprocessor
     from shellobstacle.post.plotting import plot_cross_section
 
     problem = result.problem
     t = time.perf_counter()
-    post = Postprocessor(problem)
+    post = Postprocessor(problem, "nodes" if result.method in NODAL_METHODS else "penalty")
     quantities = post.summary()
     validity = result.validity(post)
     for line in validity.warnings():
