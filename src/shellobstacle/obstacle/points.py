@@ -163,10 +163,8 @@ class ContactPoints:
         local[: self.n] = flags
         chi = local[point_dofs]
         w = self._cell_weights(point_dofs)
-        reference = self.space.element.interpolation_points
-        phi = basix.create_element(
-            basix.ElementFamily.P, mesh.basix_cell(), 1, basix.LagrangeVariant.equispaced
-        ).tabulate(0, reference)[0, :, :, 0]  # φ_j(x_k), shape (points per cell, 3)
+        X = self.space.element.interpolation_points  # the points on the reference triangle
+        phi = np.column_stack([1.0 - X[:, 0] - X[:, 1], X[:, 0], X[:, 1]])  # φ_j(x_k)
         vertex_dofs = P1.dofmap.list[:cells]
         num, den = dolfinx.la.vector(P1.dofmap.index_map), dolfinx.la.vector(P1.dofmap.index_map)
         np.add.at(num.array, vertex_dofs.ravel(), ((w * chi) @ phi).ravel())
