@@ -149,19 +149,18 @@ class ContactPoints:
         """``out`` (a P1 Function) ← the contact flags ``g ≤ tol`` of the points, lumped onto
         the vertices: ``Σ_k w_k φ_i(x_k) [g_k ≤ tol] / Σ_k w_k φ_i(x_k)`` (1 or 0 at the P1
         vertices; its ½ level line is the contact set's outline)."""
-        flags = (self.gap() <= tol).astype(float)
-        self._lump(flags, out)
+        self.gap()
+        self._lump((self.values.x.array <= tol).astype(float), out)
         return out
 
     def _lump(self, flags: np.ndarray, out: dolfinx.fem.Function) -> None:
-        """:meth:`indicator`'s lumping of owned point ``flags`` onto ``out``'s vertices."""
+        """:meth:`indicator`'s lumping of the point ``flags`` (local, ghosts included) onto
+        ``out``'s vertices."""
         P1 = out.function_space
         mesh = self.problem.mesh
         cells = mesh.topology.index_map(mesh.topology.dim).size_local
         point_dofs = self.space.dofmap.list[:cells]
-        local = np.zeros(self.values.x.array.size)
-        local[: self.n] = flags
-        chi = local[point_dofs]
+        chi = flags[point_dofs]
         w = self._cell_weights(point_dofs)
         X = self.space.element.interpolation_points  # the points on the reference triangle
         phi = np.column_stack([1.0 - X[:, 0] - X[:, 1], X[:, 0], X[:, 1]])  # φ_j(x_k)
