@@ -131,7 +131,7 @@ class ZoneProblem:
         return float(np.linalg.norm(x))
 
     def gap(self, z: PETSc.Vec) -> np.ndarray:
-        """``g`` at the zone's points for ``ζ_Z = z``."""
+        """``g`` at the zone's points for ``ζ_Z = z``: the penalty's ``g⁰ + Bζ`` on their rows."""
         self.MP.mult(z, self.wP)
         return self.g0P + self.wP.array_r / self.DP
 
