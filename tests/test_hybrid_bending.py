@@ -209,8 +209,8 @@ def test_zone_steps_with_and_without_the_multipliers_agree(
 @pytest.mark.mpi
 def test_serial_and_parallel_contact_solves_agree() -> None:
     """Koiter's model pushed onto the plane (the paper's problem, Newton with the contact
-    zone; the penalty acts at Gauss points, the vertices stay above the plane on this coarse
-    mesh): the distributed solve gives the serial one's energies and smallest vertex gap."""
+    zone; the penalty acts at Gauss points, where the contact is measured): the distributed
+    solve gives the serial one's energies and smallest gap."""
     if COMM.size == 1:
         pytest.skip("compares a distributed solve with a serial one")
     out = []
