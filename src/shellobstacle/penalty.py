@@ -24,15 +24,42 @@ from __future__ import annotations
 from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
 from petsc4py import PETSc
 
+import basix
+import basix.ufl
 import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 import ufl
 
-from shellobstacle.obstacle.points import penalty_rule, quadrature_space
 from shellobstacle.problem import PenalizedProblem
 
-__all__ = ["QuadraturePenalty", "gap_scale", "penalty_hessian", "penalty_rule"]
+__all__ = [
+    "QuadraturePenalty",
+    "gap_scale",
+    "penalty_hessian",
+    "penalty_rule",
+    "quadrature_space",
+]
+
+
+def penalty_rule(problem: PenalizedProblem) -> tuple[np.ndarray, np.ndarray]:
+    """The reference points and weights of the problem's penalty rule (docs/model.md §4): the
+    vertices with equal weights, or the Gauss rule of degree ``qdegree``."""
+    cell = problem.mesh.basix_cell()
+    if problem.disc.penalty_quadrature == "vertex":
+        points = basix.geometry(cell)
+        volume = basix.cell.volume(cell)
+        return points, np.full(points.shape[0], volume / points.shape[0])
+    return basix.make_quadrature(cell, problem.disc.qdegree)
+
+
+def quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
+    """Scalar quadrature space whose points are those of the problem's penalty rule."""
+    points, weights = penalty_rule(problem)
+    element = basix.ufl.quadrature_element(
+        problem.mesh.basix_cell(), points=points, weights=weights
+    )
+    return dolfinx.fem.functionspace(problem.mesh, element)
 
 
 class QuadraturePenalty:

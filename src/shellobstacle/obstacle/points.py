@@ -26,13 +26,13 @@ from typing import Any
 
 from mpi4py import MPI
 
-import basix
-import basix.ufl
 import dolfinx
 import dolfinx.fem
 import dolfinx.la
 import numpy as np
 import ufl
+
+from shellobstacle.penalty import quadrature_space
 
 __all__ = [
     "CONSTRAINTS",
@@ -41,32 +41,11 @@ __all__ = [
     "QuadraturePoints",
     "constraint_points",
     "lumped_mass_p2",
-    "penalty_rule",
 ]
 
 CONSTRAINTS = ("penalty", "nodes")
 """``"penalty"``: the penalty's rule (a penalized solution); ``"nodes"``: the Lagrange nodes
 (a solution of the exact nodal problem)."""
-
-
-def penalty_rule(problem: Any) -> tuple[np.ndarray, np.ndarray]:
-    """The reference points and weights of the problem's penalty rule (docs/model.md §4): the
-    vertices with equal weights, or the Gauss rule of degree ``qdegree``."""
-    cell = problem.mesh.basix_cell()
-    if problem.disc.penalty_quadrature == "vertex":
-        points = basix.geometry(cell)
-        volume = basix.cell.volume(cell)
-        return points, np.full(points.shape[0], volume / points.shape[0])
-    return basix.make_quadrature(cell, problem.disc.qdegree)
-
-
-def quadrature_space(problem: Any) -> dolfinx.fem.FunctionSpace:
-    """Scalar quadrature space whose points are those of the problem's penalty rule."""
-    points, weights = penalty_rule(problem)
-    element = basix.ufl.quadrature_element(
-        problem.mesh.basix_cell(), points=points, weights=weights
-    )
-    return dolfinx.fem.functionspace(problem.mesh, element)
 
 
 def constraint_points(problem: Any, constraint: str = "penalty") -> ContactPoints:
