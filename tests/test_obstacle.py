@@ -58,7 +58,9 @@ def test_the_gap_at_points_is_the_ufl_gap_interpolated() -> None:
     g_ufl = nodes.gap()
     y = nodes.space.tabulate_dof_coordinates()[: nodes.n]
     zeta = problem.zeta.x.array.reshape(-1, 3)[: nodes.n]  # the same P2 nodes, blocked
-    g_points = problem.obstacle.at_points(problem.shell.surface, y).gap(zeta)
+    at = problem.obstacle.at_points(problem.shell.surface, y)
+    g_points = at.gap(zeta)
+    assert np.array_equal(problem.obstacle.reference_gap_at(problem.shell.surface, y), at.g0)
     assert np.allclose(g_points, g_ufl, rtol=0, atol=1e-14)
     assert COMM.allreduce(int((g_ufl < 0).sum()), op=MPI.SUM) > 0  # both signs are tested
 

@@ -67,6 +67,10 @@ class Obstacle(ABC):
         """``g(θ)``: the gap of the undeformed shell."""
         return self.gap(G, [0, 0, 0])
 
+    def reference_gap_at(self, surface: Surface, points: np.ndarray) -> np.ndarray:
+        """``g(θ)`` at ``points`` of ω, shape ``(n,)``."""
+        return self.at_points(surface, points).g0
+
     def at_points(self, surface: Surface, points: np.ndarray) -> PointGap:
         """``g(θ)`` and ``c`` at ``points`` of ω (shape ``(n, 2)`` or ``(n, 3)``)."""
         n = points.shape[0]

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from shellobstacle.obstacle.base import Obstacle
-from shellobstacle.surface import Geometry, dot
+from shellobstacle.surface import Geometry, Surface, dot
 
 __all__ = ["Plane"]
 
@@ -41,6 +41,11 @@ class Plane(Obstacle):
     def reference_gap(self, G: Geometry) -> Any:
         """``g(θ) = θ·q``, the height of the reference shell above the plane."""
         return dot(G.theta, self.q)
+
+    def reference_gap_at(self, surface: Surface, points: np.ndarray) -> np.ndarray:
+        """``θ·q`` at ``points`` (``θ`` alone: no derivatives evaluated)."""
+        theta = surface.theta_numpy(points)
+        return np.broadcast_to(np.asarray(dot(theta, self.q), float), (points.shape[0],)).copy()
 
     def c(self, G: Geometry, eta: Sequence[Any] | None = None) -> list[Any]:
         """``c_j = a^j·q`` (the same for every ``η``)."""

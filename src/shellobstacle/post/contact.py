@@ -89,7 +89,7 @@ class Postprocessor:
 
         n_owned = self.P1.dofmap.index_map.size_local
         vertices = self.P1.tabulate_dof_coordinates()[:n_owned]
-        g0 = problem.obstacle.at_points(problem.shell.surface, vertices).g0
+        g0 = problem.obstacle.reference_gap_at(problem.shell.surface, vertices)
         self.gap_scale = _global_max(self.comm, np.abs(g0), 0.0)
         self._trees: dict[tuple[str, float], dolfinx.geometry.BoundingBoxTree] = {}
 
