@@ -92,7 +92,7 @@ def test_penalized_solutions_converge_to_the_exact_one(exact) -> None:
     post = Postprocessor(problem)
     n1 = post.P1.dofmap.index_map.size_local
     points = post.P1.tabulate_dof_coordinates()[:n1]
-    c_norm = problem.shell.surface.geometry_numpy(points).c_norm(problem.q)
+    c_norm = problem.obstacle.c_norm(problem.shell.surface.geometry_numpy(points))
     lam = result.multiplier  # on the P1 space of the solver: compare by interpolation
     lam_exact = dolfinx.fem.Function(post.P1)
     lam_exact.interpolate(lam)

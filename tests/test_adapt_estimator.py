@@ -26,7 +26,7 @@ import ufl
 from shellobstacle.adapt.estimator import ErrorEstimator
 from shellobstacle.geometry.expressions import to_ufl, y1, y2
 from shellobstacle.geometry.surface import Surface
-from shellobstacle.models.membrane import gap, membrane_stress, strain, stress_divergence
+from shellobstacle.models.membrane import membrane_stress, strain, stress_divergence
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
@@ -97,7 +97,7 @@ def _study(manufactured, n: int) -> tuple[float, float]:
     assert problem.energies()["penalty_energy"] == 0.0
     zh = problem.zeta.x.array.reshape(-1, 3)
     G = surface.geometry_numpy(problem.V.tabulate_dof_coordinates())
-    g_min = COMM.allreduce(gap(G, [zh[:, i] for i in range(3)], problem.q).min(), op=MPI.MIN)
+    g_min = COMM.allreduce(problem.obstacle.gap(G, [zh[:, i] for i in range(3)]).min(), op=MPI.MIN)
     assert g_min > 0.01  # no contact
     e = [problem.zeta[i] - to_ufl(zeta[i], to) for i in range(3)]
     dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": 8})

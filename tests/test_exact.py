@@ -15,7 +15,6 @@ import numpy as np
 import pytest
 
 from shellobstacle.geometry.surface import Surface
-from shellobstacle.models.membrane import gap
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
@@ -53,7 +52,7 @@ def _solve_and_check(R, offset, lam, mu, degree, n, half_width=0.3):
     # no contact: the gap g(ζ) = θ·q + ζ_j c_j is positive at every node, the penalty inactive
     nodes = problem.V.tabulate_dof_coordinates()
     G = shell.surface.geometry_numpy(nodes)
-    g = gap(G, [zeta[:, i] for i in range(3)], problem.q)
+    g = problem.obstacle.gap(G, [zeta[:, i] for i in range(3)])
     g_min = comm.allreduce(g.min(initial=np.inf), op=MPI.MIN)
     theta_q_min = comm.allreduce(G.theta[2].min(initial=np.inf), op=MPI.MIN)
     assert g_min > theta_q_min > 0  # the shell moved away from the plane

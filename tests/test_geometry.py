@@ -21,6 +21,7 @@ import ufl
 
 from shellobstacle.geometry.expressions import y1, y2
 from shellobstacle.geometry.surface import Surface
+from shellobstacle.obstacle import Plane
 
 R, OFFSET = 1.0, 0.85
 AXES, ELL_OFFSET = (0.8, 0.6, 0.5), 0.1
@@ -167,7 +168,8 @@ def _all_quantities(G):
     out += [G.b_mixed[i][j] for i in range(2) for j in range(2)]
     out += [G.christoffel[s][i][j] for s in range(2) for i in range(2) for j in range(2)]
     out += [c for v in G.a_contra for c in v]
-    out += [*G.c((0.0, 0.6, 0.8)), G.c_norm((0.0, 0.6, 0.8))]
+    plane = Plane((0.0, 0.6, 0.8))
+    out += [*plane.c(G), plane.c_norm(G)]
     return out
 
 

@@ -221,8 +221,8 @@ def test_without_mumps_variable_blocks_the_same_steps_and_solution(
 @pytest.mark.mpi
 def test_serial_and_parallel_contact_solves_agree() -> None:
     """Koiter's model pushed onto the plane (the paper's problem, Newton with the contact
-    zone; the penalty acts at Gauss points, the vertices stay above the plane on this coarse
-    mesh): the distributed solve gives the serial one's energies and smallest vertex gap."""
+    zone; the penalty acts at Gauss points, where the contact is measured): the distributed
+    solve gives the serial one's energies and smallest gap."""
     if COMM.size == 1:
         pytest.skip("compares a distributed solve with a serial one")
     out = []

@@ -32,12 +32,12 @@ from shellobstacle.geometry.expressions import to_ufl, y1, y2
 from shellobstacle.geometry.surface import Surface
 from shellobstacle.models.membrane import (
     elastic_product,
-    gap,
     membrane_stress,
     strain,
     stress_divergence,
 )
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.obstacle import Plane
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
@@ -103,7 +103,7 @@ def test_exact_solution_is_admissible_without_contact(manufactured):
     t = np.linspace(-L, L, 61)
     pts = np.array([(a, b) for a in t for b in t])
     values = [sp.lambdify(Y, z, "numpy")(pts[:, 0], pts[:, 1]) for z in zeta]
-    g = gap(surface.geometry_numpy(pts), values, Q)
+    g = Plane(Q).gap(surface.geometry_numpy(pts), values)
     assert g.min() > 0.2
     assert np.abs(values[2]).max() > 0.05  # not a trivial perturbation
 
@@ -234,7 +234,7 @@ def study(manufactured):
             assert problem.energies()["penalty_energy"] == 0.0
             z = problem.zeta.x.array.reshape(-1, 3)
             G = surface.geometry_numpy(problem.V.tabulate_dof_coordinates())
-            g_min = COMM.allreduce(gap(G, [z[:, i] for i in range(3)], Q).min(), op=MPI.MIN)
+            g_min = COMM.allreduce(Plane(Q).gap(G, [z[:, i] for i in range(3)]).min(), op=MPI.MIN)
             assert g_min > 0.2
             hs.append(np.sqrt(2.0) * 2 * L / n)  # longest edge of create_rectangle, "right"
             table.append(_errors(problem, manufactured["zeta"]))

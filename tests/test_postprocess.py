@@ -22,6 +22,7 @@ import pytest
 import ufl
 from conftest import PAPER_LOAD, make_paper_shell
 
+from shellobstacle.geometry.surface import dot
 from shellobstacle.io.paraview import SurfaceMesh, write_paraview
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
@@ -172,7 +173,8 @@ def test_nodal_gap_and_cartesian_displacement_are_exact_at_the_nodes():
     G = surface.geometry_numpy(y)
     z = zeta_exact(y.T)
     expected = sum(np.broadcast_to(G.theta[k], len(y)) * q[k] for k in range(3))
-    expected = expected + sum(z[j] * np.broadcast_to(G.c(q)[j], len(y)) for j in range(3))
+    c = [dot(G.a_contra[j], q) for j in range(3)]  # c_j = a^j·q
+    expected = expected + sum(z[j] * np.broadcast_to(c[j], len(y)) for j in range(3))
     assert np.allclose(gap.x.array, expected, rtol=0, atol=1e-13)
 
     U = post.cartesian_displacement()

@@ -231,7 +231,8 @@ def adaptive_solve(
         t0 = time.perf_counter()
         cells = mark_dorfler(indicators.eta2, adapt.fraction, comm)
         if adapt.free_boundary:
-            cells = np.union1d(cells, _free_boundary(problem)).astype(np.int32)
+            constraint = "nodes" if method == "active-set" else "penalty"
+            cells = np.union1d(cells, _free_boundary(problem, constraint)).astype(np.int32)
         level.marked = int(comm.allreduce(cells.size, op=MPI.SUM))
         mesh = refine_marked(mesh, marked_edges(mesh, cells))
         seconds["refine"] = time.perf_counter() - t0
@@ -282,12 +283,13 @@ def _solve_level(
     return method.solve(problem, h, kappas, options, lambda _m: None, newton_progress)
 
 
-def _free_boundary(problem: PenalizedProblem) -> np.ndarray:
+def _free_boundary(problem: PenalizedProblem, constraint: str) -> np.ndarray:
     """The owned cells cut by the boundary of the current solution's contact set (its
-    vertices with ``g ≤ 0``, :class:`~shellobstacle.post.contact.Postprocessor`)."""
+    indicator's ½ level line, measured where ``constraint`` acts,
+    :class:`~shellobstacle.post.contact.Postprocessor`)."""
     from shellobstacle.post.contact import Postprocessor
 
-    contact = Postprocessor(problem).indicator().x.array > 0.5
+    contact = Postprocessor(problem, constraint).indicator().x.array > 0.5
     return free_boundary_cells(problem.mesh, contact)
 
 

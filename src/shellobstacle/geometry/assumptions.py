@@ -17,6 +17,7 @@ import numpy as np
 
 from shellobstacle.geometry.finiteness import Failure, first_failure, require_finite
 from shellobstacle.geometry.surface import Geometry
+from shellobstacle.obstacle import from_spec
 from shellobstacle.spec import Shell
 
 __all__ = ["AssumptionError", "Check", "check_assumptions", "format_checks", "sample_points"]
@@ -89,7 +90,7 @@ def _quantities(shell: Shell, G: Geometry, n: int) -> list[np.ndarray]:
     with np.errstate(invalid="ignore", divide="ignore"):
         det_a = np.asarray(G.det_a, float)
         K = np.asarray(G.gaussian_curvature, float)
-        theta_q = sum(np.asarray(G.theta[k], float) * q[k] for k in range(3))
+        theta_q = np.asarray(from_spec(shell.obstacle).reference_gap(G), float)  # g(θ) = θ·q
         a3_q = sum(np.asarray(G.a3[k], float) * q[k] for k in range(3))
         H = np.asarray(G.mean_curvature, float)
         kmax = np.abs(H) + np.sqrt(np.maximum(H * H - K, 0.0))

@@ -157,15 +157,6 @@ class Geometry:
         disc = self.sqrt(H * H - K)
         return H - disc, H + disc
 
-    def c(self, q: Sequence[float]) -> Vec:
-        """``c_j = a^j · q``: how a covariant displacement component moves the gap (§4)."""
-        return [dot(self.a_contra[j], q) for j in range(3)]
-
-    def c_norm(self, q: Sequence[float]) -> Any:
-        """``|c| = (Σ_l (a^l · q)²)^{1/2}`` (§4)."""
-        c = self.c(q)
-        return self.sqrt(dot(c, c))
-
     def cartesian(self, eta: Sequence[Any]) -> Vec:
         """Cartesian components of the displacement ``η_i a^i``."""
         return [sum(eta[j] * self.a_contra[j][k] for j in range(3)) for k in range(3)]

@@ -39,7 +39,7 @@ def write_solution(
 
     problem = result.problem
     t = time.perf_counter()
-    post = Postprocessor(problem)
+    post = Postprocessor(problem, result.constraint)
     quantities = post.summary()
     validity = result.validity(post)
     for line in validity.warnings():

@@ -1,5 +1,6 @@
-"""Membrane strain, elasticity tensor, stresses and the gap (docs/model.md §2–3; the model page's
-:eq:`membrane-strain`, :eq:`elasticity-tensor`, :eq:`strong-form`, :eq:`gap`).
+"""Membrane strain, elasticity tensor and stresses (docs/model.md §2; the model page's
+:eq:`membrane-strain`, :eq:`elasticity-tensor`, :eq:`strong-form`); the gap is the
+obstacle's (:mod:`shellobstacle.obstacle`).
 
 Pure functions on scalar lists, usable with UFL (forms) and SymPy (manufactured
 solutions). ``eta[i]`` are covariant displacement components ``η_i`` and
@@ -15,7 +16,6 @@ from shellobstacle.geometry.surface import Geometry
 
 __all__ = [
     "elastic_product",
-    "gap",
     "membrane_stress",
     "strain",
     "stress_divergence",
@@ -96,10 +96,3 @@ def stress_divergence(G: Geometry, n: Tensor2, dn: Sequence[Sequence[Sequence[An
         + sum(C[be][be][t] * n[al][t] for be in range(2) for t in range(2))
         for al in range(2)
     ]
-
-
-def gap(G: Geometry, eta: Sequence[Any], q: Sequence[float]) -> Any:
-    """``g(η) = (θ + η_j a^j) · q = θ·q + η_j c_j``: the gap to the plane (:eq:`gap`)."""
-    c = G.c(q)
-    theta_q = sum(G.theta[k] * q[k] for k in range(3))
-    return theta_q + sum(eta[j] * c[j] for j in range(3))

@@ -27,7 +27,8 @@ from shellobstacle.models.hybrid_bending import (
     hybrid_bending_energy,
 )
 from shellobstacle.models.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
-from shellobstacle.models.membrane import elastic_product, gap, strain
+from shellobstacle.models.membrane import elastic_product, strain
+from shellobstacle.obstacle import Obstacle, from_spec
 from shellobstacle.progress import phase
 from shellobstacle.spec import Discretization, Shell
 
@@ -55,6 +56,9 @@ class PenalizedProblem:
         condensed: the hybrid stiffness' blocks (after :meth:`stiffness`), or None.
         kappa: the penalty parameter, a ``Constant``.
         kappa_scale: None, or the cellwise factor ``ρ`` of a penalty parameter ``κ ρ(x)``.
+        obstacle: the :class:`~shellobstacle.obstacle.Obstacle` of ``shell.obstacle``.
+        g: the gap ``g(ζ)`` (UFL); ``c``, ``c_norm``: its derivative ``c_j = ∂g/∂ζ_j``
+            and ``|c|``.
         parameters: the load parameters, ``Constant`` objects by name.
     """
 
@@ -76,6 +80,7 @@ class PenalizedProblem:
         self.disc = disc = discretization or Discretization()
         if shell.model == "koiter":
             _require_koiter_discretization(disc, mesh)
+        self.obstacle: Obstacle = from_spec(shell.obstacle)
         self.q = np.asarray(shell.obstacle.q, dtype=float)
         mat = shell.material
         self.V = dolfinx.fem.functionspace(mesh, ("Lagrange", disc.degree, (3,)))
@@ -109,9 +114,9 @@ class PenalizedProblem:
         eps, lam, mu = mat.epsilon, mat.lam, mat.mu
         zeta, v, du = self.zeta, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         gam = self.strain_of(zeta)
-        self.c = G.c(self.q)
-        self.c_norm = G.c_norm(self.q)
-        self.g = gap(G, [zeta[i] for i in range(3)], self.q)  # g(ζ)
+        self.c = self.obstacle.c(G)  # c_j = ∂g/∂ζ_j
+        self.c_norm = self.obstacle.c_norm(G)
+        self.g = self.obstacle.gap(G, [zeta[i] for i in range(3)])  # g(ζ)
         g_minus = ufl.conditional(ufl.lt(self.g, 0), self.g, 0)  # −{g}^-
         sqrt_a = G.sqrt_a
 

@@ -2,8 +2,9 @@
 :eq:`penalty-sum`).
 
 The penalty ``(ε/(2κ)) ∫ ({g(ζ)}^-)² / |c| dy`` is a sum over the points ``x_k`` of its
-quadrature rule (Gauss or vertex) with weights ``w_k`` (including ``|det J|``). The gap is
-affine in ``ζ``: ``g(x_k) = θ·q(x_k) + ζ_j c_j(x_k) = g⁰_k + (B ζ)_k``. With
+quadrature rule (Gauss or vertex) with weights ``w_k`` (including ``|det J|``). The
+obstacle's gap (:mod:`shellobstacle.obstacle`) is affine in ``ζ``:
+``g(x_k) = g(θ)(x_k) + ζ_j c_j(x_k) = g⁰_k + (B ζ)_k``. With
 ``D_k = w_k ε / |c|(x_k)`` and ``M = diag(D) B`` (assembled once per mesh, as the matrix of
 ``∫ (c·u) r ε/|c| dy`` for ``u`` in the displacement space and ``r`` in the quadrature space)
 the penalty and its first two derivatives are
@@ -32,7 +33,13 @@ import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
 
-__all__ = ["QuadraturePenalty", "gap_scale", "penalty_hessian", "penalty_rule"]
+__all__ = [
+    "QuadraturePenalty",
+    "gap_scale",
+    "penalty_hessian",
+    "penalty_rule",
+    "quadrature_space",
+]
 
 
 def penalty_rule(problem: PenalizedProblem) -> tuple[np.ndarray, np.ndarray]:
@@ -46,7 +53,7 @@ def penalty_rule(problem: PenalizedProblem) -> tuple[np.ndarray, np.ndarray]:
     return basix.make_quadrature(cell, problem.disc.qdegree)
 
 
-def _quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
+def quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
     """Scalar quadrature space whose points are those of the problem's penalty rule."""
     points, weights = penalty_rule(problem)
     element = basix.ufl.quadrature_element(
@@ -61,13 +68,16 @@ class QuadraturePenalty:
     Attributes:
         M: ``diag(D) B`` (rows: owned quadrature points; Dirichlet columns zeroed).
         D: ``w_k ε / |c|(x_k)`` at the owned points.
-        g0: ``θ·q`` at the owned points.
+        g0: ``g(θ)`` (the obstacle's reference gap) at the owned points.
     """
 
     def __init__(self, problem: PenalizedProblem) -> None:
         self.problem = problem
-        G, q = problem.G, problem.q
-        self.Q = Q = _quadrature_space(problem)
+        if not problem.obstacle.affine:
+            raise ValueError(
+                f"the quadrature-point penalty needs an affine gap: {problem.obstacle}"
+            )
+        self.Q = Q = quadrature_space(problem)
         r = ufl.TestFunction(Q)
         u = ufl.TrialFunction(problem.V)
         eps = problem.shell.material.epsilon
@@ -76,7 +86,7 @@ class QuadraturePenalty:
             weight = weight / problem.kappa_scale
         dxq = problem.dx_penalty
         c = problem.c
-        theta_q = sum(G.theta[k] * q[k] for k in range(3))
+        g0 = problem.obstacle.reference_gap(problem.G)  # g(θ)
         self.M = dolfinx.fem.petsc.assemble_matrix(
             dolfinx.fem.form(sum(c[j] * u[j] for j in range(3)) * r * weight * dxq),
             bcs=problem.bcs,
@@ -84,7 +94,7 @@ class QuadraturePenalty:
         self.M.assemble()
         n = Q.dofmap.index_map.size_local
         D = dolfinx.fem.assemble_vector(dolfinx.fem.form(weight * r * dxq))
-        gD = dolfinx.fem.assemble_vector(dolfinx.fem.form(theta_q * weight * r * dxq))
+        gD = dolfinx.fem.assemble_vector(dolfinx.fem.form(g0 * weight * r * dxq))
         self.D = np.array(D.array[:n])
         self.g0 = np.array(gD.array[:n]) / self.D
         self._work_q = self.M.createVecLeft()
@@ -114,7 +124,7 @@ class QuadraturePenalty:
         return self.g0 + self.apply_B(zeta)
 
     def gap_scale(self, zeta: PETSc.Vec, points: np.ndarray) -> np.ndarray:
-        """``|θ·q| + Σ_j |ζ_j c_j|`` at the owned ``points`` (local positions; collective).
+        """``|g(θ)| + Σ_j |ζ_j c_j|`` at the owned ``points`` (local positions; collective).
 
         Only the rows of ``points`` are multiplied (:func:`gap_scale` on ``M``'s submatrix;
         each row's sum is the one ``M`` computes): the floor needs the active points only,
@@ -169,8 +179,8 @@ def gap_scale(
     x: PETSc.Vec,
     w: PETSc.Vec,
 ) -> np.ndarray:
-    """``|θ·q| + Σ_j |ζ_j c_j|`` at the rows of a point matrix ``M = diag(D) B``: the size of
-    the terms of ``g = θ·q + ζ_j c_j``, the scale of its round-off.
+    """``|g(θ)| + Σ_j |ζ_j c_j|`` at the rows of a point matrix ``M = diag(D) B``: the size of
+    the terms of ``g = g(θ) + ζ_j c_j``, the scale of its round-off.
 
     ``c_j ζ_j`` is ``B`` applied to ``ζ`` with every component but ``j`` set to 0; ``zeta``
     holds the local entries of ``ζ`` and ``component`` the ``j`` of each; ``x`` (a vector of

@@ -47,7 +47,8 @@ class SurfaceData:
         reference: ``θ`` at the vertices.
         triangles: The cells as vertex triples (``(m, 3)``).
         gap: ``g(ζ) = (θ + U)·q`` at the vertices (docs/model.md §3).
-        contact: 1 on contact vertices (``g ≤`` the contact tolerance), else 0.
+        contact: the contact indicator at the vertices (P1: 1 on contact vertices, else 0;
+            :meth:`~shellobstacle.post.contact.Postprocessor.indicator`).
         q: Unit normal of the plane ``x·q = 0``.
     """
 
@@ -219,9 +220,9 @@ def _lay_out(views: dict[str, np.ndarray], path: Path, title: str) -> None:
     bar = fig.colorbar(mappable, ax=axes, shrink=0.8, pad=0.01)
     bar.set_label("gap g(ζ) = (θ + ζᵢ aⁱ)·q, the height above the plane")
     handles = [
-        Line2D([], [], color=CONTACT, lw=3, label="contact zone: cells with g ≤ 0 at every vertex")
+        Line2D([], [], color=CONTACT, lw=3, label="contact zone: cells in contact at every vertex")
         if bool(views["outlined"])
-        else Line2D([], [], color=CONTACT, ls="", marker="o", label="contact vertices (g ≤ 0)"),
+        else Line2D([], [], color=CONTACT, ls="", marker="o", label="contact vertices"),
         Patch(facecolor=PLANE, label="the plane x·q = 0 (translucent)"),
     ]
     axes[1].legend(handles=handles, loc="lower left", fontsize=8, framealpha=0.9)

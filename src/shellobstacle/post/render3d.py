@@ -10,7 +10,8 @@ keeps the solve that called it alive.
 The views show the deformed middle surface ``θ + ζ_i a^i`` coloured by the gap
 ``g(ζ) = (θ + ζ_i a^i)·q`` (docs/model.md §3), the plane ``x·q = 0`` as a translucent grey square
 (the penalized solution's slight penetration, ``g < 0``, shows through it) and the boundary of
-the contact zone as a red tube: of the cells whose vertices all touch (``g ≤ 0``), the flat
+the contact zone as a red tube: of the cells whose vertices all touch (contact indicator > ½,
+:meth:`~shellobstacle.post.contact.Postprocessor.indicator`), the flat
 part of the shell on the plane, which the steep wall around it does not hide from above.
 
 Exit status: 0 written, 3 PyVista (or VTK) cannot be imported, anything else a failure

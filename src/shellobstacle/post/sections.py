@@ -44,8 +44,9 @@ class CrossSection:
         zeta: Covariant components ``ζ_i(y)``, shape ``(m, 3)``.
         reference: ``θ(y)``, shape ``(m, 3)``.
         deformed: ``θ(y) + ζ_i(y) a^i(y)``, shape ``(m, 3)``.
-        height_reference: ``θ(y)·q`` (height above the plane), shape ``(m,)``.
-        height_deformed: ``(θ + ζ_i a^i)(y)·q = g(ζ)(y)``, shape ``(m,)``.
+        height_reference: ``g(θ)(y)``, the obstacle's gap (the height above the plane),
+            shape ``(m,)``.
+        height_deformed: ``g(ζ)(y)`` (for the plane ``(θ + ζ_i a^i)(y)·q``), shape ``(m,)``.
         q: Unit normal of the plane.
     """
 
@@ -170,7 +171,7 @@ def cross_section(
     reference = np.column_stack([np.broadcast_to(np.asarray(t, float), (m,)) for t in G.theta])
     U = G.cartesian([zeta[:, i] for i in range(3)])
     deformed = reference + np.column_stack([np.broadcast_to(u, (m,)) for u in U])
-    q = np.asarray(problem.q, float)
+    obstacle = problem.obstacle
     return CrossSection(
         axis=axis,
         at=float(at),
@@ -179,9 +180,11 @@ def cross_section(
         zeta=zeta,
         reference=reference,
         deformed=deformed,
-        height_reference=reference @ q,
-        height_deformed=deformed @ q,
-        q=q,
+        height_reference=np.broadcast_to(obstacle.reference_gap(G), (m,)).astype(float),
+        height_deformed=np.broadcast_to(
+            obstacle.gap(G, [zeta[:, i] for i in range(3)]), (m,)
+        ).astype(float),
+        q=np.asarray(problem.q, float),
     )
 
 

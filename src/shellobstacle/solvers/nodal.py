@@ -4,7 +4,7 @@ With the constraint ``g ≥ 0`` imposed at the Lagrange nodes (P1: the vertices;
 vertices and edge midpoints), each constraint involves only the three unknowns of its node.
 An orthogonal change of variables ``η_i = Q_i u_i`` per node (a Householder reflection whose
 column ``k_i`` is ``c(x_i)/|c(x_i)|``; it leaves fixed Dirichlet components alone) turns it
-into a lower bound on one rotated unknown, ``u_{i,k_i} ≥ ψ_i = −θ(x_i)·q / |c(x_i)|``. With
+into a lower bound on one rotated unknown, ``u_{i,k_i} ≥ ψ_i = −g(θ)(x_i) / |c(x_i)|``. With
 the block-diagonal ``Q`` (a PETSc matrix, block size 3), ``K' = QᵀKQ`` and ``f' = Qᵀf`` the
 obstacle problem is a bound-constrained quadratic program. The multiplier of a bound,
 ``λ_i = (K'u − f')_{i,k_i} / |c(x_i)|``, is the nodal contact force; divided by a lumped
@@ -22,8 +22,9 @@ import numpy as np
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.obstacle.points import lumped_mass_p2
 
-__all__ = ["NodalConstraint", "lumped_mass_p2", "nodal_rotations"]
+__all__ = ["NodalConstraint", "nodal_rotations"]
 
 
 def nodal_rotations(
@@ -74,8 +75,10 @@ class NodalConstraint:
     vertices and edge midpoints for P2.
 
     Attributes:
-        theta_q: ``θ(x_i)·q`` at the owned nodes.
-        c: ``c_j(x_i) = a^j(x_i)·q``, shape ``(n, 3)``.
+        at_nodes: the obstacle's gap data at the owned nodes
+            (:meth:`~shellobstacle.obstacle.Obstacle.at_points`).
+        g0: ``g(θ)(x_i)``, the reference gap at the owned nodes.
+        c: ``c_j(x_i) = ∂g/∂ζ_j`` (the plane's ``a^j(x_i)·q``), shape ``(n, 3)``.
         free: which components of each node are free (not Dirichlet), shape ``(n, 3)``.
         nodes: the owned nodes that carry a constraint.
         iB: their constrained rotated unknowns (local positions).
@@ -85,7 +88,7 @@ class NodalConstraint:
             :meth:`set_multiplier` fills.
 
     Raises:
-        ValueError: a node whose displacement is fixed lies below the plane.
+        ValueError: a node whose displacement is fixed lies outside the admissible set.
     """
 
     def __init__(self, problem: PenalizedProblem) -> None:
@@ -95,11 +98,10 @@ class NodalConstraint:
         self.bs = bs = V.dofmap.index_map_bs
         self.n = n = im.size_local
         points = V.tabulate_dof_coordinates()[:n]
-        geo = problem.shell.surface.geometry_numpy(points)
-        q = problem.q
-        theta_q = sum(np.asarray(geo.theta[j], float) * q[j] for j in range(3))
-        self.theta_q = np.broadcast_to(theta_q, (n,)).copy()
-        self.c = np.column_stack([np.broadcast_to(np.asarray(cj, float), (n,)) for cj in geo.c(q)])
+        if not problem.obstacle.affine:
+            raise ValueError(f"the nodal bounds need an affine gap: {problem.obstacle}")
+        self.at_nodes = problem.obstacle.at_points(problem.shell.surface, points)
+        self.g0, self.c = self.at_nodes.g0, self.at_nodes.c
         free = np.ones(n * bs, dtype=bool)
         for bc in problem.bcs:
             dofs, first_ghost = bc.dof_indices()
@@ -107,14 +109,14 @@ class NodalConstraint:
         self.free = free.reshape(n, bs)
         self.Qn, self.k, self.cn = nodal_rotations(self.c, self.free)
         self.nodes = np.flatnonzero(self.k >= 0)  # constrained nodes (local)
-        bad = np.flatnonzero((self.k < 0) & (self.theta_q < 0))
+        bad = np.flatnonzero((self.k < 0) & (self.g0 < 0))
         if self.comm.allreduce(int(bad.size), op=MPI.SUM):
             raise ValueError(
-                "a node whose displacement is fixed lies below the plane (θ·q < 0): "
-                "the obstacle problem has no admissible displacement"
+                "a node whose displacement is fixed lies outside the admissible set "
+                "(g(θ) < 0, below the plane): the obstacle problem has no admissible displacement"
             )
         self.iB = bs * self.nodes + self.k[self.nodes]
-        self.psi = -self.theta_q[self.nodes] / self.cn[self.nodes]
+        self.psi = -self.g0[self.nodes] / self.cn[self.nodes]
         # block-diagonal Q (global block rows r0 … r0 + n − 1)
         r0 = im.local_range[0]
         cols = (bs * (r0 + np.arange(n)))[:, None, None] + np.arange(bs)[None, None, :]
@@ -152,9 +154,8 @@ class NodalConstraint:
         return m
 
     def gap(self, zeta: np.ndarray) -> np.ndarray:
-        """``g_i = θ(x_i)·q + c(x_i)·ζ(x_i)`` at the owned nodes (``zeta``: local dofs)."""
-        eta = zeta[: self.n * self.bs].reshape(self.n, self.bs)
-        return self.theta_q + np.sum(self.c * eta, axis=1)
+        """``g_i = g(θ)(x_i) + c(x_i)·ζ(x_i)`` at the owned nodes (``zeta``: local dofs)."""
+        return self.at_nodes.gap(zeta[: self.n * self.bs].reshape(self.n, self.bs))
 
     def constraint_force(self, lam: np.ndarray) -> np.ndarray:
         """``Bᵀλ`` on the owned dofs (row ``i`` of ``B`` is ``c(x_i)`` on node ``i``'s free
@@ -173,27 +174,3 @@ class NodalConstraint:
         self.contact_pressure.x.array[:] = np.divide(
             self.multiplier.x.array, m, out=np.zeros_like(m), where=m > 0
         )
-
-
-def lumped_mass_p2(S: dolfinx.fem.FunctionSpace, sqrt_a: ufl.core.expr.Expr) -> np.ndarray:
-    """Positive lumped masses of the P2 nodes of ``S`` (local, ghosts included).
-
-    The P2 nodes of a triangle are the vertices of its uniform refinement into four
-    triangles, so the P1 lumping on that refinement gives each vertex ``1/12`` and each edge
-    midpoint ``1/4`` of ``∫_T √a dy`` (whereas ``∫ φ_i √a dy`` vanishes or is negative at
-    the vertices for P2's own basis, no divisor for a pressure).
-    """
-    mesh = S.mesh
-    DG0 = dolfinx.fem.functionspace(mesh, ("DG", 0))
-    w = dolfinx.fem.assemble_vector(
-        dolfinx.fem.form(ufl.TestFunction(DG0) * sqrt_a * ufl.dx(domain=mesh))
-    ).array
-    cells = np.arange(mesh.topology.index_map(mesh.topology.dim).size_local)
-    per_cell = w[DG0.dofmap.list[cells, 0]]
-    share = np.array([1 / 12] * 3 + [1 / 4] * 3)  # basix P2: vertex dofs first, then edges
-    dofs = S.dofmap.list[cells]
-    mass = dolfinx.la.vector(S.dofmap.index_map)
-    np.add.at(mass.array, dofs.reshape(-1), (per_cell[:, None] * share[None, :]).reshape(-1))
-    mass.scatter_reverse(dolfinx.la.InsertMode.add)
-    mass.scatter_forward()
-    return mass.array.copy()

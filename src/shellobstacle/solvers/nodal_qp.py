@@ -162,7 +162,7 @@ class NodalQP:
         self.nodal = nodal = NodalConstraint(problem)
         self.nodes, self.iB, self.psi = nodal.nodes, nodal.iB, nodal.psi
         self.Q = nodal.Q
-        self.gap_scale = self.max(np.abs(nodal.theta_q))
+        self.gap_scale = self.max(np.abs(nodal.g0))
         self.Kr = self.K.ptap(self.Q)  # K' = Qᵀ K Q
         self.diag = self.Kr.getDiagonal()
         self.d = self.diag.array_r[self.iB].copy()  # K'_bb > 0

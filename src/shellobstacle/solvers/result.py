@@ -148,6 +148,15 @@ class SolveResult:
         """The κ of the solution held (0 for the exact nodal problem's solution)."""
         return 0.0 if self.kappa == 0.0 else float(self.problem.kappa.value)
 
+    @property
+    def constraint(self) -> str:
+        """Where the solution's constraint acts, and so where contact is measured
+        (:func:`~shellobstacle.obstacle.points.constraint_points`): ``"penalty"`` for a
+        penalized method, ``"nodes"`` for an exact nodal one."""
+        from shellobstacle.solvers.registry import METHODS
+
+        return "penalty" if METHODS[self.method].penalized else "nodes"
+
     def validity(self, post: Any = None) -> Any:
         """The solution's :class:`~shellobstacle.post.validity.Validity` (penetration,
         displacement, orientation against their thresholds); ``post``: the problem's
@@ -155,4 +164,4 @@ class SolveResult:
         from shellobstacle.post.contact import Postprocessor
         from shellobstacle.post.validity import assess
 
-        return assess(post or Postprocessor(self.problem), self.solved_kappa)
+        return assess(post or Postprocessor(self.problem, self.constraint), self.solved_kappa)

@@ -131,7 +131,7 @@ class ZoneProblem:
         return float(np.linalg.norm(x))
 
     def gap(self, z: PETSc.Vec) -> np.ndarray:
-        """``g`` at the zone's points for ``ζ_Z = z``."""
+        """``g`` at the zone's points for ``ζ_Z = z``: the penalty's ``g⁰ + Bζ`` on their rows."""
         self.MP.mult(z, self.wP)
         return self.g0P + self.wP.array_r / self.DP
 
@@ -151,7 +151,7 @@ class ZoneProblem:
         self.MP.multTransposeAdd(self.wP, r, r)
 
     def gap_scale(self, z: PETSc.Vec) -> np.ndarray:
-        """``|θ·q| + Σ_j |ζ_j c_j|`` at the zone's points (the shared ``penalty.gap_scale``)."""
+        """``|g(θ)| + Σ_j |ζ_j c_j|`` at the zone's points (the shared ``penalty.gap_scale``)."""
         x = z.duplicate()
         total = gap_scale(self.MP, self.DP, self.g0P, z.array_r.copy(), self.component, x, self.wP)
         x.destroy()
