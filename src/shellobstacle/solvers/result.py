@@ -152,10 +152,8 @@ class SolveResult:
     def constraint(self) -> str:
         """Where the solution's constraint acts, and so where contact is measured
         (:func:`~shellobstacle.obstacle.points.constraint_points`): ``"penalty"`` for a
-        penalized method, ``"nodes"`` for an exact nodal one."""
-        from shellobstacle.solvers.registry import METHODS
-
-        return "penalty" if METHODS[self.method].penalized else "nodes"
+        penalized method, ``"nodes"`` for an exact nodal one (κ = 0, as :attr:`solved_kappa`)."""
+        return "nodes" if self.kappa == 0.0 else "penalty"
 
     def validity(self, post: Any = None) -> Any:
         """The solution's :class:`~shellobstacle.post.validity.Validity` (penetration,
