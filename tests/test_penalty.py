@@ -39,7 +39,8 @@ def assembled_vector(problem: PenalizedProblem, name: str) -> PETSc.Vec:
 @pytest.mark.mpi
 @pytest.mark.parametrize(("degree", "quadrature"), [(1, "gauss"), (1, "vertex"), (2, "gauss")])
 def test_point_penalty_equals_the_forms(degree: int, quadrature: str) -> None:
-    """Energy, residual and Jacobian from the point matrix M equal the UFL forms' values."""
+    """Energy, residual, its κ-derivative and Jacobian from the point matrix M equal the UFL
+    forms' values."""
     disc = Discretization(degree=degree, penalty_quadrature=quadrature)
     problem = PenalizedProblem(paper_shell(), square(n=10), disc, kappa=KAPPA)
     pressed(problem)
@@ -57,6 +58,11 @@ def test_point_penalty_equals_the_forms(degree: int, quadrature: str) -> None:
     pen.add_residual(np.minimum(g, 0.0), KAPPA, ours)
     ours.axpy(-1.0, expected)
     assert ours.norm() <= 1e-12 * expected.norm()
+
+    ours.set(0.0)
+    pen.add_kappa_derivative(g, KAPPA, ours)  # −∂R/∂κ = (1/κ) · the penalty's residual
+    ours.axpy(-1.0 / KAPPA, expected)
+    assert ours.norm() <= 1e-12 * expected.norm() / KAPPA
 
     J = dolfinx.fem.petsc.assemble_matrix(problem.forms["jacobian"], bcs=problem.bcs)
     J.assemble()

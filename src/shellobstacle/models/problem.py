@@ -74,7 +74,7 @@ class PenalizedProblem:
         """Compile the forms; ``p``: three UFL scalars replacing the shell's load expressions
         (e.g. Functions holding sampled or computed data); ``kappa_scale``: a positive cellwise
         (DG0) factor ``ρ`` making the penalty parameter ``κ ρ(x)`` (a κ that follows the local
-        mesh size, :func:`~shellobstacle.adapt.kappa.local_kappa_scale`; None: ``κ`` alone)."""
+        mesh size, :func:`~shellobstacle.penalty.kappa.local_kappa_scale`; None: ``κ`` alone)."""
         self.shell = shell
         self.mesh = mesh
         self.disc = disc = discretization or Discretization()
