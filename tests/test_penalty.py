@@ -83,6 +83,25 @@ def test_no_active_point_no_penalty_jacobian() -> None:
     assert pen.energy(g, KAPPA) == 0.0
 
 
+def test_the_nodal_problem_has_no_kappa() -> None:
+    """kappa=None (the exact nodal problem, κ = 0): no penalty term even where g < 0, no κ."""
+    problem = PenalizedProblem(paper_shell(), square(n=8), kappa=None)
+    pressed(problem)
+    assert not problem.penalized and problem.kappa is None
+    assert "penalty_energy" not in problem.forms and "penalty_residual" not in problem.forms
+    energies = problem.energies()
+    assert energies["penalty_energy"] == 0.0
+    assert energies["penalized_energy"] == energies["energy"]
+    residual = assembled_vector(problem, "residual")  # K ζ − f: the elastic part alone
+    expected = problem.load_vector()
+    expected.scale(-1.0)
+    problem.stiffness().multAdd(problem.zeta.x.petsc_vec, expected, expected)
+    expected.axpy(-1.0, residual)
+    assert expected.norm() <= 1e-12 * residual.norm()
+    with pytest.raises(ValueError, match="no κ"):
+        problem.set_kappa(1e-3)
+
+
 @pytest.mark.mpi
 def test_factorization_reuse_same_solution_fewer_factorizations() -> None:
     """Reusing one factorization per solve gives the same ζ as factorizing at every step."""

@@ -145,7 +145,9 @@ def solve(
         )  # fmt: skip
     t = time.perf_counter()
     kappas = kappa_on_mesh(penalty, mesh).ladder
-    problem = PenalizedProblem(shell, mesh, discretization, kappa=kappas[0] or 1.0)
+    problem = PenalizedProblem(
+        shell, mesh, discretization, kappa=kappas[0] if chosen.penalized else None
+    )
     timings["compile"] = time.perf_counter() - t
     target = kappas[-1] if chosen.penalized else 0.0
     result = SolveResult(problem, h, target, [], checks, timings, method=method)
@@ -221,7 +223,7 @@ def exact_solution(
     disc = dataclasses.replace(
         discretization or Discretization(), penalty_quadrature="vertex", degree=1
     )
-    problem = PenalizedProblem(shell, mesh, disc)
+    problem = PenalizedProblem(shell, mesh, disc, kappa=None)
     result = ActiveSetSolver(problem, options).solve()
     zeta = dolfinx.fem.Function(problem.V, name="zeta_exact")
     zeta.x.array[:] = problem.zeta.x.array

@@ -161,8 +161,9 @@ def adaptive_solve(
     k = 0
     while True:
         t0 = time.perf_counter()
-        kappa = kappa_on_mesh(penalty, mesh, adapt.kappa)
-        problem = PenalizedProblem(shell, mesh, disc, kappa_scale=kappa.scale)
+        kappa = kappa_on_mesh(penalty if chosen.penalized else None, mesh, adapt.kappa)
+        first = kappa.ladder[0] if chosen.penalized else None  # None: the nodal problem
+        problem = PenalizedProblem(shell, mesh, disc, first, kappa_scale=kappa.scale)
         if previous is not None:
             moved = carry_over([previous, *(carry or [])], problem.V)
             problem.zeta.x.array[:] = moved[0].x.array

@@ -88,7 +88,8 @@ def _solve(
     method = METHODS[cfg.method]
     assert cfg.penalty is not None or not method.penalized
     kappas = kappa_on_mesh(cfg.penalty if method.penalized else None, mesh).ladder
-    problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappas[0] or 1.0)
+    kappa = kappas[0] if method.penalized else None
+    problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappa)
     done = method.solve(
         problem, h, kappas, options_for(method, cfg.method_options, cfg.solver),
         lambda _m: None, newton_progress,
