@@ -29,6 +29,7 @@ from shellobstacle.models.hybrid_bending import (
 from shellobstacle.models.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
 from shellobstacle.models.membrane import elastic_product, strain
 from shellobstacle.obstacle import Obstacle, from_spec
+from shellobstacle.penalty.rule import penalty_measure
 from shellobstacle.progress import phase
 from shellobstacle.spec import Discretization, Shell
 
@@ -111,12 +112,7 @@ class PenalizedProblem:
             self.p = list(p)
 
         self.dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
-        if disc.penalty_quadrature == "vertex":
-            self.dx_penalty = ufl.Measure(
-                "dx", domain=mesh, metadata={"quadrature_rule": "vertex", "quadrature_degree": 1}
-            )
-        else:
-            self.dx_penalty = self.dx
+        self.dx_penalty = penalty_measure(mesh, disc, self.dx)
 
         eps, lam, mu = mat.epsilon, mat.lam, mat.mu
         zeta, v, du = self.zeta, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)

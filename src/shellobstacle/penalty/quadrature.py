@@ -32,6 +32,7 @@ import numpy as np
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.rule import reference_rule
 
 __all__ = [
     "QuadraturePenalty",
@@ -43,14 +44,9 @@ __all__ = [
 
 
 def penalty_rule(problem: PenalizedProblem) -> tuple[np.ndarray, np.ndarray]:
-    """The reference points and weights of the problem's penalty rule (docs/model.md §5): the
-    vertices with equal weights, or the Gauss rule of degree ``qdegree``."""
-    cell = problem.mesh.basix_cell()
-    if problem.disc.penalty_quadrature == "vertex":
-        points = basix.geometry(cell)
-        volume = basix.cell.volume(cell)
-        return points, np.full(points.shape[0], volume / points.shape[0])
-    return basix.make_quadrature(cell, problem.disc.qdegree)
+    """The reference points and weights of the problem's penalty rule
+    (:func:`~shellobstacle.penalty.rule.reference_rule`)."""
+    return reference_rule(problem.mesh.basix_cell(), problem.disc)
 
 
 def quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
