@@ -64,9 +64,10 @@ def solve(shell, mesh, degree: int, bending: str | None) -> dict:
 
     from shellobstacle.mesh.measures import mesh_size
     from shellobstacle.models.problem import PenalizedProblem
+    from shellobstacle.penalty.spec import PenaltySpec
     from shellobstacle.solvers.continuation import continuation
     from shellobstacle.solvers.newton import NewtonSolver
-    from shellobstacle.spec import Discretization, PenaltySpec
+    from shellobstacle.spec import Discretization
 
     kappas = PenaltySpec(exponent=1.5).ladder(mesh_size(mesh))
     t = time.perf_counter()

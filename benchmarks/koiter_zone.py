@@ -27,12 +27,13 @@ from koiter_factor import refactorize
 def rows(h: float, orderings: list[int]) -> list[dict]:
     from shellobstacle.mesh.measures import mesh_size
     from shellobstacle.models.problem import PenalizedProblem
+    from shellobstacle.penalty.spec import PenaltySpec
     from shellobstacle.solvers.base import direct_solver, factorize
     from shellobstacle.solvers.continuation import continuation
     from shellobstacle.solvers.newton import NewtonSolver
     from shellobstacle.solvers.zone.condensation import Condensation
     from shellobstacle.solvers.zone.multipliers import HybridBlocks
-    from shellobstacle.spec import Discretization, PenaltySpec
+    from shellobstacle.spec import Discretization
 
     shell, mesh = paper_shell_and_mesh("koiter", h)
     problem = PenalizedProblem(shell, mesh, Discretization(degree=2, bending="hybrid"))

@@ -14,15 +14,17 @@ import dolfinx
 import numpy as np
 import pytest
 
-from shellobstacle.adapt.loop import adaptive_solve, local_kappa_scale
+from shellobstacle.adapt.loop import adaptive_solve
 from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.config.loader import load_config
 from shellobstacle.experiments.common import transfer
 from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.measures import mesh_size, mesh_size_min
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.kappa import kappa_on_mesh, local_kappa_scale
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.norms import DifferenceNorms
-from shellobstacle.spec import PenaltySpec
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "examples" / "paper.toml"
@@ -108,6 +110,29 @@ def test_kappa_follows_the_mesh(cfg) -> None:
                 problem.kappa.value * rho[problem.kappa_scale.function_space.dofmap.list[cells, 0]]
             )
             assert np.allclose(kappa_T, h**q, rtol=1e-12)
+
+
+def test_kappa_on_a_mesh_by_mode() -> None:
+    """One place for κ on a mesh: the ladder at h_max ('largest', 'local') or h_min
+    ('finest'), ρ only for 'local', a fixed κ on every mesh, [0] without a penalty."""
+    mesh = _mesh(h=0.1)
+    h_max, h_min = mesh_size(mesh), mesh_size_min(mesh)
+    assert h_min < h_max
+    spec = PenaltySpec(exponent=1.5)
+    largest = kappa_on_mesh(spec, mesh)
+    assert (largest.h, largest.ladder, largest.scale) == (h_max, spec.ladder(h_max), None)
+    assert largest.kappa_min == largest.kappa_max == h_max**1.5
+    finest = kappa_on_mesh(spec, mesh, "finest")
+    assert (finest.h, finest.ladder, finest.scale) == (h_min, spec.ladder(h_min), None)
+    local = kappa_on_mesh(spec, mesh, "local")
+    assert (local.h, local.ladder) == (h_max, spec.ladder(h_max))
+    assert (local.kappa_min, local.kappa_max) == (h_min**1.5, h_max**1.5)
+    assert local.scale is not None and local.scale.x.array.max() <= 1.0
+    fixed = kappa_on_mesh(PenaltySpec(kappa=1e-4, continuation=False), mesh, "local")
+    assert (fixed.ladder, fixed.scale, fixed.kappa_min) == ([1e-4], None, 1e-4)
+    assert kappa_on_mesh(None, mesh, "finest").ladder == [0.0]
+    with pytest.raises(ValueError, match="smallest"):
+        kappa_on_mesh(spec, mesh, "smallest")
 
 
 def test_a_unit_kappa_scale_changes_nothing(cfg) -> None:

@@ -21,9 +21,10 @@ from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.config.loader import parse_config
 from shellobstacle.config.schema import METHOD_OPTIONS, REQUIRED, SCHEMA, reference_text
 from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions
 from shellobstacle.solvers.registry import METHODS
-from shellobstacle.spec import Discretization, Load, Material, Obstacle, PenaltySpec, Shell
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
 PAPER = Path(__file__).parents[1] / "examples" / "paper.toml"
 #: the least a config must give (paper.toml without its optional sections and keys)

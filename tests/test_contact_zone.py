@@ -299,7 +299,7 @@ def test_the_predictor_is_the_euler_step() -> None:
     g = system.penalty.gap(zeta0)
     b = system.R.duplicate()
     b.set(0.0)
-    system.penalty.add_residual(np.minimum(g, 0.0), kappa * kappa, b)  # −∂R/∂κ
+    system.penalty.add_residual(np.minimum(g, 0.0) / kappa, kappa, b)  # −∂R/∂κ: (1/κ²) Mᵀ g⁻
     system.g = g
     expected = lu_solve(system.jacobian(), b)
     assert predict(solver, kappa / 10)

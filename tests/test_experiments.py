@@ -21,8 +21,9 @@ from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.mesh.refinement import refine_uniformly
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.norms import DifferenceNorms
-from shellobstacle.spec import Discretization, Load, PenaltySpec
+from shellobstacle.spec import Discretization, Load
 
 ROOT = Path(__file__).parents[1]
 PAPER = ROOT / "examples" / "paper.toml"

@@ -28,7 +28,8 @@ from cli_helpers import assert_user_error, run
 from shellobstacle.cli.main import main
 from shellobstacle.config.loader import ConfigError, load_config, parse_config, to_toml
 from shellobstacle.mesh.domains import DomainSpec
-from shellobstacle.spec import Discretization, PenaltySpec, Shell
+from shellobstacle.penalty.spec import PenaltySpec
+from shellobstacle.spec import Discretization, Shell
 
 COMM = MPI.COMM_WORLD
 serial = pytest.mark.skipif(COMM.size > 1, reason="CLI tests run serially")

@@ -17,6 +17,7 @@ from conftest import make_paper_shell as paper_shell
 from shellobstacle.api import solve
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
 from shellobstacle.solvers.base import ConvergenceError
@@ -24,7 +25,7 @@ from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear import iterative as iterative_module
 from shellobstacle.solvers.linear.iterative import WARM_FORCING, IterativeStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
-from shellobstacle.spec import Discretization, Obstacle, PenaltySpec, Shell
+from shellobstacle.spec import Discretization, Obstacle, Shell
 
 
 def square(comm=MPI.COMM_WORLD, n: int = 24, half: float = 0.25) -> dolfinx.mesh.Mesh:

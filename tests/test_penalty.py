@@ -39,7 +39,8 @@ def assembled_vector(problem: PenalizedProblem, name: str) -> PETSc.Vec:
 @pytest.mark.mpi
 @pytest.mark.parametrize(("degree", "quadrature"), [(1, "gauss"), (1, "vertex"), (2, "gauss")])
 def test_point_penalty_equals_the_forms(degree: int, quadrature: str) -> None:
-    """Energy, residual and Jacobian from the point matrix M equal the UFL forms' values."""
+    """Energy, residual, its κ-derivative and Jacobian from the point matrix M equal the UFL
+    forms' values."""
     disc = Discretization(degree=degree, penalty_quadrature=quadrature)
     problem = PenalizedProblem(paper_shell(), square(n=10), disc, kappa=KAPPA)
     pressed(problem)
@@ -58,6 +59,11 @@ def test_point_penalty_equals_the_forms(degree: int, quadrature: str) -> None:
     ours.axpy(-1.0, expected)
     assert ours.norm() <= 1e-12 * expected.norm()
 
+    ours.set(0.0)
+    pen.add_kappa_derivative(g, KAPPA, ours)  # −∂R/∂κ = (1/κ) · the penalty's residual
+    ours.axpy(-1.0 / KAPPA, expected)
+    assert ours.norm() <= 1e-12 * expected.norm() / KAPPA
+
     J = dolfinx.fem.petsc.assemble_matrix(problem.forms["jacobian"], bcs=problem.bcs)
     J.assemble()
     K = dolfinx.fem.petsc.assemble_matrix(problem.forms["stiffness"], bcs=problem.bcs)
@@ -75,6 +81,25 @@ def test_no_active_point_no_penalty_jacobian() -> None:
     assert np.all(g > 0)
     assert pen.jacobian(g, KAPPA) is None
     assert pen.energy(g, KAPPA) == 0.0
+
+
+def test_the_nodal_problem_has_no_kappa() -> None:
+    """kappa=None (the exact nodal problem, κ = 0): no penalty term even where g < 0, no κ."""
+    problem = PenalizedProblem(paper_shell(), square(n=8), kappa=None)
+    pressed(problem)
+    assert not problem.penalized and problem.kappa is None
+    assert "penalty_energy" not in problem.forms and "penalty_residual" not in problem.forms
+    energies = problem.energies()
+    assert energies["penalty_energy"] == 0.0
+    assert energies["penalized_energy"] == energies["energy"]
+    residual = assembled_vector(problem, "residual")  # K ζ − f: the elastic part alone
+    expected = problem.load_vector()
+    expected.scale(-1.0)
+    problem.stiffness().multAdd(problem.zeta.x.petsc_vec, expected, expected)
+    expected.axpy(-1.0, residual)
+    assert expected.norm() <= 1e-12 * residual.norm()
+    with pytest.raises(ValueError, match="no κ"):
+        problem.set_kappa(1e-3)
 
 
 @pytest.mark.mpi

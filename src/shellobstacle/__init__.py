@@ -30,7 +30,7 @@ _EXPORTS = {
     "DomainSpec": "shellobstacle.mesh.domains",
     "Discretization": "shellobstacle.spec",
     "PenalizedProblem": "shellobstacle.models.problem",
-    "PenaltySpec": "shellobstacle.spec",
+    "PenaltySpec": "shellobstacle.penalty.spec",
     "load_config": "shellobstacle.config.loader",
     "NewtonOptions": "shellobstacle.solvers.options",
     "NewtonSolver": "shellobstacle.solvers.newton",

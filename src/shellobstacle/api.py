@@ -26,11 +26,13 @@ from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.messages import not_one_of
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.kappa import kappa_on_mesh
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.progress import phase
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS, options_for
 from shellobstacle.solvers.result import SolveResult
-from shellobstacle.spec import Discretization, PenaltySpec, Shell
+from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
     "METHODS",
@@ -142,8 +144,10 @@ def solve(
             say, newton_progress, checks, timings,
         )  # fmt: skip
     t = time.perf_counter()
-    kappas = penalty.ladder(h) if penalty is not None else [0.0]
-    problem = PenalizedProblem(shell, mesh, discretization, kappa=kappas[0] or 1.0)
+    kappas = kappa_on_mesh(penalty, mesh).ladder
+    problem = PenalizedProblem(
+        shell, mesh, discretization, kappa=kappas[0] if chosen.penalized else None
+    )
     timings["compile"] = time.perf_counter() - t
     target = kappas[-1] if chosen.penalized else 0.0
     result = SolveResult(problem, h, target, [], checks, timings, method=method)
@@ -219,7 +223,7 @@ def exact_solution(
     disc = dataclasses.replace(
         discretization or Discretization(), penalty_quadrature="vertex", degree=1
     )
-    problem = PenalizedProblem(shell, mesh, disc)
+    problem = PenalizedProblem(shell, mesh, disc, kappa=None)
     result = ActiveSetSolver(problem, options).solve()
     zeta = dolfinx.fem.Function(problem.V, name="zeta_exact")
     zeta.x.array[:] = problem.zeta.x.array

@@ -1,5 +1,6 @@
 """The data of a shell obstacle problem (docs/model.md §2–5): the physical shell (surface,
-material, load, obstacle) and the numerical choices (discretization, penalty).
+material, load, obstacle) and the discretization (the penalty's data:
+:class:`~shellobstacle.penalty.spec.PenaltySpec`).
 
 These small frozen dataclasses are the Python API that mirrors the config file; they
 validate at construction with the config's messages and know nothing about meshes.
@@ -29,7 +30,6 @@ __all__ = [
     "Load",
     "Material",
     "Obstacle",
-    "PenaltySpec",
     "Shell",
 ]
 
@@ -207,46 +207,3 @@ class Discretization:
         """Quadrature degree of the hybrid bending form's cell integrals (``2 · degree``
         unless ``quadrature_degree`` is given)."""
         return self.quadrature_degree or 2 * self.degree
-
-
-@dataclass(frozen=True)
-class PenaltySpec:
-    """``κ`` given directly or as ``h^exponent`` (the paper's coupling), and whether to reach
-    it through a ladder of larger κ (warm starts, docs/model.md §6)."""
-
-    kappa: float | None = None
-    exponent: float | None = None
-    continuation: bool = True
-
-    def __post_init__(self) -> None:
-        if self.kappa is not None and self.exponent is not None:
-            raise ValueError("give either penalty.kappa or penalty.exponent, not both")
-        if self.kappa is None and self.exponent is None:
-            raise ValueError("[penalty] needs 'kappa' (a number) or 'exponent' (κ = h^exponent)")
-        if self.kappa is not None:
-            if not self.kappa > 0:
-                raise ValueError(f"penalty.kappa must be > 0, got {self.kappa}")
-            if self.kappa < 1e-100:
-                raise ValueError(f"penalty.kappa = {self.kappa} is too small (at least 1e-100)")
-        if self.exponent is not None and not 0 < self.exponent <= 20:
-            raise ValueError(
-                "penalty.exponent must be in (0, 20] (κ = h^20 is already far below what "
-                f"double precision resolves), got {self.exponent}"
-            )
-
-    def target(self, h: float) -> float:
-        """The κ to solve for on a mesh of size ``h``."""
-        return self.kappa if self.kappa is not None else h ** float(self.exponent)  # type: ignore[arg-type]
-
-    def ladder(self, h: float) -> list[float]:
-        """The continuation path ending at :meth:`target` (just the target if disabled):
-        ``h^0.5, h^1, …`` below the exponent, or the powers of ten above ``kappa``."""
-        target = self.target(h)
-        if not self.continuation:
-            return [target]
-        if self.exponent is not None:
-            qs = [0.5 * k for k in range(1, int(2 * self.exponent) + 1) if 0.5 * k < self.exponent]
-            path = [h**qq for qq in qs]
-        else:
-            path = [10.0**-k for k in range(0, 40) if 10.0**-k > target]
-        return [k for k in path if k > 0] + [target]

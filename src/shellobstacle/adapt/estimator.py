@@ -77,11 +77,8 @@ def penalty_force(problem: PenalizedProblem) -> Any:
     """``Λ = (ε/κ(x)) {g(ζ)}^- / |c|``: the penalty's contact force per unit ``dy`` (UFL),
     the pointwise expression that the penalty's Gauss rule samples."""
     eps = problem.shell.material.epsilon
-    kappa = problem.kappa
-    if problem.kappa_scale is not None:
-        kappa = kappa * problem.kappa_scale
     g_plus = ufl.conditional(ufl.lt(problem.g, 0), -problem.g, 0)  # {g}^-
-    return eps / kappa * g_plus / problem.c_norm
+    return eps / problem.kappa_x * g_plus / problem.c_norm
 
 
 class ErrorEstimator:

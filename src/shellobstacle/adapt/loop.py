@@ -9,10 +9,8 @@ boundary (:mod:`~shellobstacle.adapt.marking`) and refines the marked cells
 the marked set, hence the meshes and the numbers, are those of a serial run up to solver
 tolerance.
 
-The penalty parameter follows the mesh (``penalty.exponent = q``): ``κ = h_max^q`` with the
-largest cell diameter, as on any other mesh (``AdaptOptions.kappa = "largest"``),
-``κ(x) = h_T^q`` cell by cell (``"local"``: a Constant ``h_max^q`` times the cellwise factor
-``(h_T/h_max)^q``), or ``κ = h_min^q`` (``"finest"``). The first level reaches its κ through
+The penalty parameter follows the mesh as ``AdaptOptions.kappa`` says
+(:func:`~shellobstacle.penalty.kappa.kappa_on_mesh`). The first level reaches its κ through
 the continuation ladder; the later ones start from the transferred solution at their own κ.
 """
 
@@ -35,17 +33,18 @@ from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.mesh.measures import mesh_size, mesh_size_min, num_cells_global
 from shellobstacle.mesh.refinement import refine_marked
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.kappa import MeshKappa, kappa_on_mesh
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS, Method, options_for
 from shellobstacle.solvers.result import MethodResult, SolveResult, Step
-from shellobstacle.spec import Discretization, PenaltySpec, Shell
+from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
     "AdaptLevel",
     "AdaptiveResult",
     "adaptive_solve",
     "carry_over",
-    "local_kappa_scale",
     "solve_adaptively",
 ]
 
@@ -100,33 +99,6 @@ class AdaptiveResult:
     error: str | None = None
     indicators: Indicators | None = None
     extra: dict[str, Any] = field(default_factory=dict)
-
-
-def local_kappa_scale(mesh: dolfinx.mesh.Mesh, exponent: float, h_max: float) -> Any:
-    """The DG0 factor ``(h_T / h_max)^q`` of ``κ(x) = h_max^q (h_T/h_max)^q = h_T^q``."""
-    W = dolfinx.fem.functionspace(mesh, ("DG", 0))
-    rho = dolfinx.fem.Function(W, name="kappa_scale")
-    imap = mesh.topology.index_map(mesh.topology.dim)
-    cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
-    rho.x.array[W.dofmap.list[cells, 0]] = (mesh.h(mesh.topology.dim, cells) / h_max) ** exponent
-    return rho
-
-
-def _kappa(
-    mesh: dolfinx.mesh.Mesh, penalty: PenaltySpec | None, mode: str
-) -> tuple[float, Any, tuple[float, float], float]:
-    """``(h for the ladder, the cellwise scale or None, (κ_min, κ_max), h_max)`` of a mesh."""
-    h_max, h_min = mesh_size(mesh), mesh_size_min(mesh)
-    if penalty is None:
-        return h_max, None, (0.0, 0.0), h_max
-    if penalty.exponent is None:
-        return h_max, None, (penalty.target(h_max),) * 2, h_max
-    q = float(penalty.exponent)
-    if mode == "largest":
-        return h_max, None, (h_max**q,) * 2, h_max
-    if mode == "finest":
-        return h_min, None, (h_min**q,) * 2, h_max
-    return h_max, local_kappa_scale(mesh, q, h_max), (h_min**q, h_max**q), h_max
 
 
 def adaptive_solve(
@@ -189,8 +161,9 @@ def adaptive_solve(
     k = 0
     while True:
         t0 = time.perf_counter()
-        h_ladder, scale, (kappa_min, kappa_max), h_max = _kappa(mesh, penalty, adapt.kappa)
-        problem = PenalizedProblem(shell, mesh, disc, kappa_scale=scale)
+        kappa = kappa_on_mesh(penalty if chosen.penalized else None, mesh, adapt.kappa)
+        first = kappa.ladder[0] if chosen.penalized else None  # None: the nodal problem
+        problem = PenalizedProblem(shell, mesh, disc, first, kappa_scale=kappa.scale)
         if previous is not None:
             moved = carry_over([previous, *(carry or [])], problem.V)
             problem.zeta.x.array[:] = moved[0].x.array
@@ -198,9 +171,7 @@ def adaptive_solve(
                 carry[:] = moved[1:]
         seconds = {"setup": time.perf_counter() - t0}
         t0 = time.perf_counter()
-        done = _solve_level(
-            chosen, problem, penalty, h_ladder, previous is not None, opts, newton_progress
-        )
+        done = _solve_level(chosen, problem, kappa, previous is not None, opts, newton_progress)
         steps, iterations = done.steps, done.iterations
         if not done.converged:
             return AdaptiveResult(levels, problem, steps, "solver failure", False, done.error)
@@ -216,8 +187,9 @@ def adaptive_solve(
         indicators = estimator()
         seconds["estimate"] = time.perf_counter() - t0
         level = AdaptLevel(
-            k, problem.num_dofs, num_cells_global(mesh), h_max, mesh_size_min(mesh),
-            kappa_min, kappa_max, indicators.total, indicators.part_totals(), iterations,
+            k, problem.num_dofs, num_cells_global(mesh), mesh_size(mesh), mesh_size_min(mesh),
+            kappa.kappa_min, kappa.kappa_max, indicators.total, indicators.part_totals(),
+            iterations,
             seconds=seconds,
         )  # fmt: skip
         levels.append(level)
@@ -267,20 +239,19 @@ def carry_over(
 def _solve_level(
     method: Method,
     problem: PenalizedProblem,
-    penalty: PenaltySpec | None,
-    h: float,
+    kappa: MeshKappa,
     warm: bool,
     options: Any,
     newton_progress: Callable[[int, float], Any] | None,
 ) -> MethodResult:
     """Solve one level by ``method`` (its :class:`~shellobstacle.solvers.result.MethodResult`):
-    the κ ladder of the mesh size ``h``, only its last κ when ``warm``."""
+    the mesh's κ ladder, only its last κ when ``warm`` (κ = 0 for a method of the nodal
+    problem)."""
     kappas = [0.0]
     if method.penalized:
-        assert penalty is not None
-        kappas = penalty.ladder(h)
-        kappas = kappas[-1:] if warm else kappas
-    return method.solve(problem, h, kappas, options, lambda _m: None, newton_progress)
+        assert kappa.ladder != [0.0], "a penalized method needs a penalty"
+        kappas = kappa.ladder[-1:] if warm else kappa.ladder
+    return method.solve(problem, kappa.h, kappas, options, lambda _m: None, newton_progress)
 
 
 def _free_boundary(problem: PenalizedProblem, constraint: str) -> np.ndarray:

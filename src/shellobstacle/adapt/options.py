@@ -6,12 +6,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from shellobstacle.messages import not_one_of
+from shellobstacle.penalty.spec import KAPPA_MODES
 
-__all__ = ["KAPPA_MODES", "MAX_LEVELS", "AdaptOptions"]
+__all__ = ["MAX_LEVELS", "AdaptOptions"]
 
-#: how κ = h^exponent follows an adapted mesh: the largest cell (h as everywhere else), the
-#: local cell size, or the smallest cell
-KAPPA_MODES = ("largest", "local", "finest")
 #: the most refinement levels of one adaptive solve
 MAX_LEVELS = 60
 
@@ -26,7 +24,8 @@ class AdaptOptions:
         max_levels: the most refinements; the loop solves ``max_levels + 1`` meshes at most.
         target_error: stop once the estimate ``η`` is at most this (None: no such target).
         target_dofs: stop after the first mesh with at least this many dofs (None: none).
-        kappa: with ``penalty.exponent = q``: ``"largest"``, ``κ = h^q`` with ``h`` the
+        kappa: how κ follows the mesh (:func:`~shellobstacle.penalty.kappa.kappa_on_mesh`).
+            With ``penalty.exponent = q``: ``"largest"``, ``κ = h^q`` with ``h`` the
             largest cell diameter (the package's ``h`` everywhere else); ``"local"``,
             ``κ(x) = h_T^q`` on each cell ``T``; ``"finest"``, ``κ = h_min^q`` everywhere (the
             smallest cell). A fixed ``penalty.kappa`` is used on every mesh.

@@ -30,6 +30,7 @@ from shellobstacle.geometry.expressions import ExpressionError
 from shellobstacle.geometry.surface import Surface
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.messages import ConfigError, not_one_of, suggest
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import (
@@ -37,7 +38,6 @@ from shellobstacle.spec import (
     Load,
     Material,
     Obstacle,
-    PenaltySpec,
     Shell,
 )
 

@@ -10,11 +10,12 @@ from typing import Any
 from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.config.schema import METHOD_OPTIONS, SOLVER_FIELDS
 from shellobstacle.messages import ConfigError
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import (
     NewtonOptions,
 )
 from shellobstacle.solvers.registry import METHODS
-from shellobstacle.spec import PenaltySpec, Shell
+from shellobstacle.spec import Shell
 
 __all__ = ["adapt_options", "method_options", "solver_options"]
 

@@ -18,6 +18,7 @@ from typing import Any
 from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.geometry.surface import SURFACE_KINDS
 from shellobstacle.mesh.domains import KINDS, DomainSpec
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import (
     PETSC_OPTIONS_HELP,
 )
@@ -26,7 +27,6 @@ from shellobstacle.spec import (
     Discretization,
     Load,
     Obstacle,
-    PenaltySpec,
     Shell,
 )
 

@@ -18,6 +18,7 @@ from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.mesh.measures import mesh_size, mesh_size_min
 from shellobstacle.mesh.refinement import refine_uniformly
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.kappa import kappa_on_mesh
 from shellobstacle.post.nonmatching import SampledNorms
 from shellobstacle.solvers.registry import METHODS, options_for
 from shellobstacle.solvers.result import ConvergenceError
@@ -85,11 +86,10 @@ def _solve(
     pressure or None, κ)``."""
     h = mesh_size(mesh)
     method = METHODS[cfg.method]
-    kappas = [0.0]
-    if method.penalized:
-        assert cfg.penalty is not None
-        kappas = cfg.penalty.ladder(h)
-    problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappas[0] or 1.0)
+    assert cfg.penalty is not None or not method.penalized
+    kappas = kappa_on_mesh(cfg.penalty if method.penalized else None, mesh).ladder
+    kappa = kappas[0] if method.penalized else None
+    problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappa)
     done = method.solve(
         problem, h, kappas, options_for(method, cfg.method_options, cfg.solver),
         lambda _m: None, newton_progress,

@@ -16,7 +16,7 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.io.folders import atomic_write
-from shellobstacle.spec import PenaltySpec
+from shellobstacle.penalty.spec import PenaltySpec
 
 Say = Callable[[str], Any]
 NewtonProgress = Callable[[int, float], Any] | None

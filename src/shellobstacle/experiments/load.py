@@ -29,6 +29,7 @@ from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import CrossSection
@@ -36,7 +37,7 @@ from shellobstacle.post.validity import assess
 from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
-from shellobstacle.spec import Discretization, Load, PenaltySpec, Shell
+from shellobstacle.spec import Discretization, Load, Shell
 
 __all__ = [
     "PAPER_BATCH3_LOAD",

@@ -34,11 +34,12 @@ from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.mesh.refinement import refine_uniformly
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.progress import phase
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
-from shellobstacle.spec import Discretization, PenaltySpec, Shell
+from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
     "MeshLevel",

@@ -29,6 +29,7 @@ from shellobstacle.models.hybrid_bending import (
 from shellobstacle.models.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
 from shellobstacle.models.membrane import elastic_product, strain
 from shellobstacle.obstacle import Obstacle, from_spec
+from shellobstacle.penalty.rule import penalty_measure
 from shellobstacle.progress import phase
 from shellobstacle.spec import Discretization, Shell
 
@@ -54,7 +55,8 @@ class PenalizedProblem:
         t: the hybrid bending form's facet multiplier (None for the other forms), set from
             ``ζ`` by :meth:`update_multiplier`.
         condensed: the hybrid stiffness' blocks (after :meth:`stiffness`), or None.
-        kappa: the penalty parameter, a ``Constant``.
+        kappa: the penalty parameter, a ``Constant``; None for the exact nodal problem (κ = 0:
+            no penalty term and no penalty forms).
         kappa_scale: None, or the cellwise factor ``ρ`` of a penalty parameter ``κ ρ(x)``.
         obstacle: the :class:`~shellobstacle.obstacle.Obstacle` of ``shell.obstacle``.
         g: the gap ``g(ζ)`` (UFL); ``c``, ``c_norm``: its derivative ``c_j = ∂g/∂ζ_j``
@@ -67,14 +69,18 @@ class PenalizedProblem:
         shell: Shell,
         mesh: dolfinx.mesh.Mesh,
         discretization: Discretization | None = None,
-        kappa: float = 1.0,
+        kappa: float | None = 1.0,
         p: Sequence[Any] | None = None,
         kappa_scale: dolfinx.fem.Function | None = None,
     ) -> None:
-        """Compile the forms; ``p``: three UFL scalars replacing the shell's load expressions
-        (e.g. Functions holding sampled or computed data); ``kappa_scale``: a positive cellwise
+        """Compile the forms; ``kappa``: the first κ (changed by :meth:`set_kappa`), or None
+        for the methods of the exact nodal problem (κ = 0, the constraint imposed by the
+        solver); ``p``: three UFL scalars replacing the shell's load expressions (e.g.
+        Functions holding sampled or computed data); ``kappa_scale``: a positive cellwise
         (DG0) factor ``ρ`` making the penalty parameter ``κ ρ(x)`` (a κ that follows the local
-        mesh size, :func:`~shellobstacle.adapt.kappa.local_kappa_scale`; None: ``κ`` alone)."""
+        mesh size, :func:`~shellobstacle.penalty.kappa.local_kappa_scale`; None: ``κ`` alone)."""
+        if kappa is None and kappa_scale is not None:
+            raise ValueError("a cellwise κ factor needs a penalty parameter kappa, not None")
         self.shell = shell
         self.mesh = mesh
         self.disc = disc = discretization or Discretization()
@@ -85,7 +91,9 @@ class PenalizedProblem:
         mat = shell.material
         self.V = dolfinx.fem.functionspace(mesh, ("Lagrange", disc.degree, (3,)))
         self.zeta = dolfinx.fem.Function(self.V, name="zeta")
-        self.kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(kappa))
+        self.kappa: dolfinx.fem.Constant | None = None
+        if kappa is not None:
+            self.kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(kappa))
         self.kappa_scale = kappa_scale
         self.parameters = {
             k: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v))
@@ -104,12 +112,7 @@ class PenalizedProblem:
             self.p = list(p)
 
         self.dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
-        if disc.penalty_quadrature == "vertex":
-            self.dx_penalty = ufl.Measure(
-                "dx", domain=mesh, metadata={"quadrature_rule": "vertex", "quadrature_degree": 1}
-            )
-        else:
-            self.dx_penalty = self.dx
+        self.dx_penalty = penalty_measure(mesh, disc, self.dx)
 
         eps, lam, mu = mat.epsilon, mat.lam, mat.mu
         zeta, v, du = self.zeta, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
@@ -147,9 +150,10 @@ class PenalizedProblem:
                 bending = bending_energy(G, eps, lam, mu, zeta, self.dx, self.sigma, ds)
             elastic += self.bending_scale * bending
         work = sum(self.p[i] * zeta[i] for i in range(3)) * sqrt_a * self.dx
-        kappa_x = self.kappa if kappa_scale is None else self.kappa * kappa_scale
-        penalty = (eps / (2 * kappa_x)) * g_minus**2 / self.c_norm * self.dx_penalty
-        energy = elastic - work + penalty
+        energy = elastic - work
+        if self.kappa is not None:
+            penalty = (eps / (2 * self.kappa_x)) * g_minus**2 / self.c_norm * self.dx_penalty
+            energy = elastic - work + penalty
         residual = ufl.derivative(energy, zeta, v)
         load = sum(self.p[i] * v[i] for i in range(3)) * sqrt_a * self.dx
         with phase("compiling the forms"):
@@ -158,10 +162,11 @@ class PenalizedProblem:
                 "load": dolfinx.fem.form(load),
                 "elastic_energy": dolfinx.fem.form(elastic),
                 "work": dolfinx.fem.form(work),
-                "penalty_energy": dolfinx.fem.form(penalty),
-                # (ε/κ) ∫ β(ζ)·v dy: the penalty part of the residual (= −κ ∂R/∂κ)
-                "penalty_residual": dolfinx.fem.form(ufl.derivative(penalty, zeta, v)),
             }
+            if self.kappa is not None:
+                self.forms["penalty_energy"] = dolfinx.fem.form(penalty)
+                # (ε/κ) ∫ β(ζ)·v dy: the penalty part of the residual (= −κ ∂R/∂κ)
+                self.forms["penalty_residual"] = dolfinx.fem.form(ufl.derivative(penalty, zeta, v))
             dz = ufl.derivative(elastic, zeta, v)
             if self.t is None:
                 self.forms["jacobian"] = dolfinx.fem.form(ufl.derivative(residual, zeta, du))
@@ -181,6 +186,18 @@ class PenalizedProblem:
         self.bcs = self._boundary_conditions()
         self._K: PETSc.Mat | None = None
         self.condensed: CondensedStiffness | None = None
+
+    @property
+    def penalized(self) -> bool:
+        """Whether the problem has a penalty (κ > 0); False for the exact nodal problem."""
+        return self.kappa is not None
+
+    @property
+    def kappa_x(self) -> Any:
+        """The penalty parameter ``κ`` or ``κ ρ(x)`` (UFL) of a penalized problem."""
+        if self.kappa is None:
+            raise ValueError("the exact nodal problem (kappa = None) has no penalty parameter")
+        return self.kappa if self.kappa_scale is None else self.kappa * self.kappa_scale
 
     @property
     def model(self) -> str:
@@ -216,6 +233,8 @@ class PenalizedProblem:
 
     def set_kappa(self, kappa: float) -> None:
         """Change ``κ`` without recompiling."""
+        if self.kappa is None:
+            raise ValueError("the exact nodal problem (kappa = None) has no κ to change")
         if not kappa > 0:
             raise ValueError(f"the penalty parameter kappa must be > 0, got {kappa}")
         self.kappa.value = kappa
@@ -295,9 +314,11 @@ class PenalizedProblem:
         return float(self.mesh.comm.allreduce(local))
 
     def energies(self) -> dict[str, float]:
-        """``J(ζ)``, the penalty term and ``J_κ(ζ)`` at the current ``ζ``."""
+        """``J(ζ)``, the penalty term and ``J_κ(ζ)`` at the current ``ζ`` (the penalty term 0
+        for the exact nodal problem)."""
         self.update_multiplier()
-        el, w, pen = (self.scalar(k) for k in ("elastic_energy", "work", "penalty_energy"))
+        el, w = self.scalar("elastic_energy"), self.scalar("work")
+        pen = self.scalar("penalty_energy") if self.penalized else 0.0
         return {"energy": el - w, "penalty_energy": pen, "penalized_energy": el - w + pen}
 
 

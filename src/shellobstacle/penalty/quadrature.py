@@ -10,7 +10,7 @@ obstacle's gap (:mod:`shellobstacle.obstacle`) is affine in ``ζ``:
 the penalty and its first two derivatives are
 
     energy    (1/(2κ)) Σ_k D_k (min(g_k, 0))²
-    residual  (1/κ) Mᵀ min(g, 0)
+    residual  (1/κ) Mᵀ min(g, 0)           (its derivative in κ: −(1/κ²) Mᵀ min(g, 0))
     Jacobian  (1/κ) M_Aᵀ diag(1/D_A) M_A         (A: the points with g_k < 0)
 
 exactly the values the UFL forms of :class:`~shellobstacle.models.problem.PenalizedProblem`
@@ -32,6 +32,7 @@ import numpy as np
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.rule import reference_rule
 
 __all__ = [
     "QuadraturePenalty",
@@ -43,14 +44,9 @@ __all__ = [
 
 
 def penalty_rule(problem: PenalizedProblem) -> tuple[np.ndarray, np.ndarray]:
-    """The reference points and weights of the problem's penalty rule (docs/model.md §5): the
-    vertices with equal weights, or the Gauss rule of degree ``qdegree``."""
-    cell = problem.mesh.basix_cell()
-    if problem.disc.penalty_quadrature == "vertex":
-        points = basix.geometry(cell)
-        volume = basix.cell.volume(cell)
-        return points, np.full(points.shape[0], volume / points.shape[0])
-    return basix.make_quadrature(cell, problem.disc.qdegree)
+    """The reference points and weights of the problem's penalty rule
+    (:func:`~shellobstacle.penalty.rule.reference_rule`)."""
+    return reference_rule(problem.mesh.basix_cell(), problem.disc)
 
 
 def quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
@@ -156,7 +152,16 @@ class QuadraturePenalty:
 
     def add_residual(self, values: np.ndarray, kappa: float, b: PETSc.Vec) -> None:
         """``b ← b + (1/κ) Mᵀ values`` (``values`` at the owned points, e.g. ``min(g, 0)``)."""
-        self._work_q.array[:] = values / kappa
+        self._add_transpose(values / kappa, b)
+
+    def add_kappa_derivative(self, g: np.ndarray, kappa: float, b: PETSc.Vec) -> None:
+        """``b ← b − ∂R/∂κ = b + (1/κ²) Mᵀ min(g, 0)`` at the gap ``g`` (owned points): the
+        right-hand side of the tangent ``J dζ/dκ = −∂R/∂κ`` of the solution path."""
+        self._add_transpose(np.minimum(g, 0.0) / (kappa * kappa), b)
+
+    def _add_transpose(self, values: np.ndarray, b: PETSc.Vec) -> None:
+        """``b ← b + Mᵀ values``."""
+        self._work_q.array[:] = values
         if self._MT is None:
             self.M.multTransposeAdd(self._work_q, b, b)
         else:

@@ -16,8 +16,6 @@ from typing import Any
 from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 from petsc4py import PETSc
 
-import numpy as np
-
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import phase
 from shellobstacle.solvers.base import ConvergenceError
@@ -70,7 +68,7 @@ def predict(solver: NewtonSolver, kappa_new: float) -> bool:
     kappa = system.kappa
     b = system.R.duplicate()
     b.set(0.0)
-    system.penalty.add_residual(np.minimum(system.g, 0.0), kappa * kappa, b)  # −∂R/∂κ
+    system.penalty.add_kappa_derivative(system.g, kappa, b)  # −∂R/∂κ
     ok = solver.linear.tangent(b)
     b.destroy()
     if ok:

@@ -1,0 +1,37 @@
+"""The penalty's quadrature rule (docs/model.md §5): the Gauss rule of the membrane integrals
+(degree ``Discretization.qdegree``, the paper's) or the vertex rule (nodal, mass-lumped; P1),
+as a UFL measure for the forms and as reference points and weights for the point operators
+(:mod:`~shellobstacle.penalty.quadrature`)."""
+
+from __future__ import annotations
+
+from mpi4py import MPI  # noqa: F401  (MPI before DOLFINx)
+
+import basix
+import dolfinx
+import numpy as np
+import ufl
+
+from shellobstacle.spec import Discretization
+
+__all__ = ["penalty_measure", "reference_rule"]
+
+
+def penalty_measure(mesh: dolfinx.mesh.Mesh, disc: Discretization, dx: ufl.Measure) -> ufl.Measure:
+    """The measure of the penalty integral on ``mesh``: the vertex rule, or ``dx`` (the
+    membrane's Gauss rule of degree ``disc.qdegree``) itself."""
+    if disc.penalty_quadrature == "vertex":
+        return ufl.Measure(
+            "dx", domain=mesh, metadata={"quadrature_rule": "vertex", "quadrature_degree": 1}
+        )
+    return dx
+
+
+def reference_rule(cell: basix.CellType, disc: Discretization) -> tuple[np.ndarray, np.ndarray]:
+    """The reference points and weights of the rule :func:`penalty_measure` integrates with:
+    the vertices with equal weights, or the Gauss rule of degree ``disc.qdegree``."""
+    if disc.penalty_quadrature == "vertex":
+        points = basix.geometry(cell)
+        volume = basix.cell.volume(cell)
+        return points, np.full(points.shape[0], volume / points.shape[0])
+    return basix.make_quadrature(cell, disc.qdegree)

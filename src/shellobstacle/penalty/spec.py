@@ -1,0 +1,60 @@
+"""The penalty's data: ``κ`` given directly or as ``h^exponent``, and its continuation ladder
+(docs/model.md §6).
+
+A small frozen dataclass of the Python API that mirrors the config's ``[penalty]`` table; it
+validates at construction with the config's messages and knows nothing about meshes (κ on a
+mesh: :mod:`~shellobstacle.penalty.kappa`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["KAPPA_MODES", "PenaltySpec"]
+
+#: how κ = h^exponent follows an adapted mesh (:mod:`~shellobstacle.penalty.kappa`): the
+#: largest cell (h as everywhere else), the local cell size, or the smallest cell
+KAPPA_MODES = ("largest", "local", "finest")
+
+
+@dataclass(frozen=True)
+class PenaltySpec:
+    """``κ`` given directly or as ``h^exponent`` (the paper's coupling), and whether to reach
+    it through a ladder of larger κ (warm starts, docs/model.md §6)."""
+
+    kappa: float | None = None
+    exponent: float | None = None
+    continuation: bool = True
+
+    def __post_init__(self) -> None:
+        if self.kappa is not None and self.exponent is not None:
+            raise ValueError("give either penalty.kappa or penalty.exponent, not both")
+        if self.kappa is None and self.exponent is None:
+            raise ValueError("[penalty] needs 'kappa' (a number) or 'exponent' (κ = h^exponent)")
+        if self.kappa is not None:
+            if not self.kappa > 0:
+                raise ValueError(f"penalty.kappa must be > 0, got {self.kappa}")
+            if self.kappa < 1e-100:
+                raise ValueError(f"penalty.kappa = {self.kappa} is too small (at least 1e-100)")
+        if self.exponent is not None and not 0 < self.exponent <= 20:
+            raise ValueError(
+                "penalty.exponent must be in (0, 20] (κ = h^20 is already far below what "
+                f"double precision resolves), got {self.exponent}"
+            )
+
+    def target(self, h: float) -> float:
+        """The κ to solve for on a mesh of size ``h``."""
+        return self.kappa if self.kappa is not None else h ** float(self.exponent)  # type: ignore[arg-type]
+
+    def ladder(self, h: float) -> list[float]:
+        """The continuation path ending at :meth:`target` (just the target if disabled):
+        ``h^0.5, h^1, …`` below the exponent, or the powers of ten above ``kappa``."""
+        target = self.target(h)
+        if not self.continuation:
+            return [target]
+        if self.exponent is not None:
+            qs = [0.5 * k for k in range(1, int(2 * self.exponent) + 1) if 0.5 * k < self.exponent]
+            path = [h**qq for qq in qs]
+        else:
+            path = [10.0**-k for k in range(0, 40) if 10.0**-k > target]
+        return [k for k in path if k > 0] + [target]
