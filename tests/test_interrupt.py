@@ -141,3 +141,25 @@ def test_ctrl_c_under_mpiexec_stops_every_rank_cleanly(tmp_path: Path) -> None:
     resumed = subprocess.run([*command, "--resume"], capture_output=True, text=True, timeout=600)
     assert resumed.returncode == 0, resumed.stderr
     assert "Resumed: " in (out / "report.md").read_text()
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="runs its own processes")
+@pytest.mark.parametrize("delay", [0.2, 0.4])
+def test_ctrl_c_while_the_command_starts_is_one_line(tmp_path: Path, delay: float) -> None:
+    """SIGINT ``delay`` seconds after the start, while the modules load (before the command
+    line handles Ctrl-C itself): one line and no traceback. The exit status is 130, or death
+    by SIGINT (which a shell reports as 130) when the signal lands in MPI's own start-up."""
+    command = [sys.executable, "-m", "shellobstacle", "solve", str(SMALL), "-q"]
+    command += ["-o", str(tmp_path / "run"), "--set", "domain.h=0.05"]
+    proc = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    time.sleep(delay)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode in (130, -signal.SIGINT), err
+    assert "Traceback" not in err and len(err.strip().splitlines()) <= 1, err

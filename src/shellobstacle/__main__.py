@@ -15,25 +15,32 @@ __all__ = ["main"]
 
 
 def main() -> int:
-    """Bootstrap, tune, run the command line; returns its exit code."""
-    from shellobstacle.compat import bootstrap
-
-    bootstrap()
-    from mpi4py import MPI
-
-    from shellobstacle import tuning
-
+    """Bootstrap, tune, run the command line; returns its exit code (130 after a Ctrl-C in
+    the second or two of imports before the command line handles it itself)."""
     try:
-        tuning.apply(MPI.COMM_WORLD.size)
-    except ValueError as err:
-        if MPI.COMM_WORLD.rank == 0:
-            print(f"shellobstacle: error: {err}", file=sys.stderr)
-        return 2
-    from shellobstacle.cli import interrupt
-    from shellobstacle.cli.main import main as cli_main
+        from shellobstacle.compat import bootstrap
 
-    interrupt.install(comm=MPI.COMM_WORLD)
-    return cli_main()
+        bootstrap()
+        from mpi4py import MPI
+
+        from shellobstacle import tuning
+
+        try:
+            tuning.apply(MPI.COMM_WORLD.size)
+        except ValueError as err:
+            if MPI.COMM_WORLD.rank == 0:
+                print(f"shellobstacle: error: {err}", file=sys.stderr)
+            return 2
+        from shellobstacle.cli import interrupt
+        from shellobstacle.cli.main import main as cli_main
+
+        interrupt.install(comm=MPI.COMM_WORLD)
+        return cli_main()  # which reports an interrupt of its run itself
+    except KeyboardInterrupt:  # while the modules load, before the run's own handling
+        if "interrupt" in locals():
+            interrupt.acknowledge()
+        print("shellobstacle: interrupted while starting; nothing was written", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
