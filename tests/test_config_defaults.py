@@ -2,7 +2,7 @@
 builds the same objects as the API's dataclasses constructed with their defaults.
 
 The fields are found by introspection, so a new field of an options class fails here until
-the schema sets it (:func:`shellobstacle.config.schema.bound`, ``SOLVER_FIELDS``) or it is listed as
+the schema sets it (:func:`shellobstacle.config.keys.bound`, ``SOLVER_FIELDS``) or it is listed as
 one the config does not expose (``API_ONLY``).
 """
 
@@ -18,8 +18,9 @@ from typing import Any
 import pytest
 
 from shellobstacle.adapt.options import AdaptOptions
+from shellobstacle.config.keys import METHOD_OPTIONS, REQUIRED
 from shellobstacle.config.loader import parse_config
-from shellobstacle.config.schema import METHOD_OPTIONS, REQUIRED, SCHEMA, reference_text
+from shellobstacle.config.schema import SCHEMA, reference_text
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions

@@ -16,15 +16,9 @@ from pathlib import Path
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
+from shellobstacle.config.keys import REQUIRED, Key
 from shellobstacle.config.options import adapt_options, method_options, solver_options
-from shellobstacle.config.schema import (
-    OPTIONAL_SECTIONS,
-    REQUIRED,
-    REQUIRED_SECTIONS,
-    SCHEMA,
-    SELECTORS,
-    Key,
-)
+from shellobstacle.config.schema import OPTIONAL_SECTIONS, REQUIRED_SECTIONS, SCHEMA, SELECTORS
 from shellobstacle.config.toml_io import apply_overrides, read_toml, to_toml
 from shellobstacle.geometry.expressions import ExpressionError
 from shellobstacle.geometry.surface import Surface

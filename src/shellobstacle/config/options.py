@@ -8,7 +8,7 @@ from collections.abc import Collection, Mapping
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config.schema import METHOD_OPTIONS, SOLVER_FIELDS
+from shellobstacle.config.keys import METHOD_OPTIONS, SOLVER_FIELDS
 from shellobstacle.messages import ConfigError
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import (
@@ -22,7 +22,7 @@ __all__ = ["adapt_options", "method_options", "solver_options"]
 
 def solver_options(method: str, sv: Mapping[str, Any], given: Collection[str]) -> Any:
     """The options of ``method`` from ``[solver]``
-    (:data:`~shellobstacle.config.schema.SOLVER_FIELDS`; None for a method that takes none):
+    (:data:`~shellobstacle.config.keys.SOLVER_FIELDS`; None for a method that takes none):
     the keys it reads that are in ``sv`` when it is ``sv["method"]``, else those in ``given``;
     the fields no key sets keep the options class's defaults."""
     if method not in METHOD_OPTIONS:  # a method that takes no options
