@@ -28,6 +28,7 @@ __all__ = [
     "fit_rate",
     "newton_finished",
     "penalty_at",
+    "readable_log_ticks",
     "reference_of",
     "transfer",
     "write_csv",

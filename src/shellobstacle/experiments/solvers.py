@@ -24,7 +24,14 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.config.loader import Config
-from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, penalty_at, write_csv
+from shellobstacle.experiments.common import (
+    NewtonProgress,
+    Say,
+    fit_rate,
+    penalty_at,
+    readable_log_ticks,
+    write_csv,
+)
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
@@ -246,6 +253,7 @@ def _plot(rows: Sequence[dict], fit: Sequence[dict], slope: float, path: Path) -
     ax.set_title("iterations to convergence")
     ax.legend(fontsize=8)
     ax.grid(True, which="both", alpha=0.3)
+    readable_log_ticks(ax)
 
     bound = np.array([1.0 - r["contraction_bound"] for r in rows])
     observed = np.array([1.0 - r["contraction_observed_tail"] for r in rows])
@@ -256,6 +264,7 @@ def _plot(rows: Sequence[dict], fit: Sequence[dict], slope: float, path: Path) -
     bx.set_title("contraction per step (L² norm)")
     bx.legend(fontsize=8)
     bx.grid(True, which="both", alpha=0.3)
+    readable_log_ticks(bx)
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
