@@ -242,8 +242,8 @@ def _parser() -> argparse.ArgumentParser:
     d = sub.add_parser(
         "doctor",
         help="the environment, versions and what process tuning is active and why",
-        epilog="example: shellobstacle doctor  (SHELLOBSTACLE_TUNING=off shellobstacle doctor: "
-        "the plain library's process)",
+        epilog="example: shellobstacle doctor  (SHELLOBSTACLE_TUNING=on shellobstacle doctor: "
+        "the opt-in tuning's policies on this machine)",
     )
     d.add_argument(
         "--repair",
