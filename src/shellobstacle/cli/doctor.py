@@ -86,7 +86,7 @@ def report(installed: str) -> tuple[list[str], list[str]]:
     from mpi4py import MPI
 
     from shellobstacle import dependencies, tuning
-    from shellobstacle.io.folders import versions
+    from shellobstacle.io.records import versions
     from shellobstacle.solvers.mumps import selected_inverse_available
     from shellobstacle.tuning.build import cache_dir, compiler
 
