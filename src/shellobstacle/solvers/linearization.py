@@ -1,0 +1,78 @@
+"""A curved obstacle by sequential linearization of its gap (docs/model.md, Curved obstacles).
+
+For a curved obstacle the constraint ``g(ζ) ≥ 0`` is not affine in ``ζ``, and neither the
+penalty's piecewise-quadratic structure (Newton's exact line search, the Brezis–Sibony
+iteration) nor the exact solvers' nodal bounds hold. Each method therefore solves the problem
+whose gap is linearized at ``ζ̄``, ``g(ζ̄) + c(ζ̄)·(ζ − ζ̄)``
+(:meth:`~shellobstacle.models.problem.PenalizedProblem.linearize`), with all its machinery
+unchanged, and ``ζ̄`` moves to the answer until the two agree. At a fixed point ``ζ = ζ̄``
+the linearized gap, its derivative and hence the penalized equation (and the exact problem's
+KKT conditions at the constraint's points) are those of the curved obstacle.
+
+The first pass goes through the whole κ ladder; the later ones solve at the target κ only,
+from the previous answer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from shellobstacle.solvers.result import MethodResult
+
+__all__ = ["RTOL", "MAX_LINEARIZATIONS", "solve_with"]
+
+RTOL = 1e-10
+"""Stop when ``max |ζ − ζ̄| ≤ RTOL · max |ζ|``."""
+
+MAX_LINEARIZATIONS = 30
+
+
+def solve_with(
+    method: Any,
+    problem: Any,
+    h: float,
+    kappas: Sequence[float],
+    options: Any,
+    say: Any,
+    newton_progress: Any = None,
+) -> MethodResult:
+    """``method.solve(problem, …)``, repeated on the linearized gap for a curved obstacle.
+
+    Returns:
+        The method's result; for a curved obstacle every pass's steps (each with its
+        ``linearization`` number) and, in ``extra``, ``linearizations`` (passes) and
+        ``linearization_change`` (each pass's ``max |ζ − ζ̄| / max |ζ|``). Not converging in
+        :data:`MAX_LINEARIZATIONS` passes is reported as a failure.
+    """
+    if not problem.linearized:
+        return method.solve(problem, h, kappas, options, say, newton_progress)
+    total = MethodResult()
+    changes: list[float] = []
+    ladder = list(kappas)
+    problem.linearize()
+    for k in range(1, MAX_LINEARIZATIONS + 1):
+        done = method.solve(problem, h, ladder, options, say, newton_progress)
+        for step in done.steps:
+            step.details["linearization"] = k
+        total.steps.extend(done.steps)
+        total.extra.update(done.extra)
+        for key, seconds in done.timings.items():
+            total.timings[key] = total.timings.get(key, 0.0) + seconds
+        if not done.converged:
+            total.converged, total.error = False, done.error
+            break
+        changes.append(problem.linearize())
+        say(f"linearization {k}: max |ζ − ζ̄| / max |ζ| = {changes[-1]:.1e}")
+        if changes[-1] <= RTOL:
+            break
+        ladder = list(kappas[-1:])
+    else:
+        total.converged = False
+        total.error = (
+            f"the curved obstacle's linearization did not settle in {MAX_LINEARIZATIONS} "
+            f"passes (last change {changes[-1]:.1e} > {RTOL:g})"
+        )
+    total.extra["linearizations"] = len(changes)
+    total.extra["linearization_change"] = changes
+    return total
