@@ -29,8 +29,8 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.kappa import kappa_on_mesh
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.progress import phase
-from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.linearization import solve_with
+from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS, options_for
 from shellobstacle.solvers.result import SolveResult
 from shellobstacle.spec import Discretization, Shell

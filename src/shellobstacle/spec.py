@@ -24,12 +24,12 @@ from shellobstacle.messages import not_one_of
 __all__ = [
     "BENDING_FORMS",
     "MODELS",
+    "OBSTACLE_KINDS",
     "PENALTY_QUADRATURES",
     "TRANSVERSE",
     "Discretization",
     "Load",
     "Material",
-    "OBSTACLE_KINDS",
     "Obstacle",
     "Shell",
 ]
@@ -196,7 +196,7 @@ def _unit(value: Any, what: str, noun: str) -> tuple[float, float, float]:
     v = np.asarray(_three(value, what))
     largest = float(np.max(np.abs(v)))
     if largest == 0.0:
-        raise ValueError(f"{what} = (0, 0, 0) defines no {noun}: give a nonzero vector")
+        raise ValueError(f"{what} = (0, 0, 0) defines no {noun}: give a nonzero {'normal' if noun == 'half-space' else 'direction'}")
     norm = largest * float(np.linalg.norm(v / largest))  # no overflow for huge entries
     if abs(norm - 1.0) > 1e-12:
         warnings.warn(

@@ -20,7 +20,7 @@ from typing import Any
 
 from shellobstacle.solvers.result import MethodResult
 
-__all__ = ["RTOL", "MAX_LINEARIZATIONS", "solve_with"]
+__all__ = ["MAX_LINEARIZATIONS", "RTOL", "solve_with"]
 
 RTOL = 1e-10
 """Stop when ``max |ζ − ζ̄| ≤ RTOL · max |ζ|``."""
