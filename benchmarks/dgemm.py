@@ -13,7 +13,7 @@ whole C (twice the flops): milliseconds per call and Gflop/s counted on the tria
 
     OPENBLAS_CORETYPE=Haswell .venv/bin/python benchmarks/dgemm.py
     env -u OPENBLAS_CORETYPE .venv/bin/python benchmarks/dgemm.py
-    .venv/bin/python benchmarks/dgemm.py --gemmt
+    SHELLOBSTACLE_TUNING=gemmt .venv/bin/python benchmarks/dgemm.py --gemmt
 """
 
 from __future__ import annotations
@@ -44,7 +44,9 @@ def gemmt(config: str) -> None:
 
     policy = tuning.policies()["gemmt"]
     if policy != "blocked":
-        raise SystemExit(f"the blocked DGEMMT is not in use: {policy}")
+        raise SystemExit(
+            f"the blocked DGEMMT is not in use: {policy} (run with SHELLOBSTACLE_TUNING=gemmt)"
+        )
     theirs = ctypes.CDLL(str(openblas_path()), mode=os.RTLD_NOLOAD)
     ours = ctypes.CDLL(None).dgemmt_  # the process' first dgemmt_: the one MUMPS calls
     ref = ctypes.c_int

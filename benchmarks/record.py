@@ -18,7 +18,7 @@ from shellobstacle import tuning
 from shellobstacle.compat import bootstrap
 
 # the benchmarks run as the ``shellobstacle`` command does: tuned before PETSc and NumPy are
-# loaded, as SHELLOBSTACLE_TUNING says (import this module first)
+# loaded when SHELLOBSTACLE_TUNING asks for it, untouched when unset (import this module first)
 bootstrap()
 tuning.apply(MPI.COMM_WORLD.size)
 

@@ -24,8 +24,9 @@ import sympy as sp
 import ufl
 
 from shellobstacle.adapt.estimator import ErrorEstimator
-from shellobstacle.geometry.expressions import to_ufl, y1, y2
+from shellobstacle.geometry.expressions import y1, y2
 from shellobstacle.geometry.surface import Surface
+from shellobstacle.geometry.translation import to_ufl
 from shellobstacle.models.membrane import membrane_stress, strain, stress_divergence
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton import NewtonSolver

@@ -19,11 +19,8 @@ from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
-from shellobstacle.solvers.brezis_sibony import (
-    BrezisSibonyOptions,
-    BrezisSibonyResult,
-    BrezisSibonySolver,
-)
+from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions, BrezisSibonySolver
+from shellobstacle.solvers.brezis_sibony_result import BrezisSibonyResult
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 

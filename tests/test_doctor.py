@@ -20,7 +20,8 @@ FINE = "OpenBLAS 0.3.33.112.0  USE64BITINT DYNAMIC_ARCH NO_AFFINITY Haswell MAX_
 
 
 def doctor(**environ: str) -> subprocess.CompletedProcess:
-    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_CORETYPE",)} | environ
+    drop = ("OPENBLAS_CORETYPE", "SHELLOBSTACLE_TUNING")
+    env = {k: v for k, v in os.environ.items() if k not in drop} | environ
     return subprocess.run(
         [sys.executable, "-m", "shellobstacle", "doctor"],
         env=env,
@@ -30,19 +31,19 @@ def doctor(**environ: str) -> subprocess.CompletedProcess:
     )
 
 
-@pytest.mark.parametrize("value", ["on", "off"])
-def test_the_doctor_shows_versions_and_the_tuning_in_force(value: str) -> None:
-    out = doctor(SHELLOBSTACLE_TUNING=value)
+@pytest.mark.parametrize("value", ["on", "off", None])
+def test_the_doctor_shows_versions_and_the_tuning_in_force(value: str | None) -> None:
+    out = doctor() if value is None else doctor(SHELLOBSTACLE_TUNING=value)
     assert out.returncode in (0, 1), out.stderr
     text = out.stdout
     assert "DOLFINx 0.11" in text and "PETSc" in text and "MPI:" in text
     (deps,) = [line for line in text.splitlines() if line.startswith("dependencies: ")]
     assert all(f" {name} " in deps for name in ("petsc4py", "numpy", "sympy", "gmsh", "rich"))
-    assert f"tuning (SHELLOBSTACLE_TUNING={value}):" in text
+    setting = "SHELLOBSTACLE_TUNING unset" if value is None else f"SHELLOBSTACLE_TUNING={value}"
+    assert f"tuning ({setting}):" in text
     knobs = [line.strip() for line in text.splitlines() if line.startswith("  ")]
     assert [k.split(":")[0] for k in knobs] == ["heap", "gemmt", "threads"]
-    if value == "off":
-        assert all(k.endswith("off (SHELLOBSTACLE_TUNING=off)") for k in knobs)
+    assert all(k.endswith(f"off ({setting})") for k in knobs) == (value != "on")
     problems = [line for line in text.splitlines() if line.startswith("problem: ")]
     assert (out.returncode == 1) == bool(problems)
     assert ("no problems found" in text) == (not problems)

@@ -30,7 +30,8 @@ ROOT = Path(__file__).parents[1]
 SMALL = str(ROOT / "examples" / "small.toml")
 
 #: compiles the form x^K v dx (K = argv[1]); argv[2] pauses it: "after" CFFI has built the
-#: module until the file argv[3] exists, "during" the build until interrupted; argv[4] == "guard":
+#: module until the file argv[3] exists, "during" the build until interrupted; "wait" prints
+#: FFCx's messages while it waits for another process's compilation; the last argument "guard":
 #: inside jit_cache.guarded_compilations
 COMPILE = textwrap.dedent(
     """
@@ -55,6 +56,10 @@ COMPILE = textwrap.dedent(
         return built
 
     cffi.FFI.compile = paused
+    if pause == "wait":  # (FFCx sets its logger's level from its options)
+        import ffcx.codegeneration.jit
+
+        ffcx.codegeneration.jit.logger.info = lambda m: os.write(1, m.encode() + b"\\n")
     mesh = dolfinx.mesh.create_unit_interval(MPI.COMM_SELF, 2)
     v = ufl.TestFunction(dolfinx.fem.functionspace(mesh, ("Lagrange", 1)))
     x = ufl.SpatialCoordinate(mesh)
@@ -131,6 +136,32 @@ def test_an_interrupted_run_leaves_another_process_s_compilation_alone(
     assert unfinished(env) == []  # the interrupted run's own source is gone too
     third = compile_form(env, 3)
     assert third.returncode == 0, third.stderr
+
+
+def test_a_process_interrupted_while_it_waits_for_the_same_form_leaves_it_alone(
+    tmp_path: Path, env: dict[str, str]
+) -> None:
+    """Two processes compile the same new form: the first builds it, the second (guarded, as
+    every command is) waits for it and is interrupted. The first then finishes, the entry is
+    whole (its source, marker and module), and a third process loads it."""
+    go = tmp_path / "go"
+    first = start(env, "-c", COMPILE, "7", "after", str(go), "guard")
+    wait_for(first, "compiled")
+    (source,) = cache(env).glob("*.c")
+    second = start(env, "-c", COMPILE, "7", "wait", "-", "guard")
+    wait_for(second, f"Waiting for {source}.cached to appear.")
+    second.send_signal(signal.SIGINT)
+    _, err = second.communicate(timeout=120)
+    assert "KeyboardInterrupt" in err and second.returncode != 0, err
+    assert source.exists()  # the waiting process did not take it for its own
+    go.touch()
+    out, err = first.communicate(timeout=120)
+    assert first.returncode == 0 and out.strip().endswith("done"), err
+    assert source.exists() and source.with_suffix(".c.cached").exists()
+    assert unfinished(env) == []
+    third = compile_form(env, 7)
+    assert third.returncode == 0 and third.stdout.strip() == "done", third.stderr
+    assert list(cache(env).glob("*.c")) == [source]  # loaded, not compiled again
 
 
 def test_an_interrupted_compilation_removes_its_own_source(env: dict[str, str]) -> None:

@@ -25,8 +25,9 @@ from conftest import make_paper_shell
 
 from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import ConfigError, parse_config
-from shellobstacle.geometry.expressions import to_ufl, y1, y2
+from shellobstacle.geometry.expressions import y1, y2
 from shellobstacle.geometry.surface import Surface, cross, dot
+from shellobstacle.geometry.translation import to_ufl
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.models.hybrid_bending import DEFAULT_HYBRID_PENALTY
 from shellobstacle.models.koiter import (

@@ -14,7 +14,7 @@ import pytest
 from conftest import make_paper_shell
 
 from shellobstacle.cli.main import main
-from shellobstacle.experiments.koiter_limit import distance_to_boundary, layer_width
+from shellobstacle.experiments.boundary_layer import distance_to_boundary, layer_width
 from shellobstacle.geometry.surface import Surface
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.meshing import create_mesh

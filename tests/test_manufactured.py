@@ -28,8 +28,9 @@ import pytest
 import sympy as sp
 import ufl
 
-from shellobstacle.geometry.expressions import to_ufl, y1, y2
+from shellobstacle.geometry.expressions import y1, y2
 from shellobstacle.geometry.surface import Surface
+from shellobstacle.geometry.translation import to_ufl
 from shellobstacle.models.membrane import (
     elastic_product,
     membrane_stress,

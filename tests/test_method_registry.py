@@ -3,11 +3,13 @@ lists the methods (the config's choices, the config reference, the user guide) r
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import tomllib
-from collections.abc import Iterator, Sequence
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import pytest
 
@@ -15,6 +17,7 @@ from shellobstacle.config.loader import parse_config
 from shellobstacle.config.schema import reference_text
 from shellobstacle.messages import ConfigError
 from shellobstacle.solvers import METHODS, register
+from shellobstacle.solvers.methods.base import MethodBase
 from shellobstacle.solvers.registry import method_table, options_for
 from shellobstacle.solvers.result import ConvergenceError, MethodResult, Step
 
@@ -138,6 +141,48 @@ def test_every_method_is_in_the_config_reference_and_the_user_guide(zero: Zero) 
             assert f"| `{name}` |" in table.group(1)
     finally:
         register(zero)
+
+
+@dataclasses.dataclass(frozen=True)
+class CapOptions:
+    cap: int = 5
+    petsc_options: dict = dataclasses.field(default_factory=dict)
+
+
+class Capped(MethodBase, Zero):
+    """A method with options: which ``[solver]`` keys set them is its own declaration."""
+
+    name = "capped"
+    options_type = CapOptions
+    solver_fields: ClassVar[dict[str, str]] = {"max_iterations": "cap"}
+
+    def options_from(self, values: Mapping[str, Any]) -> CapOptions:
+        if values.get("max_iterations", 1) > 100:
+            raise ConfigError("solver.max_iterations must be <= 100 with solver.method = 'capped'")
+        return super().options_from(values)
+
+
+@pytest.fixture
+def capped() -> Iterator[Capped]:
+    method = register(Capped())
+    yield method
+    del METHODS["capped"]
+
+
+def test_a_method_builds_its_options_from_the_config(capped: Capped) -> None:
+    with_cap = CONFIG.replace('method = "zero"', 'method = "capped"\nmax_iterations = 7')
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the key is the method's: no "is ignored" warning
+        cfg = parse_config(tomllib.loads(with_cap))
+    assert cfg.method_options == CapOptions(cap=7)
+    cfg = parse_config(tomllib.loads(CONFIG.replace('method = "zero"', 'method = "capped"')))
+    assert cfg.method_options == CapOptions()  # the fields no key sets keep their defaults
+    with pytest.raises(ConfigError, match=r"must be <= 100 with solver\.method = 'capped'"):
+        parse_config(tomllib.loads(with_cap.replace("= 7", "= 101")))
+
+
+def test_a_method_without_options_gets_none(zero: Zero) -> None:
+    assert parse_config(tomllib.loads(CONFIG)).method_options is None
 
 
 def test_options_are_the_methods_own() -> None:

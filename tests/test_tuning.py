@@ -61,7 +61,8 @@ def fresh(code: str, tuning_value: str | None = "on", ranks: int = 1, **environ:
 @pytest.mark.parametrize(
     ("value", "knobs"),
     [
-        (None, tuning.KNOBS),
+        (None, ()),
+        ("", ()),
         ("on", tuning.KNOBS),
         (" ALL ", tuning.KNOBS),
         ("off", ()),
@@ -215,6 +216,30 @@ def test_tuning_off_starts_no_helper() -> None:
     """
     got = fresh(code, "off")
     assert got == {"heap": "off (SHELLOBSTACLE_TUNING=off)", "gib": 0.0, "native": False}
+
+
+UNTOUCHED = """
+from shellobstacle.tuning.gemmt import gemmt_calls
+from shellobstacle.tuning.prefault import prefaulted_gib
+with open("/proc/self/maps") as maps:
+    native = any("shellobstacle" in line for line in maps)
+print(json.dumps({"policies": policies, "gib": prefaulted_gib(), "native": native,
+                  "gemmt": gemmt_calls()}))
+"""
+
+
+def test_unset_is_off_a_fresh_process_applies_nothing() -> None:
+    got = fresh(UNTOUCHED, None)
+    assert got["policies"] == dict.fromkeys(tuning.KNOBS, "off (SHELLOBSTACLE_TUNING unset)")
+    assert got["gib"] == 0.0 and not got["native"]
+    assert got["gemmt"] == {"blocked": 0, "forwarded": 0}
+
+
+@pytest.mark.skipif(not GLIBC, reason="not glibc: malloc is left alone")
+def test_unset_leaves_malloc_glibcs() -> None:
+    system = fresh(HELD, None)
+    assert system["heap"] == "off (SHELLOBSTACLE_TUNING unset)"
+    assert system["held_mib"] < 50
 
 
 FORK = """

@@ -21,8 +21,9 @@ import sympy as sp
 from cli_helpers import assert_user_error, run
 
 from shellobstacle.config.loader import load_config, to_toml
-from shellobstacle.geometry.expressions import ExpressionError, parse, to_numpy, to_ufl, y1, y2
+from shellobstacle.geometry.expressions import ExpressionError, parse, y1, y2
 from shellobstacle.geometry.surface import Surface
+from shellobstacle.geometry.translation import to_numpy, to_ufl
 from shellobstacle.messages import ECHO_LIMIT, shown
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")

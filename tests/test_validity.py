@@ -18,7 +18,7 @@ import pytest
 import ufl
 
 from shellobstacle.api import make_mesh
-from shellobstacle.cli.main import EXIT_INVALID, EXIT_OK, main
+from shellobstacle.cli.main import EXIT_FAILED, EXIT_INVALID, EXIT_OK, main
 from shellobstacle.config.loader import load_config
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
@@ -70,7 +70,7 @@ def test_measures_of_known_displacements(paper_problem: PenalizedProblem) -> Non
     assert v.penetration == 0.0 and v.displacement == 0.0
     assert v.orientation == pytest.approx(1.0, abs=1e-12)
     assert v.loaded and v.violations == ["trivial"]
-    assert "material.epsilon" in v.warnings()[0] and "solver.atol" in v.warnings()[0]
+    assert "material.epsilon" in v.warnings()[0] and "[load] p" in v.warnings()[0]
 
     x = ufl.SpatialCoordinate(problem.mesh)
     _set_cartesian(problem, ufl.as_vector([0.0, 0.0, -0.2 + 0.0 * x[0]]))
@@ -150,32 +150,75 @@ def test_the_python_api_measures_a_solve() -> None:
     assert set(outside.violations) == {"penetration", "displacement", "orientation"}
 
 
-#: the paper's load is ∝ ε: at ε = 1e-40 the load vector (about 1e-43) is below Newton's
-#: absolute tolerance (1e-30), which "converged" in 0 steps to ζ = 0 with exit 0
-TINY = ["domain.h=0.08", "material.epsilon=1e-40"]
+def _solve(folder: Path, *settings: str) -> tuple[int, dict]:
+    """``solve`` of examples/small.toml at h = 0.08 with ``settings``: the exit code and the
+    summary."""
+    args = ["solve", str(SMALL), "-o", str(folder), "-q", "--set", "domain.h=0.08"]
+    code = main([*args, *(x for item in settings for x in ("--set", item))])
+    MPI.COMM_WORLD.barrier()  # rank 0 writes the files
+    return code, json.loads((folder / "summary.json").read_text())
+
+
+def _steps(summary: dict) -> list[int]:
+    return [stage["iterations"] for stage in summary["continuation"]]
 
 
 @pytest.mark.mpi
-def test_material_constants_too_small_give_an_invalid_trivial_solution(shared_dir) -> None:
-    """exit 3 and a warning naming the material keys (not "valid" and exit 0); the paper's
-    constants at the same size are valid (the test above)."""
-    out = shared_dir / "tiny"
-    args = ["solve", str(SMALL), "-o", str(out), "-q"]
-    code = main([*args, *(x for item in TINY for x in ("--set", item))])
-    MPI.COMM_WORLD.barrier()
-    summary = json.loads((out / "summary.json").read_text())
+def test_newton_stops_relative_to_the_problem_s_scale(shared_dir) -> None:
+    """The paper's load is ∝ ε, so ε = 1e-40 multiplies the whole problem (load vector about
+    1e-43) by 1e-37 and leaves its solution unchanged: the same Newton steps and the same
+    solution. (An absolute tolerance of 1e-30 stopped it at ζ = 0 in 0 steps.)"""
+    code, paper = _solve(shared_dir / "paper")
+    tiny_code, tiny = _solve(shared_dir / "tiny", "material.epsilon=1e-40")
+    assert code == tiny_code == EXIT_OK, tiny["warnings"]
+    assert _steps(tiny) == _steps(paper) and min(_steps(paper)) >= 1
+    for key in ("contact_area", "zeta3_min"):
+        assert tiny[key] == pytest.approx(paper[key], rel=1e-8)
+    assert tiny["validity"]["displacement"] == pytest.approx(
+        paper["validity"]["displacement"], rel=1e-8
+    )
+
+
+#: the paper's load times 1e-30 (examples/small.toml): a displacement of 1e-31 of the shell's size
+FAINT = "load.p=['0', '0', '-1e-30*Piecewise((2*epsilon/25*(0.295-5*r**2), r < 0.06), (0, True))']"
+
+
+@pytest.mark.mpi
+def test_a_load_too_small_for_the_material_is_flagged_trivial(shared_dir) -> None:
+    """exit 3 and one warning naming the load and the material keys, not "valid" and exit 0;
+    the solve itself is a converged one (the response is linear in the load)."""
+    code, summary = _solve(shared_dir / "faint", FAINT)
     assert code == EXIT_INVALID, summary
+    assert summary["converged"] is True and max(_steps(summary)) >= 1
     assert summary["validity"]["violations"] == ["trivial"]
-    assert summary["validity"]["displacement"] < TRIVIAL
+    assert 0 < summary["validity"]["displacement"] < TRIVIAL
     (warning,) = summary["warnings"]
-    assert all(k in warning for k in ("material.epsilon", "material.lambda", "material.mu"))
+    assert "\n" not in warning
+    assert all(k in warning for k in ("[load] p", "material.epsilon", "material.lambda"))
+
+
+@pytest.mark.mpi
+def test_lame_constants_beyond_double_precision_are_refused(shared_dir) -> None:
+    """λ = μ = 1e-300: the Newton direction ``K⁻¹ R`` overflows; it was taken for a decrement
+    below round-off ("converged" in 0 steps at ζ = 0). Now the solve fails: exit 1 and one line
+    saying why."""
+    lame = ("material.lambda=1e-300", "material.mu=1e-300")
+    code, summary = _solve(shared_dir / "lame", *lame)
+    assert code == EXIT_FAILED, summary
+    assert summary["converged"] is False and _steps(summary) == [0]
+    assert "the Newton direction overflows" in summary["error"]
+    assert "singular at the scale of the load" in summary["error"]
+    assert "\n" not in summary["error"]
 
 
 @pytest.mark.mpi
 def test_an_unloaded_shell_at_rest_is_valid() -> None:
     """p = 0: ζ = 0 is the solution, not a trivial one."""
     from shellobstacle.api import solve_config
+    from shellobstacle.solvers.newton import ZERO_LOAD
 
     cfg = load_config(SMALL, ["domain.h=0.08", "load.p=['0', '0', '0']"])
-    validity = solve_config(cfg).validity()
+    result = solve_config(cfg)
+    validity = result.validity()
     assert not validity.loaded and validity.displacement == 0.0 and validity.valid
+    assert {(step.iterations, step.reason) for step in result.steps} == {(0, ZERO_LOAD)}

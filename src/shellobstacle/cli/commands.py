@@ -98,7 +98,8 @@ def run_and_write(
     """
     from shellobstacle.api import solve_config
     from shellobstacle.config.loader import to_toml
-    from shellobstacle.io.folders import atomic_write, prepare_folder
+    from shellobstacle.io.folders import prepare_folder
+    from shellobstacle.io.records import atomic_write
     from shellobstacle.io.summary import write_solution
     from shellobstacle.mesh.resources import require_fits
 
@@ -191,7 +192,7 @@ def _open_checkpoint(
 ) -> Any:
     """Start recording the steps in ``folder/steps`` (or check them for ``--resume``)."""
     from shellobstacle.io.checkpoint import open_checkpoint
-    from shellobstacle.io.folders import versions
+    from shellobstacle.io.records import versions
 
     ranks = MPI.COMM_WORLD.size
     info = {"argv": args.argv, "ranks": ranks, "versions": versions()}
@@ -222,14 +223,22 @@ def _finish(checkpoint: Any, report: Reporter) -> None:
 def experiment(args: argparse.Namespace) -> int:
     """One batch on a user's config."""
     from shellobstacle.config.loader import ConfigError, to_toml
-    from shellobstacle.experiments import adaptive, koiter_limit, load, mesh, solvers
+    from shellobstacle.experiments import (
+        adaptive,
+        boundary_layer,
+        koiter_limit,
+        load,
+        mesh,
+        solvers,
+    )
     from shellobstacle.experiments.options import (
         experiment_domains,
         experiment_options,
         require_experiment_fits,
     )
     from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
-    from shellobstacle.io.folders import atomic_write, prepare_folder
+    from shellobstacle.io.folders import prepare_folder
+    from shellobstacle.io.records import atomic_write
 
     cfg, config_warnings = _load(args)
     if args.batch == "load" and cfg.penalty is None:
@@ -284,7 +293,7 @@ def experiment(args: argparse.Namespace) -> int:
         sizes = [dataclasses.replace(cfg.domain, h=v) for v in options["--sizes"]]
         text = solvers.run_solvers(cfg, folder, sizes, args.exponent, report, **kw)
     elif args.batch == "koiter-limit":
-        domain = koiter_limit.graded_domain(
+        domain = boundary_layer.graded_domain(
             cfg.domain, options["--epsilons"], args.edge_h, args.edge_width
         )
         epsilons = options["--epsilons"]

@@ -86,7 +86,7 @@ def report(installed: str) -> tuple[list[str], list[str]]:
     from mpi4py import MPI
 
     from shellobstacle import dependencies, tuning
-    from shellobstacle.io.folders import versions
+    from shellobstacle.io.records import versions
     from shellobstacle.solvers.mumps import selected_inverse_available
     from shellobstacle.tuning.build import cache_dir, compiler
 
@@ -103,7 +103,7 @@ def report(installed: str) -> tuple[list[str], list[str]]:
         f"NumPy's BLAS: {numpy_blas_config().split('  ')[0] or 'not an OpenBLAS'}",
         f"C compiler (tuning helpers): {compiler() or 'none'}; cache {cache_dir()}",
         f"3D pictures: {_pictures()}",
-        f"tuning ({tuning.ENV}={os.environ.get(tuning.ENV, 'on')}):",
+        f"tuning ({tuning.setting()}):",
         *(f"  {name}: {policy}" for name, policy in v["tuning"].items()),
     ]
     problems = dependencies.out_of_range(releases, dependencies.pinned_ranges())

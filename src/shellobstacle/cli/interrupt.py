@@ -6,7 +6,11 @@ waits for the call to return. The command line therefore starts a small watcher 
 each MPI rank. Python's C-level signal handler writes every signal it catches to a pipe
 (:func:`signal.set_wakeup_fd`: no Python code, no GIL); the watcher reads it. When the process
 has not handled the interrupt (:func:`acknowledge`) within :data:`GRACE` seconds, or at a
-second Ctrl-C, the watcher says so on stderr and terminates it (SIGTERM, then SIGKILL).
+second Ctrl-C, the watcher says so on stderr (one line, from rank 0) and sends :data:`STOP`,
+whose handler, installed at the C level where Python runs none, exits at once with status 130:
+no PETSc error dump (PETSc catches SIGTERM) and no "bad termination" of ``mpiexec`` (which
+reports a rank killed by any signal). Where that handler cannot be installed, or the process
+does not end, the watcher goes on with SIGTERM, then SIGKILL.
 
 Under MPI (several ranks; ``mpiexec`` passes Ctrl-C on to every rank) an interrupt must stop
 all ranks at the same point: a rank that stopped while another waits for it inside a collective
@@ -26,26 +30,36 @@ the process's signals alone.
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import signal
 import subprocess
 import sys
 from typing import Any
 
-__all__ = ["GRACE", "acknowledge", "agree", "install"]
+__all__ = ["GRACE", "STOP", "acknowledge", "agree", "install"]
 
 #: Seconds a long call into C may keep running after Ctrl-C.
 GRACE = 2.0
+#: The signal with which the watcher stops a process still inside a call into C: it exits
+#: with status 130 at once (:func:`_exit_on`); PETSc and MPI leave it alone.
+STOP = signal.SIGUSR2
+#: the exit status of an interrupted run (128 + SIGINT, as a shell reports death by Ctrl-C)
+INTERRUPTED = 130
+#: the C-level handler of :data:`STOP` (kept alive while installed)
+_stop_handler: Any = None
 
 _ack_fd: int | None = None
 #: under MPI: the communicator whose ranks stop together, and whether Ctrl-C came
 _comm: Any = None
 _pending = False
 
-# The watcher: argv = parent pid, grace, the acknowledgement's fd; fd 0 = the signals.
+# The watcher: argv = parent pid, grace, the acknowledgement's fd, the signal that makes the
+# parent exit at once (0: none), whether to print (rank 0); fd 0 = the signals.
 _WATCHER = r"""
 import os, select, signal, sys, time
 parent, grace, ack = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
+first, loud = int(sys.argv[4]), sys.argv[5] == "1"
 signals = 0
 def alive():
     try:
@@ -57,8 +71,9 @@ def alive():
     except OSError:
         return True
 def stop(why):
-    os.write(2, ("shellobstacle: interrupted (" + why + "); stopping it\n").encode())
-    for sig in (signal.SIGTERM, signal.SIGKILL):
+    if loud:
+        os.write(2, ("shellobstacle: interrupted (" + why + "); stopping it\n").encode())
+    for sig in [first] * (first > 0) + [signal.SIGTERM, signal.SIGKILL]:
         if not alive():
             return
         os.kill(parent, sig)
@@ -101,9 +116,12 @@ def install(grace: float = GRACE, comm: Any = None) -> bool:
     sig_r, sig_w = os.pipe()
     ack_r, ack_w = os.pipe()
     os.set_blocking(sig_w, False)
+    first = int(STOP) if _exit_on(STOP) else 0
+    loud = "1" if comm is None or comm.rank == 0 else "0"
+    argv = [str(os.getpid()), str(grace), str(ack_r), str(first), loud]
     try:
         subprocess.Popen(
-            [sys.executable, "-S", "-c", _WATCHER, str(os.getpid()), str(grace), str(ack_r)],
+            [sys.executable, "-S", "-c", _WATCHER, *argv],
             stdin=sig_r,
             stdout=subprocess.DEVNULL,
             pass_fds=(ack_r,),
@@ -124,6 +142,36 @@ def install(grace: float = GRACE, comm: Any = None) -> bool:
         set_meeting_point(agree)  # every phase and step of the library is such a point
     signal.set_wakeup_fd(sig_w, warn_on_full_buffer=False)
     _ack_fd = ack_w
+    return True
+
+
+def _exit_on(signum: int) -> bool:
+    """Make ``signum`` end the process at once with status :data:`INTERRUPTED`, also inside a
+    call into C; False where the C library cannot be reached.
+
+    Python runs its own handlers between bytecodes, after the call into C; this one, installed
+    with the C library's ``signal``, runs at once on the busy thread and reaches ``os._exit``
+    through C functions only (nothing it interrupted is resumed). Nothing is flushed: every
+    result file is written atomically, and the folder stays as a killed run leaves it."""
+    global _stop_handler
+    if _stop_handler is not None:
+        return True
+    try:
+        import ctypes
+
+        libc = ctypes.CDLL(None, use_errno=True)
+        # no bytecode runs (where a pending Ctrl-C would raise KeyboardInterrupt instead):
+        # the C function ``partial`` calls the C function ``os._exit``; the signal number that
+        # the prototype leaves out is ignored
+        handler = ctypes.CFUNCTYPE(None)(functools.partial(os._exit, INTERRUPTED))
+        libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
+        libc.signal.restype = ctypes.c_void_p
+        failed = ctypes.c_void_p(-1).value  # SIG_ERR
+        if libc.signal(signum, ctypes.cast(handler, ctypes.c_void_p)) == failed:
+            return False
+    except (OSError, AttributeError, ImportError):
+        return False
+    _stop_handler = handler
     return True
 
 

@@ -2,19 +2,19 @@
 
 A :class:`Key` has a type, a default and a meaning. A key that sets a field of an options
 dataclass takes its default and choices from that field (:func:`bound`); a ``[solver]`` key
-sets a field of the options of every method that reads it (:data:`SOLVER_FIELDS`), and its
-default is that method's (:func:`solver_key`). So the command line and the Python API cannot
-drift.
+sets a field of the options of every method that reads it (:data:`SOLVER_FIELDS`, from each
+method's ``solver_fields``), and its default is that method's (:func:`solver_key`). So the
+command line and the Python API cannot drift.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from shellobstacle.solvers.registry import METHODS
+from shellobstacle.solvers.registry import METHODS, solver_fields
 
 __all__ = [
     "METHOD_OPTIONS",
@@ -46,7 +46,7 @@ class Key:
     default: Any
     help: str
     choices: Collection[str] = ()  # a live view for solver.method (the registry's names)
-    when: tuple[str, ...] = ()
+    when: Sequence[str] = ()
     #: the dataclass fields the key sets: (class, field name) per selector value, or ("", ...)
     fields: Mapping[str, tuple[type, str]] = field(default_factory=dict)
 
@@ -108,27 +108,31 @@ class _MethodOptions(Mapping[str, type]):
 #: the options class of each ``solver.method``
 METHOD_OPTIONS: Mapping[str, type] = _MethodOptions()
 _ALL = tuple(METHOD_OPTIONS)
+
+
+class _SolverFields(Mapping[str, Mapping[str, str]]):
+    """``[solver]`` key → the field it sets in the options of each method that reads it, read
+    from the methods' ``solver_fields`` (a live view, like :data:`METHOD_OPTIONS`)."""
+
+    def _all(self) -> dict[str, dict[str, str]]:
+        out: dict[str, dict[str, str]] = {}
+        for name, method in METHODS.items():
+            for key, field_name in solver_fields(method).items():
+                out.setdefault(key, {})[name] = field_name
+        return out
+
+    def __getitem__(self, key: str) -> Mapping[str, str]:
+        return self._all()[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._all())
+
+    def __len__(self) -> int:
+        return len(self._all())
+
+
 #: ``[solver]`` key → the field it sets in the options of each method that reads it
-SOLVER_FIELDS: dict[str, dict[str, str]] = {
-    "linear_solver": {"newton": "linear_solver"},
-    "factorization": dict.fromkeys(("newton", "snes-vi", "proximal-galerkin"), "factorization"),
-    "contact_zone": {"newton": "contact_zone"},
-    "rtol": {"newton": "rtol", "snes-vi": "rtol", "proximal-galerkin": "newton_rtol"},
-    "stol": {"newton": "stol", "snes-vi": "stol"},
-    "max_iterations": dict.fromkeys(
-        ("newton", "active-set", "snes-vi", "proximal-galerkin"), "max_iterations"
-    ),
-    "xi": {"brezis-sibony": "xi"},
-    "mass": {"brezis-sibony": "mass"},
-    "start": {"brezis-sibony": "start"},
-    "bs_max_iterations": {"brezis-sibony": "max_iterations"},
-    "bs_rtol": {"brezis-sibony": "rtol"},
-    "vi_type": {"snes-vi": "vi_type"},
-    "vi_line_search": {"snes-vi": "line_search"},
-    "proximal_tol": {"proximal-galerkin": "tol"},
-    "proximal_alpha_max": {"proximal-galerkin": "alpha_max"},
-    "petsc_options": dict.fromkeys(_ALL, "petsc_options"),
-}
+SOLVER_FIELDS: Mapping[str, Mapping[str, str]] = _SolverFields()
 
 
 def solver_key(name: str, type: str, help: str, choices: tuple[str, ...] | None = None) -> Key:
@@ -144,5 +148,25 @@ def solver_key(name: str, type: str, help: str, choices: tuple[str, ...] | None 
             for cls, f in fields.values()
         ]
         choices = tuple(found[0])
-    when = () if set(fields) == set(_ALL) else tuple(fields)
+    when = () if set(fields) == set(_ALL) else _ReadBy(name)
     return Key(type, default, help, choices, when, fields)
+
+
+class _ReadBy(Sequence[str]):
+    """The methods that read the ``[solver]`` key ``key`` (a live view of
+    :data:`SOLVER_FIELDS`: a method registered later that reads it is in it)."""
+
+    def __init__(self, key: str) -> None:
+        self.key = key
+
+    def _names(self) -> tuple[str, ...]:
+        return tuple(SOLVER_FIELDS.get(self.key, ()))
+
+    def __getitem__(self, i: Any) -> Any:
+        return self._names()[i]
+
+    def __len__(self) -> int:
+        return len(self._names())
+
+    def __repr__(self) -> str:
+        return repr(self._names())

@@ -8,51 +8,42 @@ from collections.abc import Collection, Mapping
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config.keys import METHOD_OPTIONS, SOLVER_FIELDS
+from shellobstacle.config.keys import SOLVER_FIELDS
 from shellobstacle.messages import ConfigError
 from shellobstacle.penalty.spec import PenaltySpec
-from shellobstacle.solvers.options import (
-    NewtonOptions,
-)
-from shellobstacle.solvers.registry import METHODS
+from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.solvers.registry import DEFAULT, METHODS, options_from, solver_fields
 from shellobstacle.spec import Shell
 
 __all__ = ["adapt_options", "method_options", "solver_options"]
 
 
 def solver_options(method: str, sv: Mapping[str, Any], given: Collection[str]) -> Any:
-    """The options of ``method`` from ``[solver]``
-    (:data:`~shellobstacle.config.keys.SOLVER_FIELDS`; None for a method that takes none):
-    the keys it reads that are in ``sv`` when it is ``sv["method"]``, else those in ``given``;
-    the fields no key sets keep the options class's defaults."""
-    if method not in METHOD_OPTIONS:  # a method that takes no options
-        return None
-    names = [
-        k
-        for k, fields in SOLVER_FIELDS.items()
-        if method in fields and k in sv and (method == sv["method"] or k in given)
-    ]
-    return METHOD_OPTIONS[method](**{SOLVER_FIELDS[k][method]: sv[k] for k in names})
+    """The options of ``method`` from ``[solver]`` (None for a method that takes none), built
+    by the method (:func:`~shellobstacle.solvers.registry.options_from`) from the keys it
+    reads (its ``solver_fields``) that are in ``sv`` when it is ``sv["method"]``, else those
+    in ``given``; the fields no key sets keep the options class's defaults."""
+    chosen = METHODS[method]
+    values = {
+        k: sv[k]
+        for k in solver_fields(chosen)
+        if k in sv and (method == sv["method"] or k in given)
+    }
+    return options_from(chosen, values)
 
 
 def method_options(sv: Mapping[str, Any], given: Collection[str]) -> tuple[NewtonOptions, Any]:
-    """Newton's options (the experiments' Newton uses them whatever ``solver.method``) and
-    those of ``solver.method`` when it is not Newton's, from ``[solver]``; the given keys that
-    only another method reads are checked too."""
-    if sv.get("bs_rtol", 0) < 0:
-        raise ConfigError(f"solver.bs_rtol must be >= 0, got {sv['bs_rtol']}")
+    """The default method's options (:data:`~shellobstacle.solvers.registry.DEFAULT`: the
+    experiments' Newton uses them whatever ``solver.method``) and those of ``solver.method``
+    when it is another, from ``[solver]``; the given keys that only another method reads are
+    checked by that method too."""
     method = sv["method"]
-    if method == "proximal-galerkin" and not sv["rtol"] > 0:
-        raise ConfigError(
-            "solver.rtol must be > 0 with solver.method = 'proximal-galerkin' (the "
-            f"Newton iteration of each proximal step stops there), got {sv['rtol']}"
-        )
-    for other in METHOD_OPTIONS:
-        if other not in (method, "newton"):
+    chosen = None if method == DEFAULT else solver_options(method, sv, given)
+    for other in METHODS:
+        if other not in (method, DEFAULT):
             alone = [k for k in given if list(SOLVER_FIELDS.get(k, ())) == [other]]
             solver_options(other, {**{k: sv[k] for k in alone}, "method": method}, alone)
-    newton = solver_options("newton", sv, given)
-    return newton, (None if method == "newton" else solver_options(method, sv, given))
+    return solver_options(DEFAULT, sv, given), chosen
 
 
 def adapt_options(

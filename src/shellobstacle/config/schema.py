@@ -20,7 +20,7 @@ from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import (
     PETSC_OPTIONS_HELP,
 )
-from shellobstacle.solvers.registry import METHODS, method_help
+from shellobstacle.solvers.registry import DEFAULT, METHODS, method_help
 from shellobstacle.spec import (
     Discretization,
     Load,
@@ -30,7 +30,8 @@ from shellobstacle.spec import (
 
 __all__ = ["OPTIONAL_SECTIONS", "REQUIRED_SECTIONS", "SCHEMA", "SELECTORS", "reference_text"]
 
-_PENALIZED = ("newton", "brezis-sibony")
+#: the methods that read [penalty] (the registry's at import)
+_PENALIZED = tuple(m.name for m in METHODS.values() if m.penalized)
 _PLANE = ("plane",)
 _ROUND = ("sphere", "cylinder")
 
@@ -206,7 +207,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
     },
     "solver": {
-        "method": Key("str", "newton", method_help(), METHODS.keys()),
+        "method": Key("str", DEFAULT, method_help(), METHODS.keys()),
         "linear_solver": solver_key(
             "linear_solver",
             "str",

@@ -15,7 +15,7 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.io.folders import atomic_write
+from shellobstacle.io.records import atomic_write
 from shellobstacle.penalty.spec import PenaltySpec
 
 Say = Callable[[str], Any]

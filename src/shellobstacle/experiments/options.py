@@ -201,7 +201,7 @@ def experiment_domains(
         elif args.batch == "solvers":
             domains = [dataclasses.replace(domain, h=h) for h in options["--sizes"]]
         elif args.batch == "koiter-limit":
-            from shellobstacle.experiments.koiter_limit import graded_domain
+            from shellobstacle.experiments.boundary_layer import graded_domain
 
             epsilons = options["--epsilons"]
             domains = [graded_domain(domain, epsilons, args.edge_h, args.edge_width)]

@@ -18,7 +18,7 @@ from shellobstacle.experiments.mesh import run_mesh
 from shellobstacle.experiments.penalty import run_penalty
 from shellobstacle.experiments.solvers import run_solvers
 from shellobstacle.io.checkpoint import Checkpoint
-from shellobstacle.io.folders import atomic_write, versions
+from shellobstacle.io.records import atomic_write, versions
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.progress import phase
 

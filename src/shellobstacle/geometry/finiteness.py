@@ -16,8 +16,9 @@ from mpi4py import MPI
 import numpy as np
 import sympy as sp
 
-from shellobstacle.geometry.expressions import ExpressionError, to_numpy, y1, y2
+from shellobstacle.geometry.expressions import ExpressionError, y1, y2
 from shellobstacle.geometry.surface import Geometry
+from shellobstacle.geometry.translation import to_numpy
 from shellobstacle.spec import Shell
 
 __all__ = ["SURFACE_NAMES", "Failure", "first_failure", "require_finite"]

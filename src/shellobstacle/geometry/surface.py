@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from shellobstacle.geometry.expressions import ExpressionError, parse, to_numpy, to_ufl, y1, y2
+from shellobstacle.geometry.expressions import ExpressionError, parse, y1, y2
+from shellobstacle.geometry.translation import to_numpy, to_ufl
 
 __all__ = ["SURFACE_KINDS", "Geometry", "Surface"]
 

@@ -37,7 +37,8 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.io.folders import ResultsError, _jsonable, write_json
+from shellobstacle.io.folders import ResultsError
+from shellobstacle.io.records import jsonable, write_json
 
 __all__ = [
     "MESH_DIFFERS",
@@ -65,7 +66,7 @@ def _safe(name: str) -> str:
 
 def _normalize(data: Any) -> Any:
     """``data`` as it reads back from JSON (tuples → lists, numpy scalars → Python)."""
-    return json.loads(json.dumps(data, default=_jsonable))
+    return json.loads(json.dumps(data, default=jsonable))
 
 
 def meta_differences(old: Any, new: Any, path: str = "") -> list[str]:

@@ -11,31 +11,22 @@ writing is refused.
 
 from __future__ import annotations
 
-import datetime as _dt
-import json
 import os
-import platform
 import shutil
-import socket
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from mpi4py import MPI
 
-import shellobstacle
 from shellobstacle.io.lock import FolderInUseError, lock_folder, release_folder
 
 __all__ = [
     "ResultFolder",
     "ResultsError",
-    "atomic_write",
     "has_step_records",
     "holds_results",
     "prepare_folder",
     "staging_folder",
-    "versions",
-    "write_json",
 ]
 
 
@@ -50,7 +41,8 @@ RUN_MARKERS = ("log.txt", "summary.json", "report.md", "steps/meta.json")
 #: what a run writes; without results beside them, they are what a failed run left
 RUN_FILES = ("config.toml", "log.txt", "checks.txt", "steps")
 RUN_SUFFIXES = (".bp", ".png", ".csv")
-#: the temporary files of atomic writes (:func:`atomic_write`, figures, ParaView folders)
+#: the temporary files of atomic writes (:func:`~shellobstacle.io.records.atomic_write`,
+#: figures, ParaView folders)
 TEMPORARY_SUFFIXES = (".tmp", ".tmp.bp", ".old")
 
 
@@ -356,52 +348,3 @@ def _given(path: Path, overwrite: bool) -> tuple[ResultFolder | None, str | None
     _remove(partial)
     partial.mkdir()
     return ResultFolder(path, partial), None
-
-
-def atomic_write(path: Path, text: str, comm=MPI.COMM_WORLD) -> None:
-    """Write ``text`` on rank 0 to a temporary file and rename it into place."""
-    if comm.rank != 0:
-        return
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
-def write_json(path: Path, data: Any, comm=MPI.COMM_WORLD) -> None:
-    """Atomically write ``data`` as indented JSON (rank 0)."""
-    atomic_write(path, json.dumps(data, indent=2, default=_jsonable) + "\n", comm)
-
-
-def _jsonable(obj: Any) -> Any:
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    if isinstance(obj, Path):
-        return str(obj)
-    return str(obj)
-
-
-def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
-    """Package, library, interpreter and machine versions for a results record, and the
-    process tuning that changes timings (:mod:`shellobstacle.tuning`)."""
-    from petsc4py import PETSc
-
-    import dolfinx
-    import numpy
-    import sympy
-
-    from shellobstacle import tuning
-
-    petsc = ".".join(map(str, PETSc.Sys.getVersion()))
-    return {
-        "shellobstacle": shellobstacle.__version__,
-        "dolfinx": dolfinx.__version__,
-        "petsc": petsc,
-        "numpy": numpy.__version__,
-        "sympy": sympy.__version__,
-        "python": platform.python_version(),
-        "mpi_ranks": comm.size,
-        "machine": f"{platform.machine()} {platform.system()} {socket.gethostname()}",
-        "cpus": os.cpu_count(),
-        "tuning": tuning.policies(),
-        "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
-    }

@@ -18,7 +18,8 @@ import numpy as np
 import sympy as sp
 import ufl
 
-from shellobstacle.geometry.expressions import to_ufl, y1, y2
+from shellobstacle.geometry.expressions import y1, y2
+from shellobstacle.geometry.translation import to_ufl
 from shellobstacle.models.hybrid_bending import (
     DEFAULT_HYBRID_PENALTY,
     CondensedStiffness,

@@ -14,10 +14,9 @@ over itself. Scale-free measures, computed after every solve:
     small against the shell; beyond a quarter of its size the linearization is not credible.
     Below :data:`TRIVIAL` under a load that is not zero the solution is *trivial*: the shell
     starts strictly inside the half-space, so ``ζ = 0`` solves only the unloaded problem, and
-    a displacement under the round-off of θ's coordinates is no response to the load. This is
-    what material constants and a load so small that the solver's absolute tolerance or
-    round-off stops it at its start (``material.epsilon = 1e-40`` with the paper's load ∝ ε:
-    "converged" in 0 Newton steps) leave.
+    a displacement under the round-off of θ's coordinates (``θ + U = θ`` in double precision)
+    is no visible response to the load: a load far too small for the material constants (the
+    paper's load times 1e-30), or a solver stopped at its start.
 ``orientation``
     ``min a_3 · (ã_1 ∧ ã_2) / √a`` with the deformed tangent vectors ``ã_α = a_α + ∂_α U``,
     ``U = ζ_i a^i``: 1 for no deformation, ``≤ 0`` where the deformed surface folds over.
@@ -65,10 +64,10 @@ _EXPLAIN = {
     "reduce the load",
     "orientation": "the deformed surface folds over itself somewhere: the load is far beyond "
     "the linear model; reduce it",
-    "trivial": "of the shell's size under a load that is not zero: no response to the load "
-    "(the solver stopped at its start, its absolute tolerance solver.atol above the load "
-    "vector): material.epsilon, material.lambda, material.mu and the load are too small for "
-    "double precision; give them in units that make them of ordinary size",
+    "trivial": "of the shell's size under a load that is not zero: the deformed shell is the "
+    "undeformed one in double precision, no response to the load; the load ([load] p) is out "
+    "of proportion to material.epsilon, material.lambda and material.mu: give them in units "
+    "that make the displacement of ordinary size",
 }
 
 

@@ -16,6 +16,12 @@ while the active points stay inside the zone, is the other. The stopping rule is
 both: the relative residual below ``rtol``, the residual at its round-off floor (with ``ε/κ``
 large the gap's rounding, amplified by the penalty, bounds what can be resolved), a Newton
 correction below ``stol``, or a Newton decrement below the round-off of the energy's slope.
+
+Every test is relative to the problem's scale (the load vector, the residual's terms), so a
+problem and its multiple by any factor take the same steps; ``atol``, an absolute floor, is
+off by default. A zero load stops at once with ``ζ = 0`` (:data:`ZERO_LOAD`), and a Newton
+direction that overflows (a Jacobian singular at the load's scale: material constants or a load
+beyond double precision's range) is a failure, not a step below round-off.
 """
 
 from __future__ import annotations
@@ -41,7 +47,12 @@ from shellobstacle.solvers.linear import LinearSolveError, LinearStrategy, make_
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.system import PenalizedSystem
 
-__all__ = ["ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
+__all__ = ["ZERO_LOAD", "ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
+
+#: the reason of a solve whose load vector and start residual are zero: ``ζ = 0`` solves it
+ZERO_LOAD = "zero load: zeta = 0 solves the problem"
+#: the reason of a convergence to the tolerance (any other is limited by round-off)
+BELOW_RTOL = "relative residual below rtol"
 
 Progress = Callable[[int, float], Any]
 
@@ -70,7 +81,7 @@ class NewtonResult:
         error by ``ε/κ``: the residual then cannot reach ``rtol`` and the iterate is the
         solution to working precision only.
         """
-        return self.converged and self.reason != "relative residual below rtol"
+        return self.converged and self.reason not in (BELOW_RTOL, ZERO_LOAD)
 
     @property
     def relative_residual(self) -> float:
@@ -102,6 +113,7 @@ class Outcome(Enum):
     SMALL = "Newton correction below stol"
     NOT_DESCENT = "not a descent direction"
     BELOW_NOISE = "Newton decrement below the round-off of the energy slope"
+    OVERFLOW = "the Newton direction overflows"
 
 
 class NewtonSolver:
@@ -251,6 +263,13 @@ class NewtonSolver:
             if outcome is Outcome.NOT_DESCENT:
                 result.reason = f"not a descent direction (R·δ = {system.slope():.3e})"
                 break
+            if outcome is Outcome.OVERFLOW:
+                result.reason = (
+                    f"{outcome.value} (‖δ‖ = {system.direction_norm():.3e}): the Jacobian is "
+                    "singular at the scale of the load (material constants or load beyond "
+                    "double precision's range)"
+                )
+                break
         result.factorizations = self.linear.factorizations
         result.timings = {"total": time.perf_counter() - t_start}
         if not result.converged:
@@ -272,8 +291,10 @@ class NewtonSolver:
         opts = self.options
         if not math.isfinite(rnorm):
             return "residual is not finite (NaN/Inf)", False, math.nan
+        if ref == 0.0 and rnorm == 0.0:
+            return ZERO_LOAD, True, math.nan
         if rnorm <= max(opts.atol, opts.rtol * scale):
-            return "relative residual below rtol", True, math.nan
+            return BELOW_RTOL, True, math.nan
         floor = model.floor(ref)
         if rnorm <= floor:
             return "residual at its round-off floor", True, floor
@@ -301,6 +322,8 @@ class NewtonSolver:
             return Outcome.NOT_DESCENT
         else:
             noise = floor * model.direction_norm()  # |round-off in φ'(t)| ≲ ‖R_floor‖ ‖δ‖
+            if not math.isfinite(noise):
+                return Outcome.OVERFLOW
             if -slope0 <= noise:
                 return Outcome.BELOW_NOISE
             t, evaluations = model.line_search(slope0, noise)

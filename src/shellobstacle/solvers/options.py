@@ -72,7 +72,9 @@ class NewtonOptions:
 
     Attributes:
         rtol: stop when ``‖R(ζ)‖ ≤ rtol ‖R(0)‖`` (``R(0) = −`` load vector).
-        atol: stop when ``‖R(ζ)‖ ≤ atol``.
+        atol: stop when ``‖R(ζ)‖ ≤ atol``, an absolute floor, off (0) by default: every other
+            test is relative to the problem's scale, while an ``atol`` above the load vector
+            (material constants and a load of 1e-40) stops at the start with ``ζ = 0``.
         stol: stop when the Newton correction is smaller than ``stol ‖ζ‖`` (max norms).
         floor_factor: the residual is at its round-off floor when ``‖R‖ ≤ floor_factor · u ·
             (‖L‖ + ‖S‖)``, ``u`` the machine epsilon, ``L`` the load vector and ``S`` the
@@ -95,7 +97,7 @@ class NewtonOptions:
     """
 
     rtol: float = 1e-10
-    atol: float = 1e-30
+    atol: float = 0.0
     stol: float = 1e-12
     floor_factor: float = 100.0
     max_iterations: int = 100

@@ -12,12 +12,23 @@ they solve.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any, Protocol, runtime_checkable
 
+from shellobstacle.solvers.methods.base import build_options
 from shellobstacle.solvers.result import MethodResult
 
-__all__ = ["METHODS", "Method", "method_help", "method_table", "options_for", "register"]
+__all__ = [
+    "DEFAULT",
+    "METHODS",
+    "Method",
+    "method_help",
+    "method_table",
+    "options_for",
+    "options_from",
+    "register",
+    "solver_fields",
+]
 
 Say = Callable[[str], Any]
 NewtonProgress = Callable[[int, float], Any]
@@ -34,6 +45,16 @@ class Method(Protocol):
         adaptive: it may solve the meshes of ``[adapt]`` (from the previous mesh's solution).
         options_type: the dataclass of its options (None: it takes none).
         summary: one line on what it does (the config reference, the docs' table).
+
+    Two members are optional (a method without options needs neither):
+
+    * ``solver_fields``: ``[solver]`` key → the field of its options that key sets
+      (:func:`solver_fields`; none when absent).
+    * ``options_from(values)``: its options from the config's ``[solver]`` values, for a
+      method that checks them (:func:`options_from`; when absent,
+      :func:`~shellobstacle.solvers.methods.base.build_options`).
+
+    :class:`~shellobstacle.solvers.methods.base.MethodBase` gives both their defaults.
     """
 
     name: str
@@ -73,6 +94,9 @@ class Method(Protocol):
 
 #: every method, by name (the order of the config reference and the docs' table)
 METHODS: dict[str, Method] = {}
+#: the default ``solver.method``, whose options the config always builds (the experiments'
+#: Newton iteration uses them whatever the method)
+DEFAULT = "newton"
 
 
 def register(method: Method, replace: bool = False) -> Method:
@@ -111,6 +135,25 @@ def options_for(method: Method, given: Any, fallback: Any = None) -> Any:
     if kind is not None and isinstance(fallback, kind):
         return fallback
     return None
+
+
+def solver_fields(method: Method) -> Mapping[str, str]:
+    """``[solver]`` key → the field of ``method``'s options it sets (empty for a method that
+    declares none)."""
+    return getattr(method, "solver_fields", {})
+
+
+def options_from(method: Method, values: Mapping[str, Any]) -> Any:
+    """The options of ``method`` from the config's ``[solver]`` values: its own
+    ``options_from(values)`` when it has one, else
+    :func:`~shellobstacle.solvers.methods.base.build_options`.
+
+    Raises:
+        ValueError: a value the options refuse (a
+            :class:`~shellobstacle.messages.ConfigError` names the key).
+    """
+    own = getattr(method, "options_from", None)
+    return own(values) if own is not None else build_options(method, values)
 
 
 def method_table() -> str:

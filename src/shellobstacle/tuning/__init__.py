@@ -2,8 +2,9 @@
 
 The ``shellobstacle`` command applies it (:func:`apply`, before MPI, PETSc and NumPy are
 loaded); the library does not, so a script that imports :mod:`shellobstacle` keeps its
-process as it is. ``SHELLOBSTACLE_TUNING`` chooses: ``on`` (the command's default), ``off``,
-or a comma-separated list of the knobs below. ``shellobstacle doctor`` says what is active.
+process as it is. ``SHELLOBSTACLE_TUNING`` chooses: unset or ``off`` (the default: nothing is
+applied), ``on`` (all knobs), or a comma-separated list of the knobs below.
+``shellobstacle doctor`` says what is active.
 
 * ``heap`` (:mod:`.malloc`, :mod:`.prefault`): glibc's malloc keeps freed memory in the
   process, and on a spare core a helper thread faults the heap's new pages in ahead of the
@@ -24,7 +25,7 @@ from collections.abc import Mapping
 
 from shellobstacle.tuning import gemmt, malloc, prefault, threads
 
-__all__ = ["ENV", "KNOBS", "apply", "policies", "requested"]
+__all__ = ["ENV", "KNOBS", "apply", "policies", "requested", "setting"]
 
 ENV = "SHELLOBSTACLE_TUNING"
 KNOBS = ("heap", "gemmt", "threads")
@@ -33,16 +34,16 @@ _applied: dict[str, str] = {}
 
 
 def requested(environ: Mapping[str, str] = os.environ) -> tuple[str, ...]:
-    """The knobs ``SHELLOBSTACLE_TUNING`` asks for (all when it is unset).
+    """The knobs ``SHELLOBSTACLE_TUNING`` asks for (none when it is unset or empty).
 
     Raises:
         ValueError: an unknown value, naming the choices.
     """
-    value = environ.get(ENV, "on").strip().lower()
-    if value in ("", "on", "all"):
-        return KNOBS
-    if value in ("off", "none"):
+    value = environ.get(ENV, "").strip().lower()
+    if value in ("", "off", "none"):
         return ()
+    if value in ("on", "all"):
+        return KNOBS
     names = tuple(v.strip() for v in value.split(",") if v.strip())
     unknown = [n for n in names if n not in KNOBS]
     if unknown:
@@ -61,7 +62,7 @@ def apply(world_size: int, environ: Mapping[str, str] = os.environ) -> dict[str,
     """
     wanted = requested(environ)
     for name in KNOBS:
-        _applied[name] = f"off ({ENV}={environ.get(ENV, '')})"
+        _applied[name] = f"off ({setting(environ)})"
     if "gemmt" in wanted:
         _applied["gemmt"] = gemmt.block_gemmt(environ)
     if "heap" in wanted:
@@ -71,6 +72,11 @@ def apply(world_size: int, environ: Mapping[str, str] = os.environ) -> dict[str,
     if "threads" in wanted:  # loads NumPy: last
         _applied["threads"] = threads.limit_blas_threads(world_size, environ)
     return policies()
+
+
+def setting(environ: Mapping[str, str] = os.environ) -> str:
+    """How ``SHELLOBSTACLE_TUNING`` is set, for reports: ``NAME=value`` or ``NAME unset``."""
+    return f"{ENV}={environ[ENV]}" if ENV in environ else f"{ENV} unset"
 
 
 def policies() -> dict[str, str]:

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
 
+from shellobstacle.messages import ConfigError
+from shellobstacle.solvers.methods.base import MethodBase
 from shellobstacle.solvers.options import BrezisSibonyOptions
 from shellobstacle.solvers.result import MethodResult, Step
 
 __all__ = ["BrezisSibonyMethod"]
 
 
-class BrezisSibonyMethod:
+class BrezisSibonyMethod(MethodBase):
     """:class:`~shellobstacle.solvers.brezis_sibony.BrezisSibonySolver` at the last κ of the
     ladder (no continuation); reaching its iteration cap is reported, not raised."""
 
@@ -20,6 +22,20 @@ class BrezisSibonyMethod:
     adaptive = False
     options_type = BrezisSibonyOptions
     summary = "the penalized problem at the target κ by the paper's iteration (38)"
+    solver_fields: ClassVar[Mapping[str, str]] = {
+        "xi": "xi",
+        "mass": "mass",
+        "start": "start",
+        "bs_max_iterations": "max_iterations",
+        "bs_rtol": "rtol",
+        "petsc_options": "petsc_options",
+    }
+
+    def options_from(self, values: Mapping[str, Any]) -> BrezisSibonyOptions:
+        """Its options from ``[solver]``; a negative ``bs_rtol`` is named by its key."""
+        if values.get("bs_rtol", 0) < 0:
+            raise ConfigError(f"solver.bs_rtol must be >= 0, got {values['bs_rtol']}")
+        return super().options_from(values)
 
     def solve(
         self,

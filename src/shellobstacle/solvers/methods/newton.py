@@ -4,16 +4,17 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
 
+from shellobstacle.solvers.methods.base import MethodBase
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.result import ConvergenceError, MethodResult
 
 __all__ = ["NewtonContinuation"]
 
 
-class NewtonContinuation:
+class NewtonContinuation(MethodBase):
     """Newton's method at each κ of the ladder, warm-started from the previous κ
     (:func:`~shellobstacle.solvers.continuation.continuation`)."""
 
@@ -22,6 +23,13 @@ class NewtonContinuation:
     adaptive = True
     options_type = NewtonOptions
     summary = "the penalized problem by Newton's method, κ reached by continuation (default)"
+    solver_fields: ClassVar[Mapping[str, str]] = {
+        key: key
+        for key in (
+            "linear_solver", "factorization", "contact_zone", "rtol", "stol", "max_iterations",
+            "petsc_options",
+        )
+    }  # fmt: skip
 
     def solve(
         self,

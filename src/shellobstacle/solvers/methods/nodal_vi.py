@@ -5,9 +5,11 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Sequence
-from typing import Any
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
 
+from shellobstacle.messages import ConfigError
+from shellobstacle.solvers.methods.base import MethodBase
 from shellobstacle.solvers.options import (
     ActiveSetOptions,
     ProximalGalerkinOptions,
@@ -18,7 +20,7 @@ from shellobstacle.solvers.result import ConvergenceError, MethodResult, Step
 __all__ = ["ActiveSetMethod", "NodalMethod", "ProximalGalerkinMethod", "SnesVIMethod"]
 
 
-class NodalMethod:
+class NodalMethod(MethodBase):
     """What the three solvers of the nodal problem share: one step with the KKT record, and
     the multiplier and contact pressure in the result's ``extra``."""
 
@@ -77,6 +79,10 @@ class ActiveSetMethod(NodalMethod):
     adaptive = True
     options_type = ActiveSetOptions
     summary = "the exact nodal variational inequality by a primal–dual active-set method"
+    solver_fields: ClassVar[Mapping[str, str]] = {
+        "max_iterations": "max_iterations",
+        "petsc_options": "petsc_options",
+    }
 
     def solver(self, problem: Any, options: ActiveSetOptions | None = None) -> Any:
         """:class:`~shellobstacle.solvers.active_set.ActiveSetSolver` on ``problem``."""
@@ -91,6 +97,15 @@ class SnesVIMethod(NodalMethod):
     name = "snes-vi"
     options_type = SnesVIOptions
     summary = "the same nodal problem by PETSc's VI Newton (reduced space or semismooth)"
+    solver_fields: ClassVar[Mapping[str, str]] = {
+        "factorization": "factorization",
+        "rtol": "rtol",
+        "stol": "stol",
+        "max_iterations": "max_iterations",
+        "vi_type": "vi_type",
+        "vi_line_search": "line_search",
+        "petsc_options": "petsc_options",
+    }
 
     def solver(self, problem: Any, options: SnesVIOptions | None = None) -> Any:
         """:class:`~shellobstacle.solvers.snes_vi.SnesVISolver` on ``problem``."""
@@ -105,6 +120,23 @@ class ProximalGalerkinMethod(NodalMethod):
     name = "proximal-galerkin"
     options_type = ProximalGalerkinOptions
     summary = "the same nodal problem by Keith & Surowiec's latent-variable proximal point method"
+    solver_fields: ClassVar[Mapping[str, str]] = {
+        "factorization": "factorization",
+        "rtol": "newton_rtol",
+        "max_iterations": "max_iterations",
+        "proximal_tol": "tol",
+        "proximal_alpha_max": "alpha_max",
+        "petsc_options": "petsc_options",
+    }
+
+    def options_from(self, values: Mapping[str, Any]) -> ProximalGalerkinOptions:
+        """Its options from ``[solver]``; ``rtol`` (its Newton iteration's) must be > 0."""
+        if "rtol" in values and not values["rtol"] > 0:
+            raise ConfigError(
+                f"solver.rtol must be > 0 with solver.method = {self.name!r} (the Newton "
+                f"iteration of each proximal step stops there), got {values['rtol']}"
+            )
+        return super().options_from(values)
 
     def solver(self, problem: Any, options: ProximalGalerkinOptions | None = None) -> Any:
         """:class:`~shellobstacle.solvers.proximal_galerkin.ProximalGalerkinSolver` on

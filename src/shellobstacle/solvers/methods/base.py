@@ -1,0 +1,32 @@
+"""What the package's methods share: their options, built from the config's ``[solver]``
+values (the optional members of :class:`~shellobstacle.solvers.registry.Method`)."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, ClassVar
+
+__all__ = ["MethodBase", "build_options"]
+
+
+def build_options(method: Any, values: Mapping[str, Any]) -> Any:
+    """``method``'s ``options_type`` with the fields its ``solver_fields`` name set from
+    ``values`` (``[solver]`` key → value; the fields of keys not in ``values`` keep their
+    defaults); None for a method that takes no options."""
+    kind = method.options_type
+    if kind is None:
+        return None
+    fields: Mapping[str, str] = getattr(method, "solver_fields", {})
+    return kind(**{field: values[key] for key, field in fields.items() if key in values})
+
+
+class MethodBase:
+    """The defaults of a method's optional members: no ``[solver]`` key of its own, and its
+    options built by :func:`build_options`."""
+
+    #: ``[solver]`` key → the field of the options that key sets
+    solver_fields: ClassVar[Mapping[str, str]] = {}
+
+    def options_from(self, values: Mapping[str, Any]) -> Any:
+        """The options from the config's ``[solver]`` values (:func:`build_options`)."""
+        return build_options(self, values)
