@@ -196,7 +196,8 @@ def _unit(value: Any, what: str, noun: str) -> tuple[float, float, float]:
     v = np.asarray(_three(value, what))
     largest = float(np.max(np.abs(v)))
     if largest == 0.0:
-        raise ValueError(f"{what} = (0, 0, 0) defines no {noun}: give a nonzero {'normal' if noun == 'half-space' else 'direction'}")
+        vector = "normal" if noun == "half-space" else "direction"
+        raise ValueError(f"{what} = (0, 0, 0) defines no {noun}: give a nonzero {vector}")
     norm = largest * float(np.linalg.norm(v / largest))  # no overflow for huge entries
     if abs(norm - 1.0) > 1e-12:
         warnings.warn(

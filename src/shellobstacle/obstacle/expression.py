@@ -15,8 +15,9 @@ from typing import Any
 import numpy as np
 import sympy as sp
 
-from shellobstacle.geometry.expressions import ExpressionError, parse, to_numpy, to_ufl
+from shellobstacle.geometry.expressions import ExpressionError, parse
 from shellobstacle.geometry.surface import Geometry
+from shellobstacle.geometry.translation import to_numpy, to_ufl
 from shellobstacle.messages import shown
 from shellobstacle.obstacle.base import Obstacle
 
