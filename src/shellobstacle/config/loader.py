@@ -230,7 +230,10 @@ def parse_config(
                 given_keys.add(name if section == "solver" else dotted)
                 also = (reads or {}).get(selector, ())
                 if selector and value is not None and not any(map(key.used_by, (value, *also))):
-                    if section == "obstacle":  # another shape's key: the user meant another
+                    # another shape's key: the user meant another shape (unless a --set
+                    # changed the shape, and the key is the file's for the old one)
+                    changed = origins.of(selector) != source and origin == source
+                    if section == "obstacle" and not changed:
                         raise ConfigError(
                             f"{origin}: {dotted} is not read by {selector} = {value!r}: "
                             f"set {selector} = {' or '.join(map(repr, key.when))}, or remove it"

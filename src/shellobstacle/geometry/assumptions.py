@@ -189,9 +189,10 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
         convex = from_spec(shell.obstacle).convex
         checks.append(
             Check(
-                "convex admissible set", "{g ≥ 0} convex", float(convex), (np.nan, np.nan),
-                "none (the theory needs it: otherwise solutions are local ones)", True,
-                "inside a ball or a cylinder, or a plane: convex; outside: not",
+                "convex admissible set", "1 yes, 0 no, nan unknown",
+                np.nan if convex is None else float(convex), (np.nan, np.nan),
+                "none (the paper's theory: convex; otherwise a solution may be a local one)",
+                True, "inside a ball or a cylinder, or a plane: convex; outside: not",
             )
         )  # fmt: skip
     return checks

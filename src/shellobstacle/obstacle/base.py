@@ -50,12 +50,13 @@ class Obstacle(ABC):
             ``c`` independent of ``η``, the penalty is piecewise quadratic and its
             quadrature-point operators and the nodal bounds are exact. Otherwise the solvers
             work on the gap's linearization (:mod:`shellobstacle.solvers.linearization`).
-        convex: whether the admissible set ``{g ≥ 0}`` is convex (the paper's theory).
+        convex: whether the admissible set ``{g ≥ 0}`` is convex (the paper's theory); None
+            when not known (a user's curved ``g``).
         offset: ``s``, the contact face's distance from the middle surface along ``a_3``.
     """
 
     affine: bool = False
-    convex: bool = False
+    convex: bool | None = False
 
     def __init__(self, offset: float = 0.0) -> None:
         self.offset = float(offset)

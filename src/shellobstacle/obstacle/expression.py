@@ -46,14 +46,16 @@ class ExpressionObstacle(Obstacle):
                 "in the ambient coordinates x1, x2, x3 and numbers only"
             )
         self.grad = [sp.diff(self.expr, s) for s in X]
-        if any(d.has(sp.DiracDelta, sp.Derivative, sp.Subs) for d in self.grad):
+        kinks = (sp.sign, sp.Heaviside, sp.DiracDelta, sp.Derivative, sp.Subs, sp.Piecewise)
+        if any(d.has(*kinks) for d in self.grad):
             raise ExpressionError(
-                f"obstacle.g = {shown(self.expr)} is not differentiable (Abs, sign, Min or Max "
-                "of x1, x2, x3): write a smooth g, e.g. sqrt(x1**2 + c**2) for |x1|"
+                f"obstacle.g = {shown(self.expr)} is not continuously differentiable (Abs, "
+                "sign, Min, Max or Piecewise of x1, x2, x3): Newton's method needs ∇g, so "
+                "write a smooth g, e.g. sqrt(x1**2 + c**2) for |x1|"
             )
         hessian = [sp.diff(d, s) for d in self.grad for s in X]
         self.affine = all(sp.simplify(h) == 0 for h in hessian)
-        self.convex = self.affine  # a curved g: convexity of {g ≥ 0} is not decided here
+        self.convex = True if self.affine else None  # a curved g: not decided here
         self._numpy = [to_numpy(e, X) for e in (self.expr, *self.grad)]
 
     def __repr__(self) -> str:
