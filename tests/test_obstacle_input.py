@@ -6,8 +6,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-
 from cli_helpers import assert_user_error, run
+
 from shellobstacle.spec import Obstacle
 
 EXAMPLES = Path(__file__).parents[1] / "examples"
