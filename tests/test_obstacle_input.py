@@ -87,9 +87,9 @@ def test_another_shapes_key_in_the_file_is_ignored_when_a_set_changes_the_shape(
 
 
 def test_the_api_refuses_what_the_config_refuses() -> None:
-    with pytest.raises(ValueError, match="obstacle.radius"):
+    with pytest.raises(ValueError, match=r"obstacle\.radius"):
         Obstacle(kind="sphere", center=(0, 0, -1), radius=0.0)
-    with pytest.raises(ValueError, match="needs obstacle.g"):
+    with pytest.raises(ValueError, match=r"needs obstacle\.g"):
         Obstacle(kind="expression")
-    with pytest.raises(ValueError, match="obstacle.axis"):
+    with pytest.raises(ValueError, match=r"obstacle\.axis"):
         Obstacle(kind="cylinder", point=(0, 0, 0), axis=(0, 0, 0), radius=1.0)
