@@ -170,21 +170,29 @@ def koiter_study(n: int) -> None:
         ball(1.0),
         "koiter",
     )
-    p2 = Discretization(degree=2, penalty_quadrature="vertex")
+    p2 = Discretization(degree=2)
     _, r, c, _ = run(plate, n, None, p2, "active-set")
     exact = r.problem.zeta.x.array.copy()
-    print(exact_line(r, c))
-    print("| κ | max abs(ζ_κ − ζ) | rate in κ | contact area | passes |")
-    print("|---|---|---|---|---|")
-    last = None
-    for k in (1e-4, 1e-5, 1e-6, 1e-7):
+    print(exact_line(r, c) + " (the constraint at every P2 node)")
+    print("The Gauss penalty enforces g ≥ 0 at its Gauss points, active-set at the P2 nodes: the")
+    print("penalty converges in κ to the Gauss-point VI; the last column is the two constraints'")
+    print("difference.")
+    print(
+        "| κ | max abs(ζ_κ − ζ_10κ) | rate in κ | contact area | passes | max abs(ζ_κ − ζ_nodes) |"
+    )
+    print("|---|---|---|---|---|---|")
+    last, previous = None, None
+    for k in (1e-4, 1e-5, 1e-6, 1e-7, 1e-8):
         _, r, c, _ = run(plate, n, PenaltySpec(kappa=k), p2)
-        e = float(np.max(np.abs(r.problem.zeta.x.array - exact)))
-        shown = "—" if last is None else f"{rate(last, e, 10):.3f}"
+        z = r.problem.zeta.x.array.copy()
+        e = math.nan if previous is None else float(np.max(np.abs(z - previous)))
+        shown = "—" if last is None or math.isnan(last) else f"{rate(last, e, 10):.3f}"
+        to_nodes = float(np.max(np.abs(z - exact)))
         print(
-            f"| {k:g} | {e:.3e} | {shown} | {c['contact_area']:.6g} | {r.extra['linearizations']} |"
+            f"| {k:g} | {e:.3e} | {shown} | {c['contact_area']:.6g} | "
+            f"{r.extra['linearizations']} | {to_nodes:.3e} |"
         )
-        last = e
+        last, previous = e, z
 
 
 def main() -> None:

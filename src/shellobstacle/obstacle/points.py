@@ -14,13 +14,11 @@ The contact set is ``{x_k : g(x_k) ≤ tol}``; its area is the weight of its poi
 surface element (``Σ w_k √a(x_k)``) and projected (``Σ w_k``): for P1 at the vertices that is
 the sum of the lumped masses ``∫ φ_i √a dy`` of the contact vertices.
 
-For P1 against a plane the Gauss-point penalty's contact is also measured at the vertices
-(:func:`constraint_points`; the paper's measure): a P1 solution is its vertex values, while at
-the Gauss points of a contact cell the sign of ``g`` is decided by the ``O(h²)`` curvature of
-``θ·q`` within the cell against the penetration, so that only some of them touch
-(docs/model.md, Contact). Against a curved obstacle it is measured at the Gauss points, where
-the penalty acts: a chord between two vertices can cross a ball whose gap at both vertices is
-positive, and a vertex measure would then report no contact.
+For P1 the Gauss-point penalty's contact is also measured at the vertices
+(:func:`constraint_points`), against every obstacle: a P1 solution is its vertex values, while
+at the Gauss points of a contact cell the sign of ``g`` is decided by the ``O(h²)`` curvature of
+``g(θ)`` within the cell (of ``θ`` and of the obstacle) against the penetration, so that only
+some of them touch (docs/model.md, Contact).
 """
 
 from __future__ import annotations
@@ -60,14 +58,14 @@ def constraint_points(problem: Any, constraint: str = "penalty") -> ContactPoint
             (a solution of the exact nodal problem).
 
     Returns:
-        The Lagrange nodes for ``"nodes"``, for the vertex penalty and for P1 against a plane
-        (see the module's note); the penalty's Gauss points otherwise.
+        The Lagrange nodes for ``"nodes"``, for the vertex penalty and for P1 (see the module's
+        note); the penalty's Gauss points otherwise.
     """
     if constraint not in CONSTRAINTS:
         raise ValueError(f"constraint must be one of {CONSTRAINTS}, got {constraint!r}")
     if constraint == "nodes" or problem.disc.penalty_quadrature == "vertex":
         return NodePoints(problem)
-    if problem.disc.degree == 1 and problem.obstacle.affine:
+    if problem.disc.degree == 1:
         return NodePoints(problem)
     return QuadraturePoints(problem)
 
