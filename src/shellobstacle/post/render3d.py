@@ -1,4 +1,4 @@
-"""Draw the deformed shell over the obstacle plane in 3D with PyVista, off screen.
+"""Draw the deformed shell over the obstacle in 3D with PyVista, off screen.
 
 This module runs in a process of its own (``python render3d.py SURFACE.npz VIEWS.npz``, started
 by :func:`shellobstacle.post.pictures.write_picture`, which lays the views out with their
@@ -14,6 +14,12 @@ the contact zone as a red tube: of the cells whose vertices all touch (contact i
 :meth:`~shellobstacle.post.contact.Postprocessor.indicator`), the flat
 part of the shell on the plane, which the steep wall around it does not hide from above.
 
+A curved obstacle comes as samples (``level``, ``box``, ``onto``, ``normal``:
+:class:`shellobstacle.post.pictures.SurfaceData`): its surface is the contour ``g = 0`` of the
+sampled grid, translucent grey as the plane and cut to the plane's square seen along ``q``; the
+outline lies on it, on the vertices' nearest points of ``{g = 0}`` (``onto``), lifted along
+the normal by the tube's radius.
+
 Exit status: 0 written, 3 PyVista (or VTK) cannot be imported, anything else a failure
 (message on stderr).
 """
@@ -25,7 +31,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["EXIT_NO_PYVISTA", "main", "plane_frame", "render"]
+__all__ = ["EXIT_NO_PYVISTA", "main", "obstacle_surface", "plane_frame", "render"]
 
 EXIT_NO_PYVISTA = 3
 #: the size in pixels of each 3D view, and the camera's elevations above the plane (degrees)
@@ -48,6 +54,31 @@ def plane_frame(q: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     t1 = axis - (axis @ n) * n
     t1 /= np.linalg.norm(t1)
     return t1, np.cross(n, t1), n
+
+
+def obstacle_surface(data: Mapping[str, np.ndarray]):
+    """The contour ``g = 0`` of a curved obstacle's samples (``level`` on the grid ``box``), a
+    PyVista surface (with point normals, for smooth shading)."""
+    import pyvista as pv
+
+    level = np.asarray(data["level"], dtype=float)
+    origin, spacing = np.asarray(data["box"], dtype=float)
+    grid = pv.ImageData(dimensions=level.shape, spacing=tuple(spacing), origin=tuple(origin))
+    grid.point_data["g"] = level.ravel(order="F")  # VTK's order: the first index fastest
+    surface = grid.contour([0.0], scalars="g", method="flying_edges")
+    return surface.compute_normals(consistent_normals=True)  # for smooth shading
+
+
+def _cut(surface, frame, mid: np.ndarray, half: float):
+    """The part of ``surface`` over the square of half-side ``half`` centred at ``mid`` (its
+    coordinates along ``t1``, ``t2``), seen along ``q``: the plane's square."""
+    t1, t2, _ = frame
+    points = np.asarray(surface.points)
+    surface = surface.copy()
+    surface.point_data["reach"] = np.maximum(
+        np.abs(points @ t1 - mid[0]), np.abs(points @ t2 - mid[1])
+    )
+    return surface.clip_scalar("reach", invert=True, value=half)
 
 
 def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
@@ -76,8 +107,14 @@ def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
     )
     pl = pv.Plotter(off_screen=True, window_size=list(window))
     pl.set_background("white")
-    # translucent: the shell's penetration of the plane (the penalty's g < 0) stays visible
-    pl.add_mesh(plane, color=PLANE, opacity=0.55)
+    curved = "level" in data
+    if curved:
+        obstacle = _cut(data["obstacle"], frame, mid, 0.75 * width)
+        if obstacle.n_points:
+            pl.add_mesh(obstacle, color=PLANE, opacity=0.55, smooth_shading=True)
+    else:
+        # translucent: the shell's penetration of the plane (the penalty's g < 0) stays visible
+        pl.add_mesh(plane, color=PLANE, opacity=0.55)
     pl.add_mesh(
         shell, scalars="gap", cmap=CMAP, clim=clim, smooth_shading=True, show_scalar_bar=False
     )
@@ -85,18 +122,27 @@ def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
     if touching.any():
         radius = 0.008 * width
         zone = pv.PolyData(points, np.hstack([np.full((len(triangles), 1), 3), triangles]))
+        if curved:
+            zone.point_data["vertex"] = np.arange(len(points))
         zone = zone.extract_cells(np.flatnonzero(touching.all(axis=1)))
         outline = zone.extract_feature_edges(
             boundary_edges=True, feature_edges=False, manifold_edges=False,
             non_manifold_edges=False,
         )  # fmt: skip
         if outline.n_points:
-            # onto the plane, lifted by its radius to lie on it, not in it
-            outline.points += np.outer(radius - outline.points @ q, q)
+            if curved:  # onto the obstacle, lifted along its normal by the tube's radius
+                vertex = np.asarray(outline.point_data["vertex"])
+                outline.points = data["onto"][vertex] + radius * data["normal"][vertex]
+            else:  # onto the plane, lifted by its radius to lie on it, not in it
+                outline.points += np.outer(radius - outline.points @ q, q)
             pl.add_mesh(outline.tube(radius=radius), color=CONTACT)
         else:  # no cell touches with all its vertices: mark the contact vertices
-            spots = points[np.unique(triangles[touching])]
-            spots += np.outer(radius - spots @ q, q)
+            touched = np.unique(triangles[touching])
+            if curved:
+                spots = data["onto"][touched] + radius * data["normal"][touched]
+            else:
+                spots = points[touched]
+                spots += np.outer(radius - spots @ q, q)
             pl.add_mesh(pv.PolyData(spots), color=CONTACT, point_size=14,
                         render_points_as_spheres=True)  # fmt: skip
     el, az = np.radians(elevation), np.radians(-60.0)
@@ -130,17 +176,21 @@ def render(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     Args:
         data: ``points`` (deformed nodes ``θ + U``, shape ``(n, 3)``), ``triangles``
             (``(m, 3)`` node indices), ``gap`` and ``contact`` (``(n,)``, the indicator 1 on
-            contact nodes) and ``q`` (the plane's unit normal).
+            contact nodes) and ``q`` (the plane's unit normal); for a curved obstacle also
+            ``level``, ``box``, ``onto`` and ``normal`` (the module docstring).
 
     Returns:
         ``whole`` and ``close`` (images, ``(rows, columns, 3)`` bytes), ``clim`` (the range of
         the colour scale: ``min(g, 0)``, ``max g``), ``reach`` (the close view shows the
         shell within this distance of the zone's centre along the plane), ``contact``
-        (whether a vertex touches) and ``outlined`` (whether a cell touches with all its
-        vertices: the zone is outlined; else its vertices are marked).
+        (whether a vertex touches), ``outlined`` (whether a cell touches with all its
+        vertices: the zone is outlined; else its vertices are marked) and ``curved`` (whether
+        the obstacle drawn is a curved one's contour).
     """
     frame = plane_frame(data["q"])
     t1, t2, _ = frame
+    if "level" in data:  # contoured once, cut to each view's square
+        data = {**data, "obstacle": obstacle_surface(data)}
     points = np.asarray(data["points"], dtype=float)
     gap = np.asarray(data["gap"], dtype=float)
     contact = np.asarray(data["contact"], dtype=float) > 0.5
@@ -160,6 +210,7 @@ def render(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         "reach": np.array(reach),
         "contact": np.array(contact.any()),
         "outlined": np.array(contact[np.asarray(data["triangles"])].all(axis=1).any()),
+        "curved": np.array("level" in data),
     }
 
 
