@@ -31,7 +31,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["EXIT_NO_PYVISTA", "main", "obstacle_surface", "plane_frame", "render"]
+__all__ = ["EXIT_NO_PYVISTA", "contact_mark", "main", "obstacle_surface", "plane_frame", "render"]
 
 EXIT_NO_PYVISTA = 3
 #: the size in pixels of each 3D view, and the camera's elevations above the plane (degrees)
@@ -81,8 +81,47 @@ def _cut(surface, frame, mid: np.ndarray, half: float):
     return surface.clip_scalar("reach", invert=True, value=half)
 
 
+def contact_mark(data: Mapping[str, np.ndarray], triangles: np.ndarray, q, radius: float):
+    """The contact zone's mark among the cells ``triangles``, lifted by ``radius`` to lie on the
+    obstacle, not in it: onto the plane ``x·q = 0`` along ``q``, or, for a curved obstacle, to
+    the vertices' points of ``{g = 0}`` (``onto``) along its normal.
+
+    Returns:
+        The boundary of the cells that touch at every vertex (a PyVista PolyData of lines); if
+        no cell does, the contact vertices (an array ``(k, 3)``); None without contact.
+    """
+    import pyvista as pv
+
+    points = np.asarray(data["points"], dtype=float)
+    touching = np.asarray(data["contact"], dtype=float)[triangles] > 0.5
+    if not touching.any():
+        return None
+    curved = "level" in data
+    zone = pv.PolyData(points, np.hstack([np.full((len(triangles), 1), 3), triangles]))
+    if curved:
+        zone.point_data["vertex"] = np.arange(len(points))
+    zone = zone.extract_cells(np.flatnonzero(touching.all(axis=1)))
+    outline = zone.extract_feature_edges(
+        boundary_edges=True, feature_edges=False, manifold_edges=False,
+        non_manifold_edges=False,
+    )  # fmt: skip
+    if outline.n_points:
+        if curved:
+            vertex = np.asarray(outline.point_data["vertex"])
+            outline.points = data["onto"][vertex] + radius * data["normal"][vertex]
+        else:
+            outline.points += np.outer(radius - outline.points @ q, q)
+        return outline
+    touched = np.unique(triangles[touching])
+    if curved:
+        return data["onto"][touched] + radius * data["normal"][touched]
+    spots = points[touched]
+    spots += np.outer(radius - spots @ q, q)
+    return spots
+
+
 def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
-    """One off-screen view of the plane, the deformed shell (its cells with a vertex in
+    """One off-screen view of the obstacle, the deformed shell (its cells with a vertex in
     ``patch``, a boolean mask of the vertices) and the contact zone's boundary, with the
     camera ``elevation`` degrees above the plane; an RGB image."""
     import pyvista as pv
@@ -118,33 +157,12 @@ def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
     pl.add_mesh(
         shell, scalars="gap", cmap=CMAP, clim=clim, smooth_shading=True, show_scalar_bar=False
     )
-    touching = contact[triangles] > 0.5
-    if touching.any():
-        radius = 0.008 * width
-        zone = pv.PolyData(points, np.hstack([np.full((len(triangles), 1), 3), triangles]))
-        if curved:
-            zone.point_data["vertex"] = np.arange(len(points))
-        zone = zone.extract_cells(np.flatnonzero(touching.all(axis=1)))
-        outline = zone.extract_feature_edges(
-            boundary_edges=True, feature_edges=False, manifold_edges=False,
-            non_manifold_edges=False,
-        )  # fmt: skip
-        if outline.n_points:
-            if curved:  # onto the obstacle, lifted along its normal by the tube's radius
-                vertex = np.asarray(outline.point_data["vertex"])
-                outline.points = data["onto"][vertex] + radius * data["normal"][vertex]
-            else:  # onto the plane, lifted by its radius to lie on it, not in it
-                outline.points += np.outer(radius - outline.points @ q, q)
-            pl.add_mesh(outline.tube(radius=radius), color=CONTACT)
-        else:  # no cell touches with all its vertices: mark the contact vertices
-            touched = np.unique(triangles[touching])
-            if curved:
-                spots = data["onto"][touched] + radius * data["normal"][touched]
-            else:
-                spots = points[touched]
-                spots += np.outer(radius - spots @ q, q)
-            pl.add_mesh(pv.PolyData(spots), color=CONTACT, point_size=14,
-                        render_points_as_spheres=True)  # fmt: skip
+    mark = contact_mark(data, triangles, q, 0.008 * width)
+    if isinstance(mark, np.ndarray):  # no cell touches with all its vertices: the vertices
+        pl.add_mesh(pv.PolyData(mark), color=CONTACT, point_size=14,
+                    render_points_as_spheres=True)  # fmt: skip
+    elif mark is not None:
+        pl.add_mesh(mark.tube(radius=0.008 * width), color=CONTACT)
     el, az = np.radians(elevation), np.radians(-60.0)
     direction = np.cos(el) * (np.cos(az) * t1 + np.sin(az) * t2) + np.sin(el) * q
     focus = shell.points.mean(axis=0)
