@@ -35,7 +35,14 @@ import numpy as np
 from shellobstacle.obstacle import Cylinder, Obstacle, Plane, Sphere
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.obstacle_shape import level_box, onto
-from shellobstacle.post.render3d import CMAP, CONTACT, ELEVATIONS, EXIT_NO_PYVISTA, PLANE
+from shellobstacle.post.render3d import (
+    CMAP,
+    CONTACT,
+    ELEVATIONS,
+    EXIT_NO_PYVISTA,
+    LINES,
+    PLANE,
+)
 
 __all__ = [
     "Picture",
@@ -310,6 +317,8 @@ def _lay_out(views: dict[str, np.ndarray], path: Path, title: str) -> None:
             else "the plane x·q = 0 (translucent)",
         ),
     ]
+    if curved:
+        handles.append(Line2D([], [], color=LINES, lw=1.5, label="lines of equal height x·q on it"))
     axes[1].legend(handles=handles, loc="lower left", fontsize=8, framealpha=0.9)
     where = "the obstacle" if curved else "the obstacle plane"
     fig.suptitle(title or f"Deformed middle surface θ + ζᵢ aⁱ over {where}")

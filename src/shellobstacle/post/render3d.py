@@ -16,7 +16,8 @@ part of the shell on the plane, which the steep wall around it does not hide fro
 
 A curved obstacle comes as samples (``level``, ``box``, ``onto``, ``normal``:
 :class:`shellobstacle.post.pictures.SurfaceData`): its surface is the contour ``g = 0`` of the
-sampled grid, translucent grey as the plane and cut to the plane's square seen along ``q``; the
+sampled grid, translucent grey as the plane and cut to the plane's square seen along ``q``, with
+darker lines of equal height ``x·q`` on it (a ball's are circles: its curvature shows); the
 outline lies on it, on the vertices' nearest points of ``{g = 0}`` (``onto``), lifted along
 the normal by the tube's radius.
 
@@ -39,6 +40,7 @@ WINDOW = (1000, 800)
 ELEVATIONS = (15.0, 90.0)
 CMAP = "viridis"
 PLANE = "#b0b0b0"
+LINES = "#707070"
 CONTACT = "#e31a1c"
 
 
@@ -79,6 +81,16 @@ def _cut(surface, frame, mid: np.ndarray, half: float):
         np.abs(points @ t1 - mid[0]), np.abs(points @ t2 - mid[1])
     )
     return surface.clip_scalar("reach", invert=True, value=half)
+
+
+def _height_lines(surface, q: np.ndarray, count: int = 9):
+    """``count`` lines of constant height ``x·q`` on ``surface``, evenly spaced inside its
+    range of heights (a ball's are circles: they show its curvature through the grey)."""
+    heights = np.asarray(surface.points) @ q
+    surface = surface.copy()
+    surface.point_data["height"] = heights
+    levels = np.linspace(heights.min(), heights.max(), count + 2)[1:-1]
+    return surface.contour(list(levels), scalars="height")
 
 
 def contact_mark(data: Mapping[str, np.ndarray], triangles: np.ndarray, q, radius: float):
@@ -151,6 +163,9 @@ def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
         obstacle = _cut(data["obstacle"], frame, mid, 0.75 * width)
         if obstacle.n_points:
             pl.add_mesh(obstacle, color=PLANE, opacity=0.55, smooth_shading=True)
+            lines = _height_lines(obstacle, q)
+            if lines.n_points:
+                pl.add_mesh(lines, color=LINES, line_width=1.5, opacity=0.8)
     else:
         # translucent: the shell's penetration of the plane (the penalty's g < 0) stays visible
         pl.add_mesh(plane, color=PLANE, opacity=0.55)
