@@ -184,3 +184,34 @@ def test_solve_draws_the_cap_on_the_ball(tmp_path: Path, monkeypatch: pytest.Mon
     grey = (image.max(axis=-1) - image.min(axis=-1) < 0.04) & (image.mean(axis=-1) < 0.85)
     grey &= image.mean(axis=-1) > 0.5
     assert grey.mean() > 0.1
+
+
+def test_a_shifted_plane_is_drawn_from_its_samples_at_its_height() -> None:
+    """Only the plane x·q = 0 takes the plane's square; x·q = c ≠ 0 (and a plane written as a
+    formula) is contoured from its samples, which put it at its height, with no height lines."""
+    pytest.importorskip("pyvista")
+    from shellobstacle.obstacle import Plane
+    from shellobstacle.post.render3d import _height_lines, obstacle_surface
+
+    q = np.array([0.6, 0.0, 0.8])  # tilted: its heights x·q carry round-off
+    assert pictures.drawn_as_plane(Plane(q))
+    assert not pictures.drawn_as_plane(Plane(q, -0.1))
+    assert not pictures.drawn_as_plane(ExpressionObstacle("x3"))
+    rng = np.random.default_rng(2)
+    points = rng.uniform(-0.25, 0.25, (300, 3)) * [1.0, 1.0, 0.3] + [0.0, 0.0, 0.1]
+    shifted = Plane(q, -0.1)
+    gap = points @ q + 0.1
+    samples = pictures.obstacle_samples(shifted, paper_shell().surface, points, gap)
+    assert np.allclose(samples["onto"] @ q, -0.1, rtol=0, atol=1e-14)
+    assert np.allclose(samples["normal"], q)
+    surface = obstacle_surface(samples)
+    assert surface.n_points > 100
+    # VTK's contour points are single precision
+    assert np.allclose(np.asarray(surface.points) @ q, -0.1, rtol=0, atol=1e-6)
+    assert _height_lines(surface, q).n_points == 0
+    ball = obstacle_surface(
+        pictures.obstacle_samples(
+            Sphere(BALL.center, 2.0), paper_shell().surface, points, points[:, 2]
+        )
+    )
+    assert _height_lines(ball, np.array([0.0, 0.0, 1.0])).n_points > 100

@@ -85,8 +85,15 @@ def _cut(surface, frame, mid: np.ndarray, half: float):
 
 def _height_lines(surface, q: np.ndarray, count: int = 9):
     """``count`` lines of constant height ``x·q`` on ``surface``, evenly spaced inside its
-    range of heights (a ball's are circles: they show its curvature through the grey)."""
-    heights = np.asarray(surface.points) @ q
+    range of heights (a ball's are circles: they show its curvature through the grey); none
+    on a surface of one height (a plane normal to ``q``: its heights differ by the contour's
+    single-precision round-off only)."""
+    import pyvista as pv
+
+    points = np.asarray(surface.points)
+    heights = points @ q
+    if np.ptp(heights) <= 1e-4 * float(np.ptp(points, axis=0).max()):
+        return pv.PolyData()
     surface = surface.copy()
     surface.point_data["height"] = heights
     levels = np.linspace(heights.min(), heights.max(), count + 2)[1:-1]
