@@ -25,7 +25,7 @@ from shellobstacle.post import pictures
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.obstacle_shape import onto, profile_below
 from shellobstacle.post.plotting import plot_cross_section
-from shellobstacle.post.sections import cross_section
+from shellobstacle.post.sections import CrossSection, cross_section
 from shellobstacle.spec import Obstacle
 from tests.test_active_set import paper_shell, square
 
@@ -153,6 +153,14 @@ def test_a_cross_section_over_the_ball_carries_its_profile(
     image = matplotlib.image.imread(path)[..., :3]
     grey = (np.abs(image - 0.45).max(axis=-1) < 0.03).sum()  # the profile's thick grey line
     assert grey > 2000
+    # as experiment load records it (JSON) and reads it back
+    from shellobstacle.io.records import jsonable
+
+    record = json.loads(json.dumps(dataclasses.asdict(section), default=jsonable))
+    back = CrossSection(
+        **{k: np.asarray(v) if isinstance(v, list) else v for k, v in record.items()}
+    )
+    assert np.array_equal(back.obstacle_s, s) and np.array_equal(back.obstacle_height, z)
     plane = PenalizedProblem(paper_shell(), square(COMM, n=8))
     flat = cross_section(plane, n=51)
     assert flat.obstacle_s is None and flat.obstacle_height is None
