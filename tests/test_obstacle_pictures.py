@@ -223,3 +223,15 @@ def test_a_shifted_plane_is_drawn_from_its_samples_at_its_height() -> None:
         )
     )
     assert _height_lines(ball, np.array([0.0, 0.0, 1.0])).n_points > 100
+
+
+def test_an_obstacle_out_of_the_box_is_not_drawn_and_the_views_are(ball: PenalizedProblem) -> None:
+    """g > 0 on the whole box (the obstacle far from the shell): no surface, both views."""
+    pytest.importorskip("pyvista")
+    from shellobstacle.post.render3d import obstacle_surface, render
+
+    data = pictures.gather_surface(Postprocessor(ball)).arrays()
+    data["level"] = np.abs(data["level"]) + 1.0
+    assert obstacle_surface(data).n_points == 0
+    views = render(data)
+    assert views["whole"].ndim == 3 and views["close"].ndim == 3 and bool(views["curved"])

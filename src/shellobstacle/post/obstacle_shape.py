@@ -76,11 +76,12 @@ def onto(
         ``g > 0``, the shell's side).
     """
     x = np.array(x, dtype=float)
-    for _ in range(steps):
+    with np.errstate(divide="ignore", invalid="ignore"):  # ∇g = 0: NaN, drawn nowhere
+        for _ in range(steps):
+            grad = gradients(obstacle, G, x)
+            x -= (values(obstacle, G, x) / np.sum(grad * grad, axis=1))[:, None] * grad
         grad = gradients(obstacle, G, x)
-        x -= (values(obstacle, G, x) / np.sum(grad * grad, axis=1))[:, None] * grad
-    grad = gradients(obstacle, G, x)
-    return x, grad / np.linalg.norm(grad, axis=1)[:, None]
+        return x, grad / np.linalg.norm(grad, axis=1)[:, None]
 
 
 def profile_below(

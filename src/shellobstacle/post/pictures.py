@@ -8,7 +8,8 @@ without it, or where no OpenGL context can be created, the first picture of a ru
 warning naming the reason and the later ones are skipped silently; everything else a run
 writes does not depend on it.
 
-The renderer imports neither DOLFINx nor this package, so a curved obstacle travels to it as
+The renderer imports neither DOLFINx nor this package, so an obstacle other than the plane
+``x·q = 0`` (a ball, a cylinder, a formula, a shifted plane) travels to it as
 samples (:mod:`shellobstacle.post.obstacle_shape`): ``g`` on a grid of a box around the shell,
 which it contours at 0, and the shell's vertices moved onto ``{g = 0}``, where it draws the
 contact zone's outline.
@@ -32,6 +33,7 @@ import dolfinx
 import dolfinx.fem
 import numpy as np
 
+from shellobstacle.geometry.surface import Surface
 from shellobstacle.obstacle import Cylinder, Obstacle, Plane, Sphere
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.obstacle_shape import level_box, onto
@@ -70,12 +72,13 @@ class SurfaceData:
         points: ``θ + U`` at the vertices, ``U = ζ_i a^i`` (shape ``(n, 3)``).
         reference: ``θ`` at the vertices.
         triangles: The cells as vertex triples (``(m, 3)``).
-        gap: ``g(ζ) = (θ + U)·q`` at the vertices (docs/model.md §3).
+        gap: ``g(ζ)`` at the vertices (docs/model.md §3; for the plane ``(θ + U)·q``).
         contact: the contact indicator at the vertices (P1: 1 on contact vertices, else 0;
             :meth:`~shellobstacle.post.contact.Postprocessor.indicator`).
-        q: Unit normal of the plane ``x·q = 0`` (for a curved obstacle, the pictures'
+        q: Unit normal of the plane ``x·q = 0`` (for another obstacle, the pictures'
             vertical).
-        level: For a curved obstacle, ``g`` at the nodes of a grid of a box around the
+        level: For an obstacle other than the plane ``x·q = 0`` (:func:`drawn_as_plane`),
+            ``g`` at the nodes of a grid of a box around the
             shell (shape ``(n1, n2, n3)``, :func:`~shellobstacle.post.obstacle_shape.level_box`);
             None for a plane.
         box: The grid's corner and spacing (shape ``(2, 3)``); None for a plane.
@@ -127,9 +130,9 @@ MARGIN = 0.3
 
 
 def obstacle_samples(
-    obstacle: Obstacle, surface, points: np.ndarray, gap: np.ndarray
+    obstacle: Obstacle, surface: Surface, points: np.ndarray, gap: np.ndarray
 ) -> dict[str, np.ndarray]:
-    """A curved obstacle's samples for the renderer: ``level``, ``box``, ``onto`` and
+    """An obstacle's samples for the renderer: ``level``, ``box``, ``onto`` and
     ``normal`` of :class:`SurfaceData` for the deformed vertices ``points`` and their gaps."""
     G = surface.geometry_numpy(np.zeros((1, 2)))  # g lives in space: G names NumPy only
     lo, hi = points.min(axis=0), points.max(axis=0)

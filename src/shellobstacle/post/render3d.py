@@ -14,7 +14,7 @@ the contact zone as a red tube: of the cells whose vertices all touch (contact i
 :meth:`~shellobstacle.post.contact.Postprocessor.indicator`), the flat
 part of the shell on the plane, which the steep wall around it does not hide from above.
 
-A curved obstacle comes as samples (``level``, ``box``, ``onto``, ``normal``:
+Any obstacle but the plane ``x·q = 0`` comes as samples (``level``, ``box``, ``onto``, ``normal``:
 :class:`shellobstacle.post.pictures.SurfaceData`): its surface is the contour ``g = 0`` of the
 sampled grid, translucent grey as the plane and cut to the plane's square seen along ``q``, with
 darker lines of equal height ``x·q`` on it (a ball's are circles: its curvature shows); the
@@ -60,7 +60,7 @@ def plane_frame(q: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]
 
 def obstacle_surface(data: Mapping[str, np.ndarray]):
     """The contour ``g = 0`` of a curved obstacle's samples (``level`` on the grid ``box``), a
-    PyVista surface (with point normals, for smooth shading)."""
+    PyVista surface (with point normals, for smooth shading; empty if ``g`` keeps one sign)."""
     import pyvista as pv
 
     level = np.asarray(data["level"], dtype=float)
@@ -68,6 +68,8 @@ def obstacle_surface(data: Mapping[str, np.ndarray]):
     grid = pv.ImageData(dimensions=level.shape, spacing=tuple(spacing), origin=tuple(origin))
     grid.point_data["g"] = level.ravel(order="F")  # VTK's order: the first index fastest
     surface = grid.contour([0.0], scalars="g", method="flying_edges")
+    if not surface.n_cells:  # the obstacle does not cross the box
+        return surface
     return surface.compute_normals(consistent_normals=True)  # for smooth shading
 
 
@@ -167,8 +169,10 @@ def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
     pl.set_background("white")
     curved = "level" in data
     if curved:
-        obstacle = _cut(data["obstacle"], frame, mid, 0.75 * width)
-        if obstacle.n_points:
+        obstacle = data["obstacle"]
+        if obstacle.n_cells:
+            obstacle = _cut(obstacle, frame, mid, 0.75 * width)
+        if obstacle.n_cells:
             pl.add_mesh(obstacle, color=PLANE, opacity=0.55, smooth_shading=True)
             lines = _height_lines(obstacle, q)
             if lines.n_points:
