@@ -29,14 +29,14 @@ cases = {
     "plane, lower face": Obstacle(contact_face="lower"),
 }
 print(f"{'obstacle':20s} {'passes':>6s} {'Newton':>6s} {'contact area':>12s} {'min ζ_3':>10s}")
+rows = {}
 for name, obstacle in cases.items():
     result = solve(dataclasses.replace(cap, obstacle=obstacle), domain, penalty)
     post = Postprocessor(result.problem, result.constraint)
+    area, lowest = post.contact()["contact_area"], post.zeta3_range()[0]
+    rows[name] = (result, area, lowest)
     passes = result.extra.get("linearizations", "-")
-    print(
-        f"{name:20s} {passes!s:>6s} {result.iterations:6d} "
-        f"{post.contact()['contact_area']:12.4e} {post.zeta3_range()[0]:10.5f}"
-    )
+    print(f"{name:20s} {passes!s:>6s} {result.iterations:6d} {area:12.4e} {lowest:10.5f}")
 # -
 
 # The formula `x3` is recognized as a plane (no passes) and gives the plane's numbers. The
