@@ -179,6 +179,14 @@ def test_every_default_of_the_schema_is_a_fields() -> None:
                 assert key.default_for(selector or None) == api, (dotted, selector)
 
 
+#: the other fields a choice needs (an obstacle kind its shape)
+_COMPANIONS = {
+    (Obstacle, "kind", "sphere"): {"center": (0, 0, -1), "radius": 1.0},
+    (Obstacle, "kind", "cylinder"): {"point": (0, 0, -1), "axis": (1, 0, 0), "radius": 1.0},
+    (Obstacle, "kind", "expression"): {"g": "x3"},
+}
+
+
 def test_every_choice_is_one_the_api_accepts() -> None:
     """The choices the schema offers are the values the dataclasses accept; another value is
     refused by both."""
@@ -188,7 +196,7 @@ def test_every_choice_is_one_the_api_accepts() -> None:
                 if not key.choices or cls in (Shell, DomainSpec):
                     continue
                 for choice in key.choices:
-                    cls(**{field: choice})
+                    cls(**{field: choice}, **_COMPANIONS.get((cls, field, choice), {}))
                 with pytest.raises(ValueError, match=rf"{section}\.{name}"):
                     cls(**{field: "no such choice"})
 

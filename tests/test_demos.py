@@ -31,6 +31,7 @@ def test_every_demo_is_tested() -> None:
         "own_shell.py",
         "kappa_sweep.py",
         "koiter_cylinder.py",
+        "rigid_obstacles.py",
     }
 
 
@@ -71,3 +72,16 @@ def test_koiter_cylinder_thin_panel_touches_thick_one_does_not(
     assert thick["contact_area"] == 0
     assert -0.099 < thick["zeta3_min"] < 0
     assert "ε = 0.01: contact area" in out
+
+
+def test_rigid_obstacles(capsys: pytest.CaptureFixture[str]) -> None:
+    """What the demo's text says: the formula is the plane, the ball of radius 10 is within
+    1e-4 of the plane, the lower face stops ε higher."""
+    ns, out = run("rigid_obstacles.py", capsys)
+    rows = ns["rows"]
+    plane, formula = rows["plane x3 = 0"], rows["g = x3 (a formula)"]
+    assert "linearizations" not in formula[0].extra and formula[1:] == plane[1:]
+    assert abs(rows["ball R = 10"][2] - plane[2]) < 1e-4
+    assert rows["ball R = 10"][0].extra["linearizations"] >= 2
+    assert rows["plane, lower face"][2] - plane[2] == pytest.approx(1e-3, rel=0.05)
+    assert all(r[0].converged for r in rows.values()) and "ball R = 0.5" in out

@@ -29,6 +29,7 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.kappa import kappa_on_mesh
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.progress import phase
+from shellobstacle.solvers.linearization import solve_with
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS, options_for
 from shellobstacle.solvers.result import SolveResult
@@ -152,9 +153,10 @@ def solve(
     target = kappas[-1] if chosen.penalized else 0.0
     result = SolveResult(problem, h, target, [], checks, timings, method=method)
     t = time.perf_counter()
-    done = chosen.solve(
-        problem, h, kappas, options_for(chosen, method_options, options), say, newton_progress
-    )
+    done = solve_with(
+        chosen, problem, h, kappas, options_for(chosen, method_options, options), say,
+        newton_progress,
+    )  # fmt: skip
     result.steps, result.converged, result.error = done.steps, done.converged, done.error
     result.extra.update(done.extra)
     timings.update(done.timings)

@@ -24,6 +24,7 @@ from shellobstacle.messages import not_one_of
 __all__ = [
     "BENDING_FORMS",
     "MODELS",
+    "OBSTACLE_KINDS",
     "PENALTY_QUADRATURES",
     "TRANSVERSE",
     "Discretization",
@@ -97,27 +98,114 @@ def _parse_load(
     return tuple(parse(t, names, f"load.p[{i + 1}]") for i, t in enumerate(p))  # type: ignore[return-value]
 
 
+OBSTACLE_KINDS = ("plane", "sphere", "cylinder", "expression")
+SIDES = ("outside", "inside")
+CONTACT_FACES = ("middle", "lower", "upper")
+
+#: the keys of ``[obstacle]`` that each kind reads (besides ``kind`` and ``contact_face``)
+OBSTACLE_KEYS = {
+    "plane": ("q", "c"),
+    "sphere": ("center", "radius", "side"),
+    "cylinder": ("point", "axis", "radius", "side"),
+    "expression": ("g",),
+}
+
+
 @dataclass(frozen=True)
 class Obstacle:
-    """The half-space ``H = {x : x·q ≥ 0}``; ``q`` is normalized (with a warning if needed)."""
+    """The rigid obstacle: the admissible set ``{x : g(x) ≥ 0}`` of the contact face
+    (docs/model.md :eq:`gap`; :mod:`shellobstacle.obstacle` computes with it).
+
+    - ``plane``: ``g(x) = x·q − c`` (the paper's half-space when ``c = 0``); ``q`` is
+      normalized (with a warning if needed).
+    - ``sphere``: ``g(x) = |x − center| − radius`` (``side = "outside"``: the shell stays out
+      of the ball) or ``radius − |x − center|`` (``"inside"``).
+    - ``cylinder``: the same with the distance to the axis through ``point`` along ``axis``.
+    - ``expression``: ``g`` a formula in the ambient coordinates ``x1, x2, x3``.
+
+    ``contact_face``: the surface that must stay admissible, ``θ + η`` (``"middle"``) or the
+    face ``θ ∓ ε a_3 + η`` (``"lower"``/``"upper"``).
+    """
 
     q: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    kind: str = field(default="plane", metadata={"choices": OBSTACLE_KINDS})
+    c: float = 0.0
+    center: tuple[float, float, float] | None = None
+    radius: float | None = None
+    side: str = field(default="outside", metadata={"choices": SIDES})
+    point: tuple[float, float, float] | None = None
+    axis: tuple[float, float, float] | None = None
+    g: str | None = None
+    contact_face: str = field(default="middle", metadata={"choices": CONTACT_FACES})
 
     def __post_init__(self) -> None:
-        q = np.asarray(self.q, dtype=float)
-        if q.shape != (3,) or not np.all(np.isfinite(q)):
-            raise ValueError(f"obstacle.q must be three finite numbers, got {self.q!r}")
-        largest = float(np.max(np.abs(q)))
-        if largest == 0.0:
-            raise ValueError("obstacle.q = (0, 0, 0) defines no half-space: give a nonzero normal")
-        norm = largest * float(np.linalg.norm(q / largest))  # no overflow for huge entries
-        if abs(norm - 1.0) > 1e-12:
-            warnings.warn(
-                f"obstacle.q = {tuple(self.q)} has norm {norm:.6g}; using q/|q|",
-                stacklevel=3,
+        for name, value, choices in (
+            ("kind", self.kind, OBSTACLE_KINDS),
+            ("side", self.side, SIDES),
+            ("contact_face", self.contact_face, CONTACT_FACES),
+        ):
+            if value not in choices:
+                raise ValueError(not_one_of(f"obstacle.{name}", value, choices))
+        needed = {"sphere": ("center", "radius"), "cylinder": ("point", "axis", "radius")}
+        missing = [k for k in needed.get(self.kind, ()) if getattr(self, k) is None]
+        if self.kind == "expression" and not self.g:
+            missing.append("g")
+        if missing:
+            raise ValueError(
+                f"obstacle.kind = {self.kind!r} needs obstacle.{', obstacle.'.join(missing)}"
             )
-        unit = (q / largest) / float(np.linalg.norm(q / largest))
-        object.__setattr__(self, "q", tuple(float(v) for v in unit))
+        if (
+            isinstance(self.c, bool)
+            or not isinstance(self.c, int | float)
+            or not np.isfinite(self.c)
+        ):
+            raise ValueError(f"obstacle.c must be a finite number, got {self.c!r}")
+        for name in ("center", "point"):
+            value = getattr(self, name)
+            if value is not None:
+                object.__setattr__(self, name, _three(value, f"obstacle.{name}"))
+        if self.radius is not None and not (np.isfinite(self.radius) and self.radius > 0):
+            raise ValueError(f"obstacle.radius must be a finite number > 0, got {self.radius!r}")
+        if self.axis is not None:
+            object.__setattr__(self, "axis", _unit(self.axis, "obstacle.axis", "axis"))
+        object.__setattr__(self, "q", _unit(self.q, "obstacle.q", "half-space"))
+
+    def keys(self) -> tuple[str, ...]:
+        """The ``[obstacle]`` keys this kind reads."""
+        return ("kind", *OBSTACLE_KEYS[self.kind], "contact_face")
+
+
+def _three(value: Any, what: str) -> tuple[float, float, float]:
+    """Three finite numbers, or a ValueError naming ``what``."""
+    v = np.asarray(value, dtype=float) if _numeric(value) else np.array([np.nan])
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{what} must be three finite numbers, got {value!r}")
+    return (float(v[0]), float(v[1]), float(v[2]))
+
+
+def _numeric(value: Any) -> bool:
+    try:
+        np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+def _unit(value: Any, what: str, noun: str) -> tuple[float, float, float]:
+    """``value/|value|`` (a warning if ``|value| ≠ 1``), or a ValueError for a zero vector."""
+    v = np.asarray(_three(value, what))
+    largest = float(np.max(np.abs(v)))
+    if largest == 0.0:
+        vector = "normal" if noun == "half-space" else "direction"
+        raise ValueError(f"{what} = (0, 0, 0) defines no {noun}: give a nonzero {vector}")
+    norm = largest * float(np.linalg.norm(v / largest))  # no overflow for huge entries
+    if abs(norm - 1.0) > 1e-12:
+        warnings.warn(
+            f"{what} = {tuple(value)} has norm {norm:.6g}; using it divided by its norm",
+            stacklevel=4,
+        )
+    unit = (v / largest) / float(np.linalg.norm(v / largest))
+    return (float(unit[0]), float(unit[1]), float(unit[2]))
 
 
 MODELS = ("membrane", "koiter")

@@ -35,6 +35,7 @@ from shellobstacle.mesh.refinement import refine_marked
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.kappa import MeshKappa, kappa_on_mesh
 from shellobstacle.penalty.spec import PenaltySpec
+from shellobstacle.solvers.linearization import solve_with
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS, Method, options_for
 from shellobstacle.solvers.result import MethodResult, SolveResult, Step
@@ -251,7 +252,7 @@ def _solve_level(
     if method.penalized:
         assert kappa.ladder != [0.0], "a penalized method needs a penalty"
         kappas = kappa.ladder[-1:] if warm else kappa.ladder
-    return method.solve(problem, kappa.h, kappas, options, lambda _m: None, newton_progress)
+    return solve_with(method, problem, kappa.h, kappas, options, lambda _m: None, newton_progress)
 
 
 def _free_boundary(problem: PenalizedProblem, constraint: str) -> np.ndarray:

@@ -230,6 +230,14 @@ def parse_config(
                 given_keys.add(name if section == "solver" else dotted)
                 also = (reads or {}).get(selector, ())
                 if selector and value is not None and not any(map(key.used_by, (value, *also))):
+                    # another shape's key: the user meant another shape (unless a --set
+                    # changed the shape, and the key is the file's for the old one)
+                    changed = origins.of(selector) != source and origin == source
+                    if section == "obstacle" and not changed:
+                        raise ConfigError(
+                            f"{origin}: {dotted} is not read by {selector} = {value!r}: "
+                            f"set {selector} = {' or '.join(map(repr, key.when))}, or remove it"
+                        )
                     warnings.warn(
                         f"{origin}: {dotted} is ignored: {selector} = {value!r} {reason}"
                         + (f" (read with {' or '.join(map(repr, key.when))})" if key.when else ""),
@@ -284,6 +292,11 @@ def _surface(s: Mapping[str, Any]) -> Surface:
     return Surface.from_strings(s["theta"])
 
 
+def _obstacle(o: Mapping[str, Any]) -> Obstacle:
+    """The obstacle of ``[obstacle]`` (the keys its kind reads; vectors as tuples)."""
+    return Obstacle(**{k: tuple(v) if isinstance(v, list) else v for k, v in o.items()})
+
+
 def _build(r: dict[str, dict[str, Any]], source: str, given: set[str]) -> Config:
     """The objects of a resolved configuration; their constructors validate (the API's
     messages, which :func:`parse_config` prefixes with the file or the ``--set``). ``given``:
@@ -293,7 +306,7 @@ def _build(r: dict[str, dict[str, Any]], source: str, given: set[str]) -> Config
     material = Material(m["epsilon"], m["lambda"], m["mu"])
     load = Load(tuple(r["load"]["p"]), dict(r["load"].get("parameters", {})))
     model = r["model"]["kind"]
-    shell = Shell(surface, material, load, Obstacle(tuple(r["obstacle"]["q"])), model)
+    shell = Shell(surface, material, load, _obstacle(r["obstacle"]), model)
     shell.load_expressions()  # parse now: errors name the key
 
     d = dict(r["domain"])

@@ -32,6 +32,8 @@ __all__ = ["OPTIONAL_SECTIONS", "REQUIRED_SECTIONS", "SCHEMA", "SELECTORS", "ref
 
 #: the methods that read [penalty] (the registry's at import)
 _PENALIZED = tuple(m.name for m in METHODS.values() if m.penalized)
+_PLANE = ("plane",)
+_ROUND = ("sphere", "cylinder")
 
 SCHEMA: dict[str, dict[str, Key]] = {
     "surface": {
@@ -124,7 +126,42 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
     },
     "obstacle": {
-        "q": bound(Obstacle, "q", "float[3]", "normal of the plane; H = {x·q ≥ 0}"),
+        "kind": bound(
+            Obstacle,
+            "kind",
+            "str",
+            "the rigid obstacle: plane (the paper's), sphere, cylinder or expression; the "
+            "contact face must stay where g ≥ 0",
+        ),
+        "q": bound(Obstacle, "q", "float[3]", "normal of the plane; g = x·q − c", when=_PLANE),
+        "c": bound(Obstacle, "c", "float", "the plane's offset along q", when=_PLANE),
+        "center": bound(Obstacle, "center", "float[3]", "centre of the ball", when=("sphere",)),
+        "point": bound(
+            Obstacle, "point", "float[3]", "a point of the cylinder's axis", when=("cylinder",)
+        ),
+        "axis": bound(Obstacle, "axis", "float[3]", "the cylinder's axis", when=("cylinder",)),
+        "radius": bound(Obstacle, "radius", "float", "radius R > 0", when=_ROUND),
+        "side": bound(
+            Obstacle,
+            "side",
+            "str",
+            "outside: g = distance − R (the shell stays out; not convex); inside: R − distance",
+            when=_ROUND,
+        ),
+        "g": bound(
+            Obstacle,
+            "g",
+            "str",
+            "g(x1, x2, x3), admissible where g ≥ 0 (x: ambient coordinates)",
+            when=("expression",),
+        ),
+        "contact_face": bound(
+            Obstacle,
+            "contact_face",
+            "str",
+            "the face that must stay admissible: middle (θ), lower (θ − ε a_3) or upper "
+            "(θ + ε a_3)",
+        ),
     },
     "penalty": {
         "kappa": bound(PenaltySpec, "kappa", "float", "penalty parameter κ > 0", when=_PENALIZED),
@@ -275,6 +312,7 @@ OPTIONAL_SECTIONS = ("adapt",)
 #: say when a key is not read
 SELECTORS: dict[str, tuple[str, str]] = {
     "surface": ("surface.kind", "does not use it"),
+    "obstacle": ("obstacle.kind", "does not use it"),
     "domain": ("domain.kind", "does not use it"),
     "discretization": ("model.kind", "does not use it"),
     "penalty": ("solver.method", "solves the nodal constraint exactly (κ = 0)"),

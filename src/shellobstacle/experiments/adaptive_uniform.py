@@ -20,6 +20,7 @@ from shellobstacle.mesh.refinement import refine_uniformly
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.kappa import kappa_on_mesh
 from shellobstacle.post.nonmatching import SampledNorms
+from shellobstacle.solvers.linearization import solve_with
 from shellobstacle.solvers.registry import METHODS, options_for
 from shellobstacle.solvers.result import ConvergenceError
 
@@ -90,7 +91,8 @@ def _solve(
     kappas = kappa_on_mesh(cfg.penalty if method.penalized else None, mesh).ladder
     kappa = kappas[0] if method.penalized else None
     problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappa)
-    done = method.solve(
+    done = solve_with(
+        method,
         problem, h, kappas, options_for(method, cfg.method_options, cfg.solver),
         lambda _m: None, newton_progress,
     )  # fmt: skip

@@ -15,6 +15,7 @@ from typing import Any
 
 from shellobstacle.config.loader import Config, ConfigError
 from shellobstacle.mesh.domains import DomainSpec, validate
+from shellobstacle.obstacle import from_spec
 from shellobstacle.solvers.registry import METHODS
 
 __all__ = [
@@ -97,6 +98,12 @@ def experiment_options(args: argparse.Namespace, cfg: Config) -> dict[str, Any]:
     Raises:
         ConfigError: an option out of range, an empty or too long list, an unknown choice.
     """
+    if args.batch != "adaptive" and not from_spec(cfg.shell.obstacle).affine:
+        raise ConfigError(
+            f"experiment {args.batch} solves with the plane's exact machinery and does not "
+            f"linearize a curved obstacle (obstacle.kind = {cfg.shell.obstacle.kind!r}): use "
+            "'shellobstacle solve' or 'experiment adaptive' for it"
+        )
     tol = _positive(args.tol, "--tol")
     if args.batch == "penalty":
         start = _positive(args.start, "--start")

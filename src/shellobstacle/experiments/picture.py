@@ -52,8 +52,11 @@ class SolutionPicture:
         """A function drawing a problem's solution with the title ``label``, h and κ."""
 
         def draw(problem: PenalizedProblem) -> None:
+            from shellobstacle.post.pictures import describe, drawn_as_plane
+
             h, kappa = mesh_size(problem.mesh), float(problem.kappa.value)
-            title = f"{label}: the deformed shell over the plane, h = {h:.4g}, κ = {kappa:.3e}"
+            where = "the plane" if drawn_as_plane(problem.obstacle) else describe(problem.obstacle)
+            title = f"{label}: the deformed shell over {where}, h = {h:.4g}, κ = {kappa:.3e}"
             self.draw(problem, title)
 
         return draw

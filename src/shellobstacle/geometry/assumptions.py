@@ -86,12 +86,12 @@ def _local_extreme(values: np.ndarray, points: np.ndarray, kind: str) -> Extreme
 
 def _quantities(shell: Shell, G: Geometry, n: int) -> list[np.ndarray]:
     """det(a_αβ), K, θ·q, a³·q and ε·max|κ_principal| from ``G`` evaluated at ``n`` points."""
-    q = np.asarray(shell.obstacle.q)
+    obstacle = from_spec(shell.obstacle, shell.material.epsilon)
     with np.errstate(invalid="ignore", divide="ignore"):
         det_a = np.asarray(G.det_a, float)
         K = np.asarray(G.gaussian_curvature, float)
-        theta_q = np.asarray(from_spec(shell.obstacle).reference_gap(G), float)  # g(θ) = θ·q
-        a3_q = sum(np.asarray(G.a3[k], float) * q[k] for k in range(3))
+        theta_q = np.asarray(obstacle.reference_gap(G), float)  # g(θ) (a plane's θ·q)
+        a3_q = np.asarray(obstacle.c(G)[2], float)  # ∇g·a³ (a plane's a³·q)
         H = np.asarray(G.mean_curvature, float)
         kmax = np.abs(H) + np.sqrt(np.maximum(H * H - K, 0.0))
     return [
@@ -176,7 +176,7 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
             found_row.append(_local_extreme(values, chunk, row[2]))
     require_finite(shell, failures, mesh.comm)
     checks = []
-    for (name, quantity, kind, requirement, hint), local in zip(ROWS, found, strict=True):
+    for (name, quantity, kind, requirement, hint), local in zip(_rows(shell), found, strict=True):
         if name == "inside half-space":
             hint = _half_space_hint(shell, hint)
         value, where = _pick(mesh.comm.allgather(_pick(local, kind)), kind)
@@ -185,7 +185,41 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
             # Koiter's model needs an immersion and a thin shell, not K > 0 (docs/model.md §8)
             requirement, ok = "none (Koiter's model)", bool(np.isfinite(value))
         checks.append(Check(name, quantity, value, where, requirement, ok, hint))
+    if shell.obstacle.kind != "plane":
+        convex = from_spec(shell.obstacle).convex
+        checks.append(
+            Check(
+                "convex admissible set", "1 yes, 0 no, nan unknown",
+                np.nan if convex is None else float(convex), (np.nan, np.nan),
+                "none (the paper's theory: convex; otherwise a solution may be a local one)",
+                True, "inside a ball or a cylinder, or a plane: convex; outside: not",
+            )
+        )  # fmt: skip
     return checks
+
+
+def _rows(shell: Shell) -> list[tuple[str, str, str, str, str]]:
+    """:data:`ROWS`, with a curved obstacle's gap ``g`` in place of the plane's ``x·q``."""
+    if shell.obstacle.kind == "plane":
+        return ROWS
+    rows = list(ROWS)
+    rows[2] = (
+        "admissible reference",
+        "g(θ)",
+        "min",
+        "min g(θ) > 0",
+        "the reference shell (its contact face) must lie strictly inside {g > 0}, with g and "
+        "∇g finite there: move the shell or the obstacle",
+    )
+    rows[3] = (
+        "normal towards obstacle",
+        "∇g·a³",
+        "min",
+        "min ∇g·a³ > 0",
+        "∇g·a^3 must stay positive (Theorem 4.3, Lemma 5.1 for a plane): the shell must face "
+        "the obstacle",
+    )
+    return rows
 
 
 def format_checks(checks: list[Check]) -> str:

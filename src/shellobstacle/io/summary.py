@@ -104,10 +104,10 @@ def write_solution(
             plot_adapted_mesh(problem.mesh, post.indicator(), folder / "mesh.png", title)
             files.append("mesh.png")
     if output.get("figures", True) and output.get("pictures", True):
-        from shellobstacle.post.pictures import write_picture
+        from shellobstacle.post.pictures import describe, write_picture
 
         title = (
-            "Deformed middle surface θ + ζᵢ aⁱ over the plane x·q = 0: "
+            f"Deformed middle surface θ + ζᵢ aⁱ over {describe(problem.obstacle)}: "
             f"κ = {summary['kappa']:.2e}, contact area {summary['contact_area']:.4g}"
             + ("" if result.converged else " (NOT converged)")
         )

@@ -60,8 +60,11 @@ class PenalizedProblem:
             no penalty term and no penalty forms).
         kappa_scale: None, or the cellwise factor ``ρ`` of a penalty parameter ``κ ρ(x)``.
         obstacle: the :class:`~shellobstacle.obstacle.Obstacle` of ``shell.obstacle``.
-        g: the gap ``g(ζ)`` (UFL); ``c``, ``c_norm``: its derivative ``c_j = ∂g/∂ζ_j``
-            and ``|c|``.
+        g: the gap ``g(ζ)`` (UFL); ``g_penalty``: the gap the constraint acts on,
+            ``g0 + c·ζ`` (``g`` itself for a plane, else the linearization at
+            :attr:`zeta_lin`); ``c``, ``c_norm``: its derivative ``c_j = ∂g/∂ζ_j`` and
+            ``|c|`` (at ``ζ = 0``).
+        zeta_lin: where a curved obstacle's gap is linearized (None for a plane).
         parameters: the load parameters, ``Constant`` objects by name.
     """
 
@@ -87,7 +90,7 @@ class PenalizedProblem:
         self.disc = disc = discretization or Discretization()
         if shell.model == "koiter":
             _require_koiter_discretization(disc, mesh)
-        self.obstacle: Obstacle = from_spec(shell.obstacle)
+        self.obstacle: Obstacle = from_spec(shell.obstacle, shell.material.epsilon)
         self.q = np.asarray(shell.obstacle.q, dtype=float)
         mat = shell.material
         self.V = dolfinx.fem.functionspace(mesh, ("Lagrange", disc.degree, (3,)))
@@ -118,10 +121,8 @@ class PenalizedProblem:
         eps, lam, mu = mat.epsilon, mat.lam, mat.mu
         zeta, v, du = self.zeta, ufl.TestFunction(self.V), ufl.TrialFunction(self.V)
         gam = self.strain_of(zeta)
-        self.c = self.obstacle.c(G)  # c_j = ∂g/∂ζ_j
-        self.c_norm = self.obstacle.c_norm(G)
-        self.g = self.obstacle.gap(G, [zeta[i] for i in range(3)])  # g(ζ)
-        g_minus = ufl.conditional(ufl.lt(self.g, 0), self.g, 0)  # −{g}^-
+        self._gap_forms(G)
+        g_minus = ufl.conditional(ufl.lt(self.g_penalty, 0), self.g_penalty, 0)  # −{g}^-
         sqrt_a = G.sqrt_a
 
         elastic = 0.5 * eps * elastic_product(G, lam, mu, gam, gam) * sqrt_a * self.dx
@@ -187,6 +188,48 @@ class PenalizedProblem:
         self.bcs = self._boundary_conditions()
         self._K: PETSc.Mat | None = None
         self.condensed: CondensedStiffness | None = None
+
+    def _gap_forms(self, G: Any) -> None:
+        """The gap ``g(ζ)``, the gap the constraint acts on and its derivative ``c``.
+
+        For an affine obstacle (a plane) the two gaps are one. For a curved one the
+        constraint acts on the linearization ``g(ζ̄) + c(ζ̄)·(ζ − ζ̄)`` at
+        :attr:`zeta_lin` ``= ζ̄`` (:mod:`shellobstacle.solvers.linearization` moves ``ζ̄`` to
+        ``ζ`` until they agree), and the penalty's weight ``1/|c|`` is taken at ``ζ = 0``, so
+        that ``J_κ`` is one energy whatever ``ζ̄``.
+        """
+        zeta = [self.zeta[i] for i in range(3)]
+        self.c_norm = self.obstacle.c_norm(G)
+        self.g = self.obstacle.gap(G, zeta)  # g(ζ)
+        self.zeta_lin: dolfinx.fem.Function | None = None
+        if self.obstacle.affine:
+            self.c = self.obstacle.c(G)  # c_j = ∂g/∂ζ_j
+            self.g0 = self.obstacle.reference_gap(G)
+            self.g_penalty = self.g
+            return
+        self.zeta_lin = dolfinx.fem.Function(self.V, name="zeta_lin")
+        lin = [self.zeta_lin[i] for i in range(3)]
+        self.c = self.obstacle.c(G, lin)
+        self.g0 = self.obstacle.gap(G, lin) - sum(self.c[j] * lin[j] for j in range(3))
+        self.g_penalty = self.g0 + sum(self.c[j] * zeta[j] for j in range(3))
+
+    @property
+    def linearized(self) -> bool:
+        """Whether the constraint acts on a linearization of a curved obstacle's gap."""
+        return self.zeta_lin is not None
+
+    def linearize(self) -> float:
+        """``ζ̄ ← ζ``: linearize a curved obstacle's gap at the current ``ζ``; returns
+        ``max |ζ − ζ̄_old| / max(max |ζ|, 1e-300)`` (global), the relative change."""
+        if self.zeta_lin is None:
+            return 0.0
+        new, old = self.zeta.x.array, self.zeta_lin.x.array
+        comm = self.mesh.comm
+        n = self.V.dofmap.index_map.size_local * self.V.dofmap.index_map_bs
+        change = comm.allreduce(float(np.max(np.abs(new[:n] - old[:n]), initial=0.0)), MPI.MAX)
+        size = comm.allreduce(float(np.max(np.abs(new[:n]), initial=0.0)), MPI.MAX)
+        self.zeta_lin.x.array[:] = new
+        return change / max(size, 1e-300)
 
     @property
     def penalized(self) -> bool:

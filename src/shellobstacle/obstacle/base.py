@@ -1,11 +1,13 @@
-"""The obstacle: the admissible set ``{g ≥ 0}`` of the deformed middle surface (docs/model.md
+"""The obstacle: the admissible set ``{g ≥ 0}`` of the shell's contact face (docs/model.md
 :eq:`gap`).
 
-An :class:`Obstacle` owns the gap ``g(η) = g(θ + η_i a^i)`` of a covariant displacement ``η``
-and its derivative ``c_j = ∂g/∂η_j``, on any
+An :class:`Obstacle` owns the gap ``g(η) = g(θ + s a_3 + η_i a^i)`` of a covariant
+displacement ``η`` (``s``: the contact face's offset, 0 for the middle surface, ``∓ε`` for
+the lower and upper faces) and its derivative ``c_j = ∂g/∂η_j = ∇g·a^j``, on any
 :class:`~shellobstacle.geometry.surface.Geometry` (UFL for the forms, NumPy at points, SymPy
-for manufactured solutions). Where the constraint is
-enforced and how contact is measured there is :mod:`shellobstacle.obstacle.points`.
+for manufactured solutions). A kind gives ``g`` and ``∇g`` at a point ``x`` of space
+(:meth:`Obstacle.value`, :meth:`Obstacle.gradient`). Where the constraint is enforced and how
+contact is measured there is :mod:`shellobstacle.obstacle.points`.
 """
 
 from __future__ import annotations
@@ -24,11 +26,12 @@ __all__ = ["Obstacle", "PointGap"]
 
 @dataclass(frozen=True)
 class PointGap:
-    """The gap's data at ``n`` points: ``g(η) ≈ g0 + c·η`` there (exact for an affine gap).
+    """The gap's data at ``n`` points: ``g(η) ≈ g0 + c·η`` there (exact for an affine gap;
+    for a curved obstacle, the linearization at the displacement it was taken at).
 
     Attributes:
-        g0: ``g(θ)``, the reference shell's gap, shape ``(n,)``.
-        c: ``c_j = ∂g/∂η_j`` at ``η = 0``, shape ``(n, 3)``.
+        g0: the linearization's value at ``η = 0`` (``g(θ)`` for an affine gap), shape ``(n,)``.
+        c: ``c_j = ∂g/∂η_j``, shape ``(n, 3)``.
     """
 
     g0: np.ndarray
@@ -40,24 +43,50 @@ class PointGap:
 
 
 class Obstacle(ABC):
-    """A rigid obstacle: the deformed middle surface ``θ + η_i a^i`` must satisfy ``g ≥ 0``.
+    """A rigid obstacle: the contact face ``θ + s a_3 + η_i a^i`` must satisfy ``g ≥ 0``.
 
     Attributes:
-        affine: whether ``g`` is affine in ``η`` (``g = g(θ) + c·η`` with ``c`` independent of
-            ``η``): then the penalty is piecewise quadratic and its quadrature-point operators
-            (:class:`~shellobstacle.penalty.quadrature.QuadraturePenalty`) and the nodal bounds
-            (:class:`~shellobstacle.solvers.nodal.NodalConstraint`) are exact.
+        affine: whether ``g`` is affine in ``x`` (a plane): then ``g(η) = g(0) + c·η`` with
+            ``c`` independent of ``η``, the penalty is piecewise quadratic and its
+            quadrature-point operators and the nodal bounds are exact. Otherwise the solvers
+            work on the gap's linearization (:mod:`shellobstacle.solvers.linearization`).
+        convex: whether the admissible set ``{g ≥ 0}`` is convex (the paper's theory); None
+            when not known (a user's curved ``g``).
+        offset: ``s``, the contact face's distance from the middle surface along ``a_3``.
     """
 
     affine: bool = False
+    convex: bool | None = False
+
+    def __init__(self, offset: float = 0.0) -> None:
+        self.offset = float(offset)
 
     @abstractmethod
+    def value(self, G: Geometry, x: Sequence[Any]) -> Any:
+        """``g(x)`` at a point ``x`` of space (three scalars of ``G``'s backend)."""
+
+    @abstractmethod
+    def gradient(self, G: Geometry, x: Sequence[Any]) -> list[Any]:
+        """``∇g(x)``, three scalars of ``G``'s backend."""
+
+    def point(self, G: Geometry, eta: Sequence[Any] | None = None) -> list[Any]:
+        """``θ + s a_3 + η_i a^i``: the contact face displaced by ``η`` (0 if None)."""
+        x = list(G.theta)
+        if self.offset:
+            x = [x[k] + self.offset * G.a3[k] for k in range(3)]
+        if eta is not None:
+            a = G.a_contra
+            x = [x[k] + sum(eta[i] * a[i][k] for i in range(3)) for k in range(3)]
+        return x
+
     def gap(self, G: Geometry, eta: Sequence[Any]) -> Any:
-        """``g(θ + η_i a^i)`` on the geometry ``G`` (UFL, NumPy or SymPy, as ``G``)."""
+        """``g(θ + s a_3 + η_i a^i)`` on the geometry ``G`` (UFL, NumPy or SymPy, as ``G``)."""
+        return self.value(G, self.point(G, eta))
 
-    @abstractmethod
     def c(self, G: Geometry, eta: Sequence[Any] | None = None) -> list[Any]:
-        """``c_j = ∂g/∂η_j`` at ``η`` (at ``η = 0`` if None): the gap's linearization."""
+        """``c_j = ∂g/∂η_j = ∇g·a^j`` at ``η`` (at ``η = 0`` if None)."""
+        grad = self.gradient(G, self.point(G, eta))
+        return [dot(grad, G.a_contra[j]) for j in range(3)]
 
     def c_norm(self, G: Geometry, eta: Sequence[Any] | None = None) -> Any:
         """``|c| = (Σ_j c_j²)^{1/2}``, the scale of the penalty term (:eq:`penalty-sum`)."""
@@ -65,17 +94,25 @@ class Obstacle(ABC):
         return G.sqrt(dot(c, c))
 
     def reference_gap(self, G: Geometry) -> Any:
-        """``g(θ)``: the gap of the undeformed shell."""
-        return self.gap(G, [0, 0, 0])
+        """``g(θ + s a_3)``: the gap of the undeformed shell."""
+        return self.value(G, self.point(G))
 
     def reference_gap_at(self, surface: Surface, points: np.ndarray) -> np.ndarray:
-        """``g(θ)`` at ``points`` of ω, shape ``(n,)``."""
+        """``g(θ + s a_3)`` at ``points`` of ω, shape ``(n,)``."""
         return self.at_points(surface, points).g0
 
-    def at_points(self, surface: Surface, points: np.ndarray) -> PointGap:
-        """``g(θ)`` and ``c`` at ``points`` of ω (shape ``(n, 2)`` or ``(n, 3)``)."""
+    def at_points(
+        self, surface: Surface, points: np.ndarray, eta: np.ndarray | None = None
+    ) -> PointGap:
+        """The gap's linearization at the displacement ``eta`` (shape ``(n, 3)``; 0 if None)
+        at ``points`` of ω (shape ``(n, 2)`` or ``(n, 3)``): ``c = c(η)`` and
+        ``g0 = g(η) − c(η)·η``, so that :meth:`PointGap.gap` is exact at ``η``."""
         n = points.shape[0]
         G = surface.geometry_numpy(points)
-        g0 = np.broadcast_to(np.asarray(self.reference_gap(G), dtype=float), (n,)).copy()
-        c = np.column_stack([np.broadcast_to(np.asarray(cj, float), (n,)) for cj in self.c(G)])
-        return PointGap(g0, c)
+        lin = None if eta is None else [eta[:, i] for i in range(3)]
+        full = lambda v: np.broadcast_to(np.asarray(v, dtype=float), (n,)).copy()  # noqa: E731
+        g = full(self.value(G, self.point(G, lin)))
+        c = np.column_stack([full(cj) for cj in self.c(G, lin)])
+        if eta is not None:
+            g = g - np.sum(c * eta, axis=1)
+        return PointGap(g, c)

@@ -1,4 +1,5 @@
-"""The half-space ``{x : x·q ≥ 0}`` (docs/model.md :eq:`gap`; the paper's obstacle)."""
+"""The half-space ``{x : x·q ≥ c}`` (docs/model.md :eq:`gap`; the paper's obstacle when
+``c = 0``)."""
 
 from __future__ import annotations
 
@@ -14,39 +15,54 @@ __all__ = ["Plane"]
 
 
 class Plane(Obstacle):
-    """The plane ``x·q = 0`` with the shell on the side of ``q``: ``g(x) = x·q``.
+    """The plane ``x·q = c`` with the shell on the side of ``q``: ``g(x) = x·q − c``.
 
-    The gap of a displacement ``η`` is affine, ``g(η) = (θ + η_j a^j)·q = θ·q + η_j c_j`` with
-    ``c_j = a^j·q``.
+    The gap of a displacement ``η`` is affine, ``g(η) = (θ + s a_3)·q − c + η_j c_j`` with
+    ``c_j = a^j·q``. With ``c = 0`` and the middle surface (``s = 0``) these are the paper's
+    expressions, term for term.
 
     Args:
         q: the plane's unit normal.
+        c: the plane's offset along ``q``.
+        offset: ``s``, the contact face's offset along ``a_3``.
     """
 
     affine = True
+    convex = True
 
-    def __init__(self, q: Sequence[float]) -> None:
+    def __init__(self, q: Sequence[float], c: float = 0.0, offset: float = 0.0) -> None:
+        super().__init__(offset)
         self.q = np.asarray(q, dtype=float)
+        self.level = float(c)
         if self.q.shape != (3,) or abs(float(np.linalg.norm(self.q)) - 1.0) > 1e-12:
             raise ValueError(f"a plane needs a unit normal q of three numbers, got {q!r}")
 
     def __repr__(self) -> str:
-        return f"Plane(q={tuple(float(v) for v in self.q)})"
+        extra = f", c={self.level:g}" if self.level else ""
+        extra += f", offset={self.offset:g}" if self.offset else ""
+        return f"Plane(q={tuple(float(v) for v in self.q)}{extra})"
+
+    def value(self, G: Geometry, x: Sequence[Any]) -> Any:
+        """``x·q − c``."""
+        return dot(x, self.q) - self.level if self.level else dot(x, self.q)
+
+    def gradient(self, G: Geometry, x: Sequence[Any]) -> list[Any]:
+        """``q``."""
+        return [float(v) for v in self.q]
 
     def gap(self, G: Geometry, eta: Sequence[Any]) -> Any:
-        """``g(η) = θ·q + η_j c_j``."""
+        """``g(η) = g(θ + s a_3) + η_j c_j``."""
         c = self.c(G)
         return self.reference_gap(G) + sum(eta[j] * c[j] for j in range(3))
-
-    def reference_gap(self, G: Geometry) -> Any:
-        """``g(θ) = θ·q``, the height of the reference shell above the plane."""
-        return dot(G.theta, self.q)
-
-    def reference_gap_at(self, surface: Surface, points: np.ndarray) -> np.ndarray:
-        """``θ·q`` at ``points`` (``θ`` alone: no derivatives evaluated)."""
-        theta = surface.theta_numpy(points)
-        return np.broadcast_to(np.asarray(dot(theta, self.q), float), (points.shape[0],)).copy()
 
     def c(self, G: Geometry, eta: Sequence[Any] | None = None) -> list[Any]:
         """``c_j = a^j·q`` (the same for every ``η``)."""
         return [dot(G.a_contra[j], self.q) for j in range(3)]
+
+    def reference_gap_at(self, surface: Surface, points: np.ndarray) -> np.ndarray:
+        """``(θ + s a_3)·q − c`` at ``points`` (``θ`` alone when ``s = 0``)."""
+        if self.offset:
+            return super().reference_gap_at(surface, points)
+        theta = surface.theta_numpy(points)
+        g = np.asarray(dot(theta, self.q), float) - self.level
+        return np.broadcast_to(g, (points.shape[0],)).copy()

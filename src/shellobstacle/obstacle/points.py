@@ -15,9 +15,10 @@ surface element (``Σ w_k √a(x_k)``) and projected (``Σ w_k``): for P1 at the
 the sum of the lumped masses ``∫ φ_i √a dy`` of the contact vertices.
 
 For P1 the Gauss-point penalty's contact is also measured at the vertices
-(:func:`constraint_points`): a P1 solution is its vertex values, while at the Gauss points of
-a contact cell the sign of ``g`` is decided by the ``O(h²)`` curvature of ``θ·q`` within the
-cell against the penetration, so that only some of them touch (docs/model.md, Contact).
+(:func:`constraint_points`), against every obstacle: a P1 solution is its vertex values, while
+at the Gauss points of a contact cell the sign of ``g`` is decided by the ``O(h²)`` curvature of
+``g(θ)`` within the cell (of ``θ`` and of the obstacle) against the penetration, so that only
+some of them touch (docs/model.md, Contact).
 """
 
 from __future__ import annotations

@@ -69,10 +69,6 @@ class QuadraturePenalty:
 
     def __init__(self, problem: PenalizedProblem) -> None:
         self.problem = problem
-        if not problem.obstacle.affine:
-            raise ValueError(
-                f"the quadrature-point penalty needs an affine gap: {problem.obstacle}"
-            )
         self.Q = Q = quadrature_space(problem)
         r = ufl.TestFunction(Q)
         u = ufl.TrialFunction(problem.V)
@@ -82,7 +78,7 @@ class QuadraturePenalty:
             weight = weight / problem.kappa_scale
         dxq = problem.dx_penalty
         c = problem.c
-        g0 = problem.obstacle.reference_gap(problem.G)  # g(θ)
+        g0 = problem.g0  # g(θ), or a curved obstacle's linearization at ζ = 0
         self.M = dolfinx.fem.petsc.assemble_matrix(
             dolfinx.fem.form(sum(c[j] * u[j] for j in range(3)) * r * weight * dxq),
             bcs=problem.bcs,

@@ -1,4 +1,4 @@
-"""The 3D picture of a solution: the deformed shell over the plane, coloured by the gap.
+"""The 3D picture of a solution: the deformed shell over the obstacle, coloured by the gap.
 
 :func:`write_picture` gathers the deformed middle surface at the mesh vertices from every
 rank onto rank 0 (:func:`gather_surface`) and has :mod:`shellobstacle.post.render3d` draw it
@@ -7,10 +7,17 @@ OSMesa, whichever the machine has). PyVista is the optional extra ``shellobstacl
 without it, or where no OpenGL context can be created, the first picture of a run returns a
 warning naming the reason and the later ones are skipped silently; everything else a run
 writes does not depend on it.
+
+The renderer imports neither DOLFINx nor this package, so an obstacle other than the plane
+``x·q = 0`` (a ball, a cylinder, a formula, a shifted plane) travels to it as
+samples (:mod:`shellobstacle.post.obstacle_shape`): ``g`` on a grid of a box around the shell,
+which it contours at 0, and the shell's vertices moved onto ``{g = 0}``, where it draws the
+contact zone's outline.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
 import re
@@ -26,10 +33,29 @@ import dolfinx
 import dolfinx.fem
 import numpy as np
 
+from shellobstacle.geometry.surface import Surface
+from shellobstacle.obstacle import Cylinder, Obstacle, Plane, Sphere
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.post.render3d import CMAP, CONTACT, ELEVATIONS, EXIT_NO_PYVISTA, PLANE
+from shellobstacle.post.obstacle_shape import level_box, onto
+from shellobstacle.post.render3d import (
+    CMAP,
+    CONTACT,
+    ELEVATIONS,
+    EXIT_NO_PYVISTA,
+    LINES,
+    PLANE,
+)
 
-__all__ = ["Picture", "SurfaceData", "gather_surface", "pictures_available", "write_picture"]
+__all__ = [
+    "Picture",
+    "SurfaceData",
+    "describe",
+    "drawn_as_plane",
+    "gather_surface",
+    "obstacle_samples",
+    "pictures_available",
+    "write_picture",
+]
 
 #: seconds the drawing process may take before it is stopped (a picture is not worth more)
 TIMEOUT = 600.0
@@ -46,10 +72,19 @@ class SurfaceData:
         points: ``θ + U`` at the vertices, ``U = ζ_i a^i`` (shape ``(n, 3)``).
         reference: ``θ`` at the vertices.
         triangles: The cells as vertex triples (``(m, 3)``).
-        gap: ``g(ζ) = (θ + U)·q`` at the vertices (docs/model.md §3).
+        gap: ``g(ζ)`` at the vertices (docs/model.md §3; for the plane ``(θ + U)·q``).
         contact: the contact indicator at the vertices (P1: 1 on contact vertices, else 0;
             :meth:`~shellobstacle.post.contact.Postprocessor.indicator`).
-        q: Unit normal of the plane ``x·q = 0``.
+        q: Unit normal of the plane ``x·q = 0`` (for another obstacle, the pictures'
+            vertical).
+        level: For an obstacle other than the plane ``x·q = 0`` (:func:`drawn_as_plane`),
+            ``g`` at the nodes of a grid of a box around the
+            shell (shape ``(n1, n2, n3)``, :func:`~shellobstacle.post.obstacle_shape.level_box`);
+            None for a plane.
+        box: The grid's corner and spacing (shape ``(2, 3)``); None for a plane.
+        onto: The points of ``{g = 0}`` nearest the vertices ``points`` (shape ``(n, 3)``,
+            :func:`~shellobstacle.post.obstacle_shape.onto`); None for a plane.
+        normal: The unit normals ``∇g/|∇g|`` there; None for a plane.
     """
 
     points: np.ndarray
@@ -58,10 +93,53 @@ class SurfaceData:
     gap: np.ndarray
     contact: np.ndarray
     q: np.ndarray
+    level: np.ndarray | None = None
+    box: np.ndarray | None = None
+    onto: np.ndarray | None = None
+    normal: np.ndarray | None = None
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """The fields by name (what :func:`shellobstacle.post.render3d.render` reads)."""
-        return {name: np.asarray(getattr(self, name)) for name in self.__dataclass_fields__}
+        """The fields that are set, by name (what :func:`shellobstacle.post.render3d.render`
+        reads)."""
+        fields = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        return {name: np.asarray(v) for name, v in fields.items() if v is not None}
+
+
+def drawn_as_plane(obstacle: Obstacle) -> bool:
+    """Whether the renderer draws ``obstacle`` as the plane ``x·q = 0`` (the paper's); any
+    other obstacle, a shifted plane included, is drawn from its samples."""
+    return isinstance(obstacle, Plane) and obstacle.level == 0.0
+
+
+def describe(obstacle: Obstacle) -> str:
+    """The obstacle in a picture's title: ``"the plane x·q = 0"``, ``"the ball of radius 2
+    centred at (0, 0, -2)"``, ..."""
+    if isinstance(obstacle, Plane):
+        return f"the plane x·q = {obstacle.level:g}"
+    if isinstance(obstacle, Sphere):
+        centre = ", ".join(f"{v:g}" for v in obstacle.center)
+        return f"the ball of radius {obstacle.radius:g} centred at ({centre})"
+    if isinstance(obstacle, Cylinder):
+        return f"the cylinder of radius {obstacle.radius:g}"
+    return "the obstacle g = 0"
+
+
+#: the box sampled around a curved obstacle: the shell's bounding box, widened on every side
+#: by this fraction of its largest side and by the smallest gap (where the obstacle is nearest)
+MARGIN = 0.3
+
+
+def obstacle_samples(
+    obstacle: Obstacle, surface: Surface, points: np.ndarray, gap: np.ndarray
+) -> dict[str, np.ndarray]:
+    """An obstacle's samples for the renderer: ``level``, ``box``, ``onto`` and
+    ``normal`` of :class:`SurfaceData` for the deformed vertices ``points`` and their gaps."""
+    G = surface.geometry_numpy(np.zeros((1, 2)))  # g lives in space: G names NumPy only
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    pad = MARGIN * float(np.max(hi - lo)) + max(float(np.min(gap)), 0.0)
+    origin, spacing, level = level_box(obstacle, G, lo - pad, hi + pad)
+    on, normal = onto(obstacle, G, points)
+    return {"level": level, "box": np.stack([origin, spacing]), "onto": on, "normal": normal}
 
 
 @dataclass(frozen=True)
@@ -118,7 +196,7 @@ def gather_surface(post: Postprocessor, root: int = 0) -> SurfaceData | None:
     if comm.rank != root:
         return None
     assert parts is not None
-    return SurfaceData(
+    data = SurfaceData(
         points=np.concatenate([p[1] for p in parts]),
         reference=np.concatenate([p[0] for p in parts]),
         triangles=np.concatenate([p[4] for p in parts]).astype(np.int64),
@@ -126,6 +204,10 @@ def gather_surface(post: Postprocessor, root: int = 0) -> SurfaceData | None:
         contact=np.concatenate([p[3] for p in parts]),
         q=np.asarray(problem.q, dtype=float),
     )
+    if not drawn_as_plane(problem.obstacle):
+        samples = obstacle_samples(problem.obstacle, problem.shell.surface, data.points, data.gap)
+        data = dataclasses.replace(data, **samples)
+    return data
 
 
 def pictures_available() -> str | None:
@@ -192,9 +274,12 @@ def _draw(data: SurfaceData, path: Path, title: str) -> str | None:
         views.unlink(missing_ok=True)
 
 
-def _from(elevation: float) -> str:
-    """Where a view is seen from."""
-    return "from above" if elevation >= 90.0 else f"{elevation:g}° above the plane"
+def _from(elevation: float, curved: bool = False) -> str:
+    """Where a view is seen from (over a curved obstacle: above the plane ``x·q = 0``, the
+    horizontal)."""
+    if elevation >= 90.0:
+        return "from above"
+    return f"{elevation:g}° above the horizontal" if curved else f"{elevation:g}° above the plane"
 
 
 def _lay_out(views: dict[str, np.ndarray], path: Path, title: str) -> None:
@@ -205,11 +290,12 @@ def _lay_out(views: dict[str, np.ndarray], path: Path, title: str) -> None:
     from shellobstacle.post.plotting import plt, save_atomically
 
     clim = tuple(float(v) for v in views["clim"])
+    curved = bool(views.get("curved", False))
     what = "the contact zone" if bool(views["contact"]) else "the lowest point (no contact)"
     low, high = ELEVATIONS
     fig, axes = plt.subplots(1, 2, figsize=(13.0, 5.4), constrained_layout=True)
     for ax, image, label in (
-        (axes[0], views["whole"], f"the whole shell, {_from(low)}"),
+        (axes[0], views["whole"], f"the whole shell, {_from(low, curved)}"),
         (axes[1], views["close"], f"{what}: the shell within {float(views['reach']):.3g} of "
          f"it, {_from(high)}"),
     ):  # fmt: skip
@@ -218,15 +304,27 @@ def _lay_out(views: dict[str, np.ndarray], path: Path, title: str) -> None:
         ax.set_title(label, fontsize=10)
     mappable = plt.cm.ScalarMappable(plt.Normalize(*clim), plt.get_cmap(CMAP))
     bar = fig.colorbar(mappable, ax=axes, shrink=0.8, pad=0.01)
-    bar.set_label("gap g(ζ) = (θ + ζᵢ aⁱ)·q, the height above the plane")
+    bar.set_label(
+        "gap g(ζ) of the contact face (a ball's or a cylinder's: the distance to it)"
+        if curved
+        else "gap g(ζ) = (θ + ζᵢ aⁱ)·q, the height above the plane"
+    )
     handles = [
         Line2D([], [], color=CONTACT, lw=3, label="contact zone: cells in contact at every vertex")
         if bool(views["outlined"])
         else Line2D([], [], color=CONTACT, ls="", marker="o", label="contact vertices"),
-        Patch(facecolor=PLANE, label="the plane x·q = 0 (translucent)"),
+        Patch(
+            facecolor=PLANE,
+            label="the obstacle's surface g = 0 near the shell (translucent)"
+            if curved
+            else "the plane x·q = 0 (translucent)",
+        ),
     ]
+    if curved:
+        handles.append(Line2D([], [], color=LINES, lw=1.5, label="lines of equal height x·q on it"))
     axes[1].legend(handles=handles, loc="lower left", fontsize=8, framealpha=0.9)
-    fig.suptitle(title or "Deformed middle surface θ + ζᵢ aⁱ over the obstacle plane")
+    where = "the obstacle" if curved else "the obstacle plane"
+    fig.suptitle(title or f"Deformed middle surface θ + ζᵢ aⁱ over {where}")
     try:
         save_atomically(fig, path, dpi=110)
     finally:

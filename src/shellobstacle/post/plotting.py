@@ -24,9 +24,25 @@ from shellobstacle.post.sections import CrossSection, horizontal_direction
 __all__ = ["plot_cross_section", "save_atomically"]
 
 
+def _curved(sections) -> bool:
+    """Whether the sections come with a curved obstacle's profile (else the plane's)."""
+    return sections[0][1].obstacle_height is not None
+
+
+def _heights(sec: CrossSection, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The vertical coordinates of the reference and deformed curves: the gaps ``g`` over a
+    plane, the heights ``x·q`` over a curved obstacle."""
+    if sec.obstacle_height is None:
+        return sec.height_reference, sec.height_deformed
+    return sec.reference @ q, sec.deformed @ q
+
+
 def _draw(ax, sections, t, ref_label: bool) -> None:
-    """Plane, reference shell and deformed curves on one axes."""
+    """Obstacle, reference shell and deformed curves on one axes."""
     first = sections[0][1]
+    if _curved(sections):
+        _draw_curved(ax, sections, t, ref_label)
+        return
     ax.axhline(0.0, color="0.45", lw=3.0, zorder=1)
     ax.axhspan(-1e3, 0.0, facecolor="0.92", edgecolor="0.6", hatch="///", lw=0.0, zorder=0)
     ax.plot(
@@ -43,6 +59,28 @@ def _draw(ax, sections, t, ref_label: bool) -> None:
         ax.plot(sec.deformed @ t, sec.height_deformed, color=color, lw=1.6, label=label, zorder=3)
 
 
+def _draw_curved(ax, sections, t, ref_label: bool) -> None:
+    """A curved obstacle's profile (thick grey, hatched below), the reference shell and the
+    deformed curves at their heights ``x·q``."""
+    first = sections[0][1]
+    q = np.asarray(first.q, float)
+    s, z = first.obstacle_s, first.obstacle_height
+    ax.plot(s, z, color="0.45", lw=3.0, zorder=1, label="obstacle g = 0" if ref_label else None)
+    ax.fill_between(s, z, -1e3, facecolor="0.92", edgecolor="0.6", hatch="///", lw=0.0, zorder=0)
+    ax.plot(
+        first.reference @ t,
+        first.reference @ q,
+        ls="--",
+        color="0.25",
+        lw=1.2,
+        label="reference shell θ" if ref_label else None,
+        zorder=2,
+    )
+    colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(len(sections), 1)))
+    for (label, sec), color in zip(sections, colors, strict=False):
+        ax.plot(sec.deformed @ t, sec.deformed @ q, color=color, lw=1.6, label=label, zorder=3)
+
+
 def plot_cross_section(
     sections: Sequence[tuple[str, CrossSection]],
     q: Sequence[float],
@@ -52,13 +90,18 @@ def plot_cross_section(
     zoom: float | None = 0.15,
     comm: MPI.Comm = MPI.COMM_WORLD,
 ) -> Path:
-    """Plot cross-sections of the deformed shell ``θ + ζ_i a^i`` over the plane ``x·q = 0``.
+    """Plot cross-sections of the deformed shell ``θ + ζ_i a^i`` over the obstacle.
 
     The horizontal axis is the coordinate of the deformed point along the direction of the
     plane closest to the sampling axis (``x_1`` for ``q = (0, 0, 1)`` and a section along
-    ``y1``), the vertical axis its height ``x·q`` above the plane. The plane is the thick grey
-    line (hatched below), the reference shell θ is dashed (drawn from the first section), and
-    each section is one curve. A second panel zooms onto ``|x_1| < zoom`` near the contact zone.
+    ``y1``). Over the plane ``x·q = 0`` the vertical axis is the gap ``g``, the height above
+    the plane, and the plane is the thick grey line at 0 (hatched below). Over a curved
+    obstacle (the sections carry its profile, :class:`CrossSection`) the vertical axis is the
+    height ``x·q`` and the obstacle is its profile in the section's vertical plane: the height
+    of its upper surface under each horizontal position, a curve read against the shell's
+    without converting gaps (a gap is a distance along ``∇g``, not a height). The reference
+    shell θ is dashed (drawn from the first section), and each section is one curve. A second
+    panel zooms onto ``|x_1| < zoom`` near the contact zone.
 
     Args:
         sections: ``(label, section)`` pairs, e.g. one per load level ℓ.
@@ -89,11 +132,25 @@ def plot_cross_section(
     )
     ax = axes[0, 0]
     _draw(ax, sections, t, True)
-    top = max(float(np.nanmax(s.height_reference)) for _, s in sections)
-    bottom = min(0.0, *(float(np.nanmin(s.height_deformed)) for _, s in sections))
-    ax.set_ylim(bottom - 0.08 * top, 1.12 * top)
+    curved = _curved(sections)
+    ylabel = "height x·q" if curved else "height above the plane x·q"
+    if curved:
+        q_ = np.asarray(first.q, float)
+        heights = [h for _, s in sections for h in _heights(s, q_)]
+        floor = first.obstacle_height[
+            (first.obstacle_s >= float((first.deformed @ t).min()))
+            & (first.obstacle_s <= float((first.deformed @ t).max()))
+        ]
+        high = max(float(np.nanmax(h)) for h in heights)
+        low = min(float(np.nanmin(h)) for h in [*heights, floor] if np.isfinite(h).any())
+        span = max(high - low, 1e-12)
+        ax.set_ylim(low - 0.08 * span, high + 0.12 * span)
+    else:
+        top = max(float(np.nanmax(s.height_reference)) for _, s in sections)
+        bottom = min(0.0, *(float(np.nanmin(s.height_deformed)) for _, s in sections))
+        ax.set_ylim(bottom - 0.08 * top, 1.12 * top)
     ax.set_xlabel(xlabel)
-    ax.set_ylabel("height above the plane x·q")
+    ax.set_ylabel(ylabel)
     ats = {(sec.axis, sec.at) for _, sec in sections}
     ax.set_title(f"section {other} = {first.at:g}" if len(ats) == 1 else "sections")
     ax.grid(alpha=0.3)
@@ -102,19 +159,32 @@ def plot_cross_section(
     if zoom:
         zax = axes[0, 1]
         _draw(zax, sections, t, False)
-        near = [s.height_deformed[np.abs(s.deformed @ t) < zoom] for _, s in sections]
-        near = [h for h in near if h.size]
-        hmax = max((float(h.max()) for h in near), default=top)
-        hmin = min((float(h.min()) for h in near), default=0.0)
-        span = max(hmax - min(hmin, 0.0), 1e-12)
+        if curved:
+            q_ = np.asarray(first.q, float)
+            near = [_heights(s, q_)[1][np.abs(s.deformed @ t) < zoom] for _, s in sections]
+            under = first.obstacle_height[np.abs(first.obstacle_s) < zoom]
+            near = [h for h in near if h.size]
+            hmax = max((float(h.max()) for h in near), default=high)
+            hmin = min((float(h.min()) for h in near), default=low)
+            if np.isfinite(under).any():
+                hmin = min(hmin, float(np.nanmin(under)))
+            span = max(hmax - hmin, 1e-12)
+            zax.set_ylim(hmin - 0.1 * span, hmax + 0.1 * span)
+        else:
+            near = [s.height_deformed[np.abs(s.deformed @ t) < zoom] for _, s in sections]
+            near = [h for h in near if h.size]
+            hmax = max((float(h.max()) for h in near), default=top)
+            hmin = min((float(h.min()) for h in near), default=0.0)
+            span = max(hmax - min(hmin, 0.0), 1e-12)
+            zax.set_ylim(min(hmin, 0.0) - 0.1 * span, hmax + 0.1 * span)
         zax.set_xlim(-zoom, zoom)
-        zax.set_ylim(min(hmin, 0.0) - 0.1 * span, hmax + 0.1 * span)
         zax.set_xlabel(xlabel)
-        zax.set_ylabel("height above the plane x·q")
+        zax.set_ylabel(ylabel)
         zax.set_title(f"zoom |{xlabel.split()[-1]}| < {zoom:g}: contact zone")
         zax.grid(alpha=0.3)
 
-    fig.suptitle(title or "Deformed middle surface θ + ζᵢ aⁱ over the obstacle plane")
+    default = "over the obstacle g = 0" if curved else "over the obstacle plane"
+    fig.suptitle(title or f"Deformed middle surface θ + ζᵢ aⁱ {default}")
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
         save_atomically(fig, path, dpi=150)

@@ -1,4 +1,4 @@
-"""Draw the deformed shell over the obstacle plane in 3D with PyVista, off screen.
+"""Draw the deformed shell over the obstacle in 3D with PyVista, off screen.
 
 This module runs in a process of its own (``python render3d.py SURFACE.npz VIEWS.npz``, started
 by :func:`shellobstacle.post.pictures.write_picture`, which lays the views out with their
@@ -14,6 +14,13 @@ the contact zone as a red tube: of the cells whose vertices all touch (contact i
 :meth:`~shellobstacle.post.contact.Postprocessor.indicator`), the flat
 part of the shell on the plane, which the steep wall around it does not hide from above.
 
+Any obstacle but the plane ``x·q = 0`` comes as samples (``level``, ``box``, ``onto``, ``normal``:
+:class:`shellobstacle.post.pictures.SurfaceData`): its surface is the contour ``g = 0`` of the
+sampled grid, translucent grey as the plane and cut to the plane's square seen along ``q``, with
+darker lines of equal height ``x·q`` on it (a ball's are circles: its curvature shows); the
+outline lies on it, on the vertices' nearest points of ``{g = 0}`` (``onto``), lifted along
+the normal by the tube's radius.
+
 Exit status: 0 written, 3 PyVista (or VTK) cannot be imported, anything else a failure
 (message on stderr).
 """
@@ -25,7 +32,7 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-__all__ = ["EXIT_NO_PYVISTA", "main", "plane_frame", "render"]
+__all__ = ["EXIT_NO_PYVISTA", "contact_mark", "main", "obstacle_surface", "plane_frame", "render"]
 
 EXIT_NO_PYVISTA = 3
 #: the size in pixels of each 3D view, and the camera's elevations above the plane (degrees)
@@ -33,6 +40,7 @@ WINDOW = (1000, 800)
 ELEVATIONS = (15.0, 90.0)
 CMAP = "viridis"
 PLANE = "#b0b0b0"
+LINES = "#707070"
 CONTACT = "#e31a1c"
 
 
@@ -50,8 +58,91 @@ def plane_frame(q: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     return t1, np.cross(n, t1), n
 
 
+def obstacle_surface(data: Mapping[str, np.ndarray]):
+    """The contour ``g = 0`` of a curved obstacle's samples (``level`` on the grid ``box``), a
+    PyVista surface (with point normals, for smooth shading; empty if ``g`` keeps one sign)."""
+    import pyvista as pv
+
+    level = np.asarray(data["level"], dtype=float)
+    origin, spacing = np.asarray(data["box"], dtype=float)
+    grid = pv.ImageData(dimensions=level.shape, spacing=tuple(spacing), origin=tuple(origin))
+    grid.point_data["g"] = level.ravel(order="F")  # VTK's order: the first index fastest
+    surface = grid.contour([0.0], scalars="g", method="flying_edges")
+    if not surface.n_cells:  # the obstacle does not cross the box
+        return surface
+    return surface.compute_normals(consistent_normals=True)  # for smooth shading
+
+
+def _cut(surface, frame, mid: np.ndarray, half: float):
+    """The part of ``surface`` over the square of half-side ``half`` centred at ``mid`` (its
+    coordinates along ``t1``, ``t2``), seen along ``q``: the plane's square."""
+    t1, t2, _ = frame
+    points = np.asarray(surface.points)
+    surface = surface.copy()
+    surface.point_data["reach"] = np.maximum(
+        np.abs(points @ t1 - mid[0]), np.abs(points @ t2 - mid[1])
+    )
+    return surface.clip_scalar("reach", invert=True, value=half)
+
+
+def _height_lines(surface, q: np.ndarray, count: int = 9):
+    """``count`` lines of constant height ``x·q`` on ``surface``, evenly spaced inside its
+    range of heights (a ball's are circles: they show its curvature through the grey); none
+    on a surface of one height (a plane normal to ``q``: its heights differ by the contour's
+    single-precision round-off only)."""
+    import pyvista as pv
+
+    points = np.asarray(surface.points)
+    heights = points @ q
+    if np.ptp(heights) <= 1e-4 * float(np.ptp(points, axis=0).max()):
+        return pv.PolyData()
+    surface = surface.copy()
+    surface.point_data["height"] = heights
+    levels = np.linspace(heights.min(), heights.max(), count + 2)[1:-1]
+    return surface.contour(list(levels), scalars="height")
+
+
+def contact_mark(data: Mapping[str, np.ndarray], triangles: np.ndarray, q, radius: float):
+    """The contact zone's mark among the cells ``triangles``, lifted by ``radius`` to lie on the
+    obstacle, not in it: onto the plane ``x·q = 0`` along ``q``, or, for a curved obstacle, to
+    the vertices' points of ``{g = 0}`` (``onto``) along its normal.
+
+    Returns:
+        The boundary of the cells that touch at every vertex (a PyVista PolyData of lines); if
+        no cell does, the contact vertices (an array ``(k, 3)``); None without contact.
+    """
+    import pyvista as pv
+
+    points = np.asarray(data["points"], dtype=float)
+    touching = np.asarray(data["contact"], dtype=float)[triangles] > 0.5
+    if not touching.any():
+        return None
+    curved = "level" in data
+    zone = pv.PolyData(points, np.hstack([np.full((len(triangles), 1), 3), triangles]))
+    if curved:
+        zone.point_data["vertex"] = np.arange(len(points))
+    zone = zone.extract_cells(np.flatnonzero(touching.all(axis=1)))
+    outline = zone.extract_feature_edges(
+        boundary_edges=True, feature_edges=False, manifold_edges=False,
+        non_manifold_edges=False,
+    )  # fmt: skip
+    if outline.n_points:
+        if curved:
+            vertex = np.asarray(outline.point_data["vertex"])
+            outline.points = data["onto"][vertex] + radius * data["normal"][vertex]
+        else:
+            outline.points += np.outer(radius - outline.points @ q, q)
+        return outline
+    touched = np.unique(triangles[touching])
+    if curved:
+        return data["onto"][touched] + radius * data["normal"][touched]
+    spots = points[touched]
+    spots += np.outer(radius - spots @ q, q)
+    return spots
+
+
 def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
-    """One off-screen view of the plane, the deformed shell (its cells with a vertex in
+    """One off-screen view of the obstacle, the deformed shell (its cells with a vertex in
     ``patch``, a boolean mask of the vertices) and the contact zone's boundary, with the
     camera ``elevation`` degrees above the plane; an RGB image."""
     import pyvista as pv
@@ -76,29 +167,28 @@ def _view(data, frame, patch, elevation: float, clim, window) -> np.ndarray:
     )
     pl = pv.Plotter(off_screen=True, window_size=list(window))
     pl.set_background("white")
-    # translucent: the shell's penetration of the plane (the penalty's g < 0) stays visible
-    pl.add_mesh(plane, color=PLANE, opacity=0.55)
+    curved = "level" in data
+    if curved:
+        obstacle = data["obstacle"]
+        if obstacle.n_cells:
+            obstacle = _cut(obstacle, frame, mid, 0.75 * width)
+        if obstacle.n_cells:
+            pl.add_mesh(obstacle, color=PLANE, opacity=0.55, smooth_shading=True)
+            lines = _height_lines(obstacle, q)
+            if lines.n_points:
+                pl.add_mesh(lines, color=LINES, line_width=1.5, opacity=0.8)
+    else:
+        # translucent: the shell's penetration of the plane (the penalty's g < 0) stays visible
+        pl.add_mesh(plane, color=PLANE, opacity=0.55)
     pl.add_mesh(
         shell, scalars="gap", cmap=CMAP, clim=clim, smooth_shading=True, show_scalar_bar=False
     )
-    touching = contact[triangles] > 0.5
-    if touching.any():
-        radius = 0.008 * width
-        zone = pv.PolyData(points, np.hstack([np.full((len(triangles), 1), 3), triangles]))
-        zone = zone.extract_cells(np.flatnonzero(touching.all(axis=1)))
-        outline = zone.extract_feature_edges(
-            boundary_edges=True, feature_edges=False, manifold_edges=False,
-            non_manifold_edges=False,
-        )  # fmt: skip
-        if outline.n_points:
-            # onto the plane, lifted by its radius to lie on it, not in it
-            outline.points += np.outer(radius - outline.points @ q, q)
-            pl.add_mesh(outline.tube(radius=radius), color=CONTACT)
-        else:  # no cell touches with all its vertices: mark the contact vertices
-            spots = points[np.unique(triangles[touching])]
-            spots += np.outer(radius - spots @ q, q)
-            pl.add_mesh(pv.PolyData(spots), color=CONTACT, point_size=14,
-                        render_points_as_spheres=True)  # fmt: skip
+    mark = contact_mark(data, triangles, q, 0.008 * width)
+    if isinstance(mark, np.ndarray):  # no cell touches with all its vertices: the vertices
+        pl.add_mesh(pv.PolyData(mark), color=CONTACT, point_size=14,
+                    render_points_as_spheres=True)  # fmt: skip
+    elif mark is not None:
+        pl.add_mesh(mark.tube(radius=0.008 * width), color=CONTACT)
     el, az = np.radians(elevation), np.radians(-60.0)
     direction = np.cos(el) * (np.cos(az) * t1 + np.sin(az) * t2) + np.sin(el) * q
     focus = shell.points.mean(axis=0)
@@ -130,17 +220,21 @@ def render(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
     Args:
         data: ``points`` (deformed nodes ``θ + U``, shape ``(n, 3)``), ``triangles``
             (``(m, 3)`` node indices), ``gap`` and ``contact`` (``(n,)``, the indicator 1 on
-            contact nodes) and ``q`` (the plane's unit normal).
+            contact nodes) and ``q`` (the plane's unit normal); for a curved obstacle also
+            ``level``, ``box``, ``onto`` and ``normal`` (the module docstring).
 
     Returns:
         ``whole`` and ``close`` (images, ``(rows, columns, 3)`` bytes), ``clim`` (the range of
         the colour scale: ``min(g, 0)``, ``max g``), ``reach`` (the close view shows the
         shell within this distance of the zone's centre along the plane), ``contact``
-        (whether a vertex touches) and ``outlined`` (whether a cell touches with all its
-        vertices: the zone is outlined; else its vertices are marked).
+        (whether a vertex touches), ``outlined`` (whether a cell touches with all its
+        vertices: the zone is outlined; else its vertices are marked) and ``curved`` (whether
+        the obstacle drawn is a curved one's contour).
     """
     frame = plane_frame(data["q"])
     t1, t2, _ = frame
+    if "level" in data:  # contoured once, cut to each view's square
+        data = {**data, "obstacle": obstacle_surface(data)}
     points = np.asarray(data["points"], dtype=float)
     gap = np.asarray(data["gap"], dtype=float)
     contact = np.asarray(data["contact"], dtype=float) > 0.5
@@ -160,6 +254,7 @@ def render(data: Mapping[str, np.ndarray]) -> dict[str, np.ndarray]:
         "reach": np.array(reach),
         "contact": np.array(contact.any()),
         "outlined": np.array(contact[np.asarray(data["triangles"])].all(axis=1).any()),
+        "curved": np.array("level" in data),
     }
 
 

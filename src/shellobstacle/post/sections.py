@@ -1,7 +1,9 @@
 """Cross-sections of a solved shell along a line of ω (docs/model.md §7, batch 3).
 
-The reference and deformed middle surfaces and their heights above the plane, sampled on the
-distributed mesh and gathered: the same on every rank.
+The reference and deformed middle surfaces and their gaps (for the plane: the heights above
+it), sampled on the distributed mesh and gathered: the same on every rank. Any other obstacle's
+profile in the section's vertical plane comes with them
+(:func:`~shellobstacle.post.obstacle_shape.profile_below`).
 """
 
 from __future__ import annotations
@@ -18,6 +20,8 @@ import dolfinx.la
 import numpy as np
 
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.obstacle import Plane
+from shellobstacle.post.obstacle_shape import profile_below
 
 __all__ = [
     "AXES",
@@ -47,7 +51,14 @@ class CrossSection:
         height_reference: ``g(θ)(y)``, the obstacle's gap (the height above the plane),
             shape ``(m,)``.
         height_deformed: ``g(ζ)(y)`` (for the plane ``(θ + ζ_i a^i)(y)·q``), shape ``(m,)``.
-        q: Unit normal of the plane.
+        q: Unit normal of the plane (of a curved obstacle: the vertical of the pictures).
+        obstacle_s: For an obstacle other than a :class:`~shellobstacle.obstacle.plane.Plane`
+            (a ball, a cylinder, a formula), the horizontal coordinates ``x·t``
+            (:func:`horizontal_direction`) of its profile, shape ``(k,)``; None for a plane,
+            whose gap is the height above it.
+        obstacle_height: The heights ``x·q`` of the obstacle's upper surface at ``obstacle_s``
+            in the vertical plane through the deformed section (NaN where that plane's
+            vertical line misses it), shape ``(k,)``; None for a plane.
     """
 
     axis: str
@@ -60,6 +71,8 @@ class CrossSection:
     height_reference: np.ndarray
     height_deformed: np.ndarray
     q: np.ndarray
+    obstacle_s: np.ndarray | None = None
+    obstacle_height: np.ndarray | None = None
 
 
 def _global_min(comm: MPI.Comm, values: np.ndarray, initial: float = np.inf) -> float:
@@ -172,6 +185,10 @@ def cross_section(
     U = G.cartesian([zeta[:, i] for i in range(3)])
     deformed = reference + np.column_stack([np.broadcast_to(u, (m,)) for u in U])
     obstacle = problem.obstacle
+    q = np.asarray(problem.q, float)
+    profile: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+    if not isinstance(obstacle, Plane) and m:
+        profile = _profile(obstacle, G, axis, q, reference, deformed)
     return CrossSection(
         axis=axis,
         at=float(at),
@@ -184,8 +201,27 @@ def cross_section(
         height_deformed=np.broadcast_to(
             obstacle.gap(G, [zeta[:, i] for i in range(3)]), (m,)
         ).astype(float),
-        q=np.asarray(problem.q, float),
+        q=q,
+        obstacle_s=profile[0],
+        obstacle_height=profile[1],
     )
+
+
+def _profile(obstacle, G, axis, q, reference, deformed, n=401) -> tuple[np.ndarray, np.ndarray]:
+    """A curved obstacle's profile under a section: ``n`` horizontal positions spanning the
+    deformed section and a tenth of its width on either side, in the vertical plane
+    (spanned by ``t`` and ``q``) through the deformed points' mean, and the heights of the
+    obstacle's upper surface there."""
+    t = horizontal_direction(q, axis)
+    across = np.cross(q, t)
+    s = deformed @ t
+    heights = np.concatenate([deformed @ q, reference @ q])
+    width = max(float(s.max() - s.min()), 1e-12)
+    rise = max(float(heights.max() - heights.min()), width)
+    positions = np.linspace(s.min() - 0.1 * width, s.max() + 0.1 * width, n)
+    base = np.outer(positions, t) + float(np.mean(deformed @ across)) * across
+    top, bottom = float(heights.max()) + rise, float(heights.min()) - 2.0 * rise
+    return positions, profile_below(obstacle, G, base, q, top, bottom)
 
 
 def horizontal_direction(q: Sequence[float], axis: str = "y1") -> np.ndarray:

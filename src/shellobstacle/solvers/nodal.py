@@ -98,9 +98,10 @@ class NodalConstraint:
         self.bs = bs = V.dofmap.index_map_bs
         self.n = n = im.size_local
         points = V.tabulate_dof_coordinates()[:n]
-        if not problem.obstacle.affine:
-            raise ValueError(f"the nodal bounds need an affine gap: {problem.obstacle}")
-        self.at_nodes = problem.obstacle.at_points(problem.shell.surface, points)
+        eta = None  # a curved obstacle: its linearization at ζ̄ (problem.zeta_lin)
+        if problem.zeta_lin is not None:
+            eta = problem.zeta_lin.x.array[: n * bs].reshape(n, bs)
+        self.at_nodes = problem.obstacle.at_points(problem.shell.surface, points, eta)
         self.g0, self.c = self.at_nodes.g0, self.at_nodes.c
         free = np.ones(n * bs, dtype=bool)
         for bc in problem.bcs:

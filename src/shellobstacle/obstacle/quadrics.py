@@ -1,0 +1,95 @@
+"""Balls and round cylinders: ``g`` the signed distance to their surface (docs/model.md
+:eq:`gap`).
+
+Outside (``side = "outside"``) ``g = d − R`` with ``d`` the distance to the centre or the
+axis; inside, ``g = R − d``. Inside a ball or a cylinder the admissible set is convex (the
+paper's theory applies); outside it is not, and a solution is a local one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from shellobstacle.geometry.surface import Geometry, dot
+from shellobstacle.obstacle.base import Obstacle
+
+__all__ = ["Cylinder", "Sphere"]
+
+
+class _Round(Obstacle):
+    """A surface at distance ``R`` from a centre (a point or a line)."""
+
+    def __init__(self, radius: float, side: str, offset: float) -> None:
+        super().__init__(offset)
+        if not radius > 0:
+            raise ValueError(f"obstacle.radius must be > 0, got {radius!r}")
+        if side not in ("outside", "inside"):
+            raise ValueError(f"obstacle.side must be 'outside' or 'inside', got {side!r}")
+        self.radius, self.side = float(radius), side
+        self.sign = 1.0 if side == "outside" else -1.0
+        self.convex = side == "inside"
+
+    def radial(self, x: Sequence[Any]) -> list[Any]:
+        """The vector from the centre (or its foot on the axis) to ``x``."""
+        raise NotImplementedError
+
+    def value(self, G: Geometry, x: Sequence[Any]) -> Any:
+        """``±(d − R)`` with ``d = |radial(x)|``."""
+        r = self.radial(x)
+        return self.sign * (G.sqrt(dot(r, r)) - self.radius)
+
+    def gradient(self, G: Geometry, x: Sequence[Any]) -> list[Any]:
+        """``±radial(x)/d``."""
+        r = self.radial(x)
+        d = G.sqrt(dot(r, r))
+        return [self.sign * rk / d for rk in r]
+
+
+class Sphere(_Round):
+    """The ball ``|x − center| ≤ R``: the shell stays outside it or inside it."""
+
+    def __init__(
+        self, center: Sequence[float], radius: float, side: str = "outside", offset: float = 0.0
+    ) -> None:
+        super().__init__(radius, side, offset)
+        self.center = np.asarray(center, dtype=float)
+
+    def __repr__(self) -> str:
+        return f"Sphere(center={tuple(self.center)}, radius={self.radius:g}, side={self.side!r})"
+
+    def radial(self, x: Sequence[Any]) -> list[Any]:
+        return [x[k] - float(self.center[k]) for k in range(3)]
+
+
+class Cylinder(_Round):
+    """The round cylinder of radius ``R`` about the line through ``point`` along ``axis``."""
+
+    def __init__(
+        self,
+        point: Sequence[float],
+        axis: Sequence[float],
+        radius: float,
+        side: str = "outside",
+        offset: float = 0.0,
+    ) -> None:
+        super().__init__(radius, side, offset)
+        self.origin = np.asarray(point, dtype=float)
+        axis = np.asarray(axis, dtype=float)
+        norm = float(np.linalg.norm(axis))
+        if not norm > 0:
+            raise ValueError("obstacle.axis = (0, 0, 0) defines no axis: give a nonzero vector")
+        self.axis = axis / norm
+
+    def __repr__(self) -> str:
+        return (
+            f"Cylinder(point={tuple(self.origin)}, axis={tuple(self.axis)}, "
+            f"radius={self.radius:g}, side={self.side!r})"
+        )
+
+    def radial(self, x: Sequence[Any]) -> list[Any]:
+        d = [x[k] - float(self.origin[k]) for k in range(3)]
+        t = dot(d, [float(a) for a in self.axis])
+        return [d[k] - t * float(self.axis[k]) for k in range(3)]

@@ -1,0 +1,137 @@
+"""Rigid obstacles other than the paper's plane (docs/model.md, Curved obstacles): a plane
+written as a formula is the plane, a large ball tends to the plane at the rate 1/R, the lower
+face touches about ε earlier, the penalty tends to the exact VI on a ball at the rate κ, and
+the exact solvers meet the curved constraint at the nodes."""
+
+from __future__ import annotations
+
+import dataclasses
+
+# isort: split
+from mpi4py import MPI
+
+import numpy as np
+import pytest
+
+from shellobstacle.api import solve
+from shellobstacle.obstacle import Sphere, from_spec
+from shellobstacle.penalty.spec import PenaltySpec
+from shellobstacle.post.contact import Postprocessor
+from shellobstacle.solvers.result import SolveResult
+from shellobstacle.spec import Discretization, Obstacle
+from tests.test_active_set import paper_shell, square
+
+COMM = MPI.COMM_WORLD
+PENALTY = PenaltySpec(exponent=1.5)
+VERTEX = Discretization(penalty_quadrature="vertex")
+
+
+def ball(radius: float, side: str = "outside", **kw) -> Obstacle:
+    """The ball whose top touches the plane x3 = 0 at the origin."""
+    return Obstacle(kind="sphere", center=(0.0, 0.0, -radius), radius=radius, side=side, **kw)
+
+
+def _solve(
+    obstacle: Obstacle,
+    method: str = "newton",
+    comm: MPI.Comm = COMM,
+    penalty: PenaltySpec | None = PENALTY,
+    discretization: Discretization | None = None,
+) -> tuple[SolveResult, dict]:
+    shell = dataclasses.replace(paper_shell(), obstacle=obstacle)
+    r = solve(shell, square(comm), penalty, discretization, method=method)
+    assert r.converged, r.error
+    return r, Postprocessor(r.problem, r.constraint).contact()
+
+
+def _zeta(r: SolveResult) -> np.ndarray:
+    """The owned dofs of ζ."""
+    V = r.problem.V
+    return r.problem.zeta.x.array[: V.dofmap.index_map.size_local * 3].copy()
+
+
+def _max(a: np.ndarray) -> float:
+    return COMM.allreduce(float(np.max(np.abs(a), initial=0.0)), op=MPI.MAX)
+
+
+@pytest.mark.parametrize(("method", "penalty"), [("newton", PENALTY), ("active-set", None)])
+def test_a_plane_written_as_a_formula_is_the_plane(method: str, penalty) -> None:
+    expression = Obstacle(kind="expression", g="x3")
+    assert from_spec(expression).affine
+    disc = None if penalty else VERTEX
+    r_plane, c_plane = _solve(Obstacle(), method, penalty=penalty, discretization=disc)
+    r_expr, c_expr = _solve(expression, method, penalty=penalty, discretization=disc)
+    assert not r_expr.problem.linearized
+    assert _max(_zeta(r_expr) - _zeta(r_plane)) <= 1e-14
+    assert c_expr["contact_area"] == pytest.approx(c_plane["contact_area"], rel=1e-12)
+    assert c_plane["contact_area"] > 0
+
+
+def test_a_large_ball_tends_to_the_plane_at_the_rate_one_over_r() -> None:
+    """Within the contact region (radius ρ) the ball's surface is ``ρ²/(2R)`` below the plane,
+    so ζ differs from the plane's by ``O(1/R)``: each tenfold R divides the difference by 10."""
+    zeta_plane = _zeta(_solve(Obstacle())[0])
+    errors = []
+    for radius in (10.0, 100.0, 1000.0):
+        r, contact = _solve(ball(radius))
+        assert r.problem.linearized and r.extra["linearizations"] >= 2
+        assert contact["contact_area"] > 0
+        errors.append(_max(_zeta(r) - zeta_plane))
+    rates = np.log10(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(rates - 1.0) < 0.02), (errors, rates)
+
+
+def test_the_lower_face_touches_about_epsilon_earlier() -> None:
+    """The lower face θ − ε a_3 must stay above the plane: ζ_3 stops ε·(a_3·q) ≈ ε (a_3 ≈ e_3
+    at the cap's top) higher."""
+    epsilon = paper_shell().material.epsilon
+    middle = Postprocessor(_solve(Obstacle())[0].problem).zeta3_range()[0]
+    r, _ = _solve(Obstacle(contact_face="lower"))
+    lower = Postprocessor(r.problem).zeta3_range()[0]
+    assert lower - middle == pytest.approx(epsilon, rel=0.1)
+
+
+def test_the_penalty_tends_to_the_exact_vi_on_a_ball_at_the_rate_kappa() -> None:
+    """With the vertex penalty (the nodes' constraint, as the exact solver's), the penalized
+    solution on a ball of radius 2 differs from active-set's by O(κ)."""
+    exact, exact_contact = _solve(ball(2.0), "active-set", penalty=None, discretization=VERTEX)
+    assert exact_contact["max_violation"] <= 1e-14  # the curved gap at the nodes, not its chord
+    z = _zeta(exact)
+    errors = [
+        _max(_zeta(_solve(ball(2.0), penalty=PenaltySpec(kappa=k), discretization=VERTEX)[0]) - z)
+        for k in (1e-3, 1e-4, 1e-5)
+    ]
+    rates = np.log10(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all(np.abs(rates - 1.0) < 0.05), (errors, rates)
+
+
+def test_curved_gaps_at_points_agree_with_their_linearization() -> None:
+    """``at_points`` linearized at η is exact at η, and its derivative is the gradient's."""
+    sphere = Sphere((0.0, 0.0, -2.0), 2.0)
+    surface = paper_shell().surface
+    y = np.array([[0.0, 0.0], [0.1, -0.05], [0.2, 0.1]])
+    eta = np.array([[0.0, 0.0, -0.1], [0.01, 0.02, -0.05], [0.0, 0.0, 0.0]])
+    lin = sphere.at_points(surface, y, eta)
+    exact = sphere.gap(surface.geometry_numpy(y), [eta[:, i] for i in range(3)])
+    assert np.allclose(lin.gap(eta), exact, rtol=0, atol=1e-15)
+    d = 1e-6 * np.array([0.0, 0.0, 1.0])
+    moved = sphere.gap(surface.geometry_numpy(y), [(eta + d)[:, i] for i in range(3)])
+    assert np.allclose((moved - exact) / 1e-6, lin.c[:, 2], rtol=0, atol=1e-6)
+
+
+def test_inside_and_outside_decide_convexity() -> None:
+    assert from_spec(ball(2.0, "inside")).convex and not from_spec(ball(2.0)).convex
+    assert from_spec(Obstacle()).convex and from_spec(Obstacle(kind="expression", g="x3")).convex
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("method", ["newton", "active-set"])
+def test_a_ball_on_two_ranks_equals_serial(method: str) -> None:
+    penalty, disc = (PENALTY, None) if method == "newton" else (None, VERTEX)
+    results = [_solve(ball(2.0), method, comm, penalty, disc) for comm in (COMM, MPI.COMM_SELF)]
+    (par, c_par), (ser, c_ser) = results
+    assert par.extra["linearizations"] == ser.extra["linearizations"]
+    for key in ("contact_area", "max_violation", "num_contact_nodes"):
+        assert c_par[key] == pytest.approx(c_ser[key], rel=1e-9, abs=1e-15), key
+    z_par, z_ser = (Postprocessor(r.problem).zeta3_range()[0] for r in (par, ser))
+    assert z_par == pytest.approx(z_ser, rel=1e-9)
