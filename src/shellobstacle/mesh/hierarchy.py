@@ -55,7 +55,7 @@ def prolongation(Vc: dolfinx.fem.FunctionSpace, Vf: dolfinx.fem.FunctionSpace) -
     x = Vf.tabulate_dof_coordinates()[:n_fine]
     cells = _host_cells(coarse, x)
     # reference coordinates X in each host cell (affine: x = x0 + J X)
-    nodes = coarse.geometry.x[coarse.geometry.dofmap[cells]][:, :, :2]
+    nodes = coarse.geometry.x[coarse.geometry.dofmaps[0][cells]][:, :, :2]
     J = np.stack([nodes[:, 1] - nodes[:, 0], nodes[:, 2] - nodes[:, 0]], axis=2)
     X = np.linalg.solve(J, (x[:, :2] - nodes[:, 0])[:, :, None])[:, :, 0]
     element = Vc.ufl_element().basix_element
