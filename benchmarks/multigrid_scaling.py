@@ -4,9 +4,11 @@ For each gmsh size and each linear solver: one solve from the config (examples/p
 ``domain.h`` and ``solver.linear_solver`` set), then one JSON line with the dofs, the mesh
 levels multigrid used, Newton steps (per κ and in all), Krylov iterations per Newton step
 (mean and max over the steps; the direct path's are the CG iterations with a kept
-factorization or on the contact zone), the continuation's seconds, the contact area and its
-relative difference to the direct path's, peak RSS and the load average before and after (the
-machine may be shared: the times are as noisy as that). A table follows at the end.
+factorization or on the contact zone), the continuation's seconds and phases (``solve.*``:
+set-up, multigrid's part of it, assembly, linear solves, line searches, ...), the contact area
+and its relative difference to the direct path's, peak RSS of the process so far and the load
+average before and after (the machine may be shared: the times are as noisy as that). A table
+follows at the end.
 
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058,0.0029,0.00145
     .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058
@@ -58,6 +60,7 @@ def run(h: float, linear_solver: str) -> dict:
         "krylov_per_kappa": [s.record.linear_iterations for s in result.steps],
         "solve_s": round(result.timings.get("solve", float("nan")), 2),
         "end_to_end_s": round(seconds, 2),
+        "phases_s": {k: round(v, 2) for k, v in result.timings.items() if k.startswith("solve.")},
         "contact_area": area,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
         "load_before": round(load, 2),

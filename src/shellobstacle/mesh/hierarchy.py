@@ -54,10 +54,7 @@ def prolongation(Vc: dolfinx.fem.FunctionSpace, Vf: dolfinx.fem.FunctionSpace) -
     n_fine = Vf.dofmap.index_map.size_local
     x = Vf.tabulate_dof_coordinates()[:n_fine]
     cells = _host_cells(coarse, x)
-    # reference coordinates X in each host cell (affine: x = x0 + J X)
-    nodes = coarse.geometry.x[coarse.geometry.dofmaps[0][cells]][:, :, :2]
-    J = np.stack([nodes[:, 1] - nodes[:, 0], nodes[:, 2] - nodes[:, 0]], axis=2)
-    X = np.linalg.solve(J, (x[:, :2] - nodes[:, 0])[:, :, None])[:, :, 0]
+    X = _reference(coarse, cells, x)
     element = Vc.ufl_element().basix_element
     weights = element.tabulate(0, X)[0, :, :, 0]  # (fine nodes, coarse cell dofs)
     imap = Vc.dofmap.index_map
@@ -79,21 +76,41 @@ def prolongation(Vc: dolfinx.fem.FunctionSpace, Vf: dolfinx.fem.FunctionSpace) -
 
 
 def _host_cells(mesh: dolfinx.mesh.Mesh, x: np.ndarray) -> np.ndarray:
-    """A local cell of ``mesh`` containing each point of ``x`` (the closest one for a point in
-    none)."""
+    """A local cell of ``mesh`` containing each point of ``x``: of the cells whose bounding
+    box holds the point, the one whose smallest barycentric coordinate there is largest (the
+    closest cell for a point in no box)."""
     tdim = mesh.topology.dim
     cell_map = mesh.topology.index_map(tdim)
     cells = np.arange(cell_map.size_local + cell_map.num_ghosts, dtype=np.int32)
     tree = dolfinx.geometry.bb_tree(mesh, tdim, entities=cells)
     points = np.ascontiguousarray(x, dtype=mesh.geometry.x.dtype)
-    colliding = dolfinx.geometry.compute_colliding_cells(
-        mesh, dolfinx.geometry.compute_collisions_points(tree, points), points
-    )
-    offsets, found = colliding.offsets, colliding.array
+    boxes = dolfinx.geometry.compute_collisions_points(tree, points)
+    counts = np.diff(boxes.offsets)
+    point, cell = np.repeat(np.arange(len(points)), counts), boxes.array
+    score = _barycentric(mesh, cell, points[point, :2]).min(axis=1)
+    best = np.lexsort((-score, point))  # per point, the largest score first
+    first = np.flatnonzero(np.r_[True, point[best][1:] != point[best][:-1]]) if best.size else best
     host = np.full(len(points), -1, dtype=np.int32)
-    has = offsets[1:] > offsets[:-1]
-    host[has] = found[offsets[:-1][has]]
-    if not has.all():
+    host[point[best[first]]] = cell[best[first]]
+    outside = host < 0
+    if outside.any():
         midpoints = dolfinx.geometry.create_midpoint_tree(mesh, tdim, cells)
-        host[~has] = dolfinx.geometry.compute_closest_entity(tree, midpoints, mesh, points[~has])
+        host[outside] = dolfinx.geometry.compute_closest_entity(
+            tree, midpoints, mesh, points[outside]
+        )
     return host
+
+
+def _barycentric(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The barycentric coordinates of the points ``x`` (one row each) in the affine triangles
+    ``cells`` (one each)."""
+    X = _reference(mesh, cells, x)
+    return np.column_stack([1.0 - X.sum(axis=1), X])
+
+
+def _reference(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """The reference coordinates ``X`` of the points ``x`` in the affine triangles ``cells``:
+    ``x = x_0 + J X``."""
+    nodes = mesh.geometry.x[mesh.geometry.dofmaps[0][cells]][:, :, :2]
+    J = np.stack([nodes[:, 1] - nodes[:, 0], nodes[:, 2] - nodes[:, 0]], axis=2)
+    return np.linalg.solve(J, (x[:, :2] - nodes[:, 0])[:, :, None])[:, :, 0]
