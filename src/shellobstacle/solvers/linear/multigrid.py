@@ -2,8 +2,10 @@
 
 The meshes of a uniformly refined mesh (:mod:`~shellobstacle.mesh.hierarchy`) carry nested
 Lagrange spaces; PETSc's PCMG runs V-cycles on them with the interpolation between the levels
-(the three components each interpolated by itself) and Galerkin coarse operators ``Pᵀ A P``,
-remade from every Jacobian: the penalty's active points reach the coarse levels through them.
+(the three components each interpolated by itself) and Galerkin coarse operators ``Pᵀ J P`` of
+every Jacobian ``J = K + H``: ``Pᵀ K P`` is made once, and only the penalty part ``H`` (the
+rows of the active points' cells) is multiplied out at each step; the active points reach the
+coarse levels through it.
 The coarsest level (gmsh's mesh) is factorized by MUMPS.
 
 The smoother is two Chebyshev iterations preconditioned by the Jacobian's diagonal (point
@@ -31,8 +33,10 @@ from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 from petsc4py import PETSc
 
 import dolfinx
+import numpy as np
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
+from shellobstacle.penalty.quadrature import penalty_hessian
 from shellobstacle.solvers.base import set_options, unique_prefix
 from shellobstacle.solvers.linear.iterative import IterativeStrategy
 from shellobstacle.solvers.system import PenalizedSystem
@@ -49,7 +53,7 @@ _LEVELS = {
     "mg_coarse_pc_type": "cholesky",
     "mg_coarse_pc_factor_mat_solver_type": "mumps",
 }
-_GEOMETRIC = {"pc_type": "mg", "pc_mg_galerkin": "both", **_LEVELS}
+_GEOMETRIC = {"pc_type": "mg", **_LEVELS}
 _ALGEBRAIC = {"pc_type": "gamg", "pc_gamg_threshold": 0.02, **_LEVELS}
 
 
@@ -98,12 +102,14 @@ class MultigridStrategy(IterativeStrategy):
         mine = {k: v for k, v in options.items() if not database.hasName(prefix + k)}
         set_options(self, prefix, mine)
         pc = ksp.getPC()
+        self._P = transfers
         if transfers:
             pc.setType("mg")
             pc.setMGLevels(self.levels)
             for level, P in enumerate(transfers, start=1):
                 pc.setMGInterpolation(level, P)
-                P.destroy()
+            self._K = self._galerkin(system.K)
+            self._A = [K.duplicate(copy=True) for K in self._K]
         ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
         ksp.setTolerances(rtol=self.rtol, atol=1e-50, max_it=2000)
         ksp.setFromOptions()
@@ -124,7 +130,40 @@ class MultigridStrategy(IterativeStrategy):
         A.setOption(PETSc.Mat.Option.SPD, True)
         self.ksp.setOperators(A)
 
+    def _galerkin(self, A: PETSc.Mat) -> list[PETSc.Mat]:
+        """``Pᵀ A P`` on every coarser level, coarsest first (from the finest down)."""
+        coarse = []
+        for P in reversed(self._P):
+            A = A.ptap(P)
+            coarse.append(A)
+        return coarse[::-1]
+
+    def _coarse_operators(self) -> None:
+        """The levels' operators ``Pᵀ J P`` for the current Jacobian ``J = K + H``: ``Pᵀ K P``
+        made once, plus the Galerkin product of the penalty part ``H``, whose rows are those
+        of the active points' cells (a few per cent: far cheaper than ``Pᵀ J P``)."""
+        system = self.system
+        active = system.held_active
+        rows = np.flatnonzero(active) if active is not None else np.zeros(0, dtype=np.int64)
+        H = None
+        if system.comm.allreduce(rows.size):
+            H = penalty_hessian(system.penalty.M, system.penalty.D, rows, system.kappa)
+        smoothers = [self.ksp.getPC().getMGSmoother(level) for level in range(self.levels - 1)]
+        for level in reversed(range(self.levels - 1)):
+            A = self._A[level]
+            self._K[level].copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            if H is not None:
+                coarse = H.ptap(self._P[level])
+                H.destroy()
+                A.axpy(1.0, coarse, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+                H = coarse
+            smoothers[level].setOperators(A)
+        if H is not None:
+            H.destroy()
+
     def _solve(self, b: PETSc.Vec) -> None:
         """``δ ← A⁻¹ b`` by CG with a V-cycle set up for the current Jacobian."""
+        if self._P:
+            self._coarse_operators()
         self.ksp.solve(b, self.system.dz)
         self.multigrid_builds += 1
