@@ -69,6 +69,22 @@ def test_multigrid_gives_the_direct_solution() -> None:
     assert areas[0] > 0 and abs(areas[1] - areas[0]) <= 1e-10 * areas[0]
 
 
+def test_without_a_hierarchy_it_is_algebraic_multigrid() -> None:
+    """A mesh made outside ``create_mesh`` has no coarser meshes: GAMG on the whole system
+    (one level of its own), with the direct path's answer."""
+    mesh = dolfinx.mesh.create_rectangle(MPI.COMM_WORLD, [[-0.25, -0.25], [0.25, 0.25]], [16, 16])
+    assert coarser_meshes(mesh) == []
+    kappas = [1e-1, 1e-2, 1e-3]
+    direct = PenalizedProblem(paper_shell(), mesh)
+    continuation(direct, NewtonSolver(direct), kappas)
+    algebraic = PenalizedProblem(paper_shell(), mesh)
+    solver = NewtonSolver(algebraic, NewtonOptions(linear_solver="multigrid"))
+    continuation(algebraic, solver, kappas)
+    assert solver.linear.levels == 1
+    assert solver.linear.ksp.getPC().getType() == "gamg"
+    assert l2_norm(direct.zeta - algebraic.zeta) <= 1e-8 * l2_norm(direct.zeta)
+
+
 def test_cg_iterations_per_newton_step_stay_bounded_as_h_halves() -> None:
     """Each direction solved to a fixed 1e-8: the CG iterations per Newton step, averaged
     over the continuation to κ = h^1.5, grow by at most 1.5× from 2 to 4 mesh levels (h

@@ -12,9 +12,8 @@ The smoother is two Chebyshev iterations preconditioned by the Jacobian's diagon
 Jacobi; the same on any number of ranks): ζ_α is an elliptic H¹ system, whose high
 frequencies Chebyshev damps, and ζ_3 enters without derivatives (its block is a
 penalty-augmented mass matrix, well conditioned once scaled by its diagonal). Chebyshev and
-the V-cycle are symmetric, so the Krylov method is plain CG. On the paper's problem at 82k
-dofs (two levels) point Jacobi takes 3–12 CG iterations per Newton step at κ = h^1.5 where
-point-block Jacobi (each node's 3×3 block inverted) takes 30–160 (docs/perf/multigrid.md).
+the V-cycle are symmetric, so the Krylov method is plain CG. Point-block Jacobi (each node's
+3×3 block inverted) needs several times more iterations at small κ (docs/perf/multigrid.md).
 
 A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls back to
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
