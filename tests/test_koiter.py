@@ -379,5 +379,6 @@ def test_config_refuses_what_koiter_cannot_use() -> None:
     koiter = {"kind": "koiter"}
     with pytest.raises(ConfigError, match="transverse"):
         _config(model=koiter, discretization={"transverse": "free"})
-    with pytest.raises(ConfigError, match="linear_solver = 'direct'"):
-        _config(model=koiter, solver={"linear_solver": "iterative"})
+    for linear_solver in ("iterative", "multigrid"):
+        with pytest.raises(ConfigError, match="linear_solver = 'direct'"):
+            _config(model=koiter, solver={"linear_solver": linear_solver})

@@ -364,9 +364,9 @@ def _require_mesh_file(path: str) -> None:
 
 def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
     """The solver and discretization choices Koiter's model cannot take."""
-    if sv.get("linear_solver") == "iterative":
+    if sv.get("linear_solver") in ("iterative", "multigrid"):
         raise ConfigError(
-            "solver.linear_solver = 'iterative' preconditions ζ_3 as the "
+            f"solver.linear_solver = {sv['linear_solver']!r} preconditions ζ_3 as the "
             "membrane's L² unknown, not Koiter's bending: use linear_solver = 'direct'"
         )
     if disc.degree != 2:

@@ -211,8 +211,9 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "linear_solver": solver_key(
             "linear_solver",
             "str",
-            "MUMPS, or inexact Newton with flexible CG and a field split (GAMG on ζ_α): "
-            "about 70 % of the memory",
+            "MUMPS; inexact Newton with flexible CG and a field split (GAMG on ζ_α): about 70 % "
+            "of the memory; or inexact Newton with CG and geometric multigrid on the mesh's "
+            "uniform refinements (GAMG on a mesh without them)",
         ),
         "factorization": solver_key(
             "factorization",

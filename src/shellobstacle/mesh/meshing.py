@@ -23,6 +23,7 @@ import dolfinx.mesh
 import numpy as np
 
 from shellobstacle.mesh.domains import DomainSpec, coarsening_steps, validate
+from shellobstacle.mesh.hierarchy import record
 from shellobstacle.mesh.refinement import prepare, red_refinement, refine_uniformly
 from shellobstacle.progress import phase
 
@@ -250,8 +251,19 @@ def _gmsh_mesh(
             mesh = dolfinx.io.gmsh.model_to_mesh(model, comm, 0, 2, _partitioner()).mesh
     for k in range(steps):
         with phase(f"refining {k + 1}/{steps}"):
-            mesh = red_refinement(mesh, spec, ghosted)
+            mesh = _remembered(red_refinement(mesh, spec, ghosted), mesh, ghosted)
     return mesh
+
+
+def _remembered(
+    fine: dolfinx.mesh.Mesh, coarse: dolfinx.mesh.Mesh, ghosted: bool
+) -> dolfinx.mesh.Mesh:
+    """``fine``, remembering that it was refined from ``coarse`` (the levels of geometric
+    multigrid, :mod:`~shellobstacle.mesh.hierarchy`) while the children stay on their parent's
+    rank (not after a ghosted refinement in parallel, which repartitions)."""
+    if not (ghosted and fine.comm.size > 1):
+        record(fine, coarse)
+    return fine
 
 
 def create_mesh(
@@ -266,7 +278,9 @@ def create_mesh(
             (Koiter's interior-facet terms need them in parallel; the membrane does not).
 
     Returns:
-        The (distributed) mesh, with ``spec.refinements`` uniform refinements applied.
+        The (distributed) mesh, with ``spec.refinements`` uniform refinements applied; it
+        remembers the meshes it was refined from
+        (:func:`~shellobstacle.mesh.hierarchy.coarser_meshes`).
 
     Raises:
         ValueError: If ``spec`` is inconsistent, or the mesh file is missing or unusable.
@@ -283,6 +297,6 @@ def create_mesh(
         mesh = _gmsh_mesh(spec, comm, coarsening_steps(spec), ghosted)
     for k in range(spec.refinements):
         with phase(f"uniform refinement {k + 1}/{spec.refinements}"):
-            mesh = refine_uniformly(mesh, ghosted)
+            mesh = _remembered(refine_uniformly(mesh, ghosted), mesh, ghosted)
     prepare(mesh)
     return mesh

@@ -25,7 +25,7 @@ __all__ = [
     "SnesVIOptions",
 ]
 
-LINEAR_SOLVERS = ("direct", "iterative")
+LINEAR_SOLVERS = ("direct", "iterative", "multigrid")
 FACTORIZATIONS = ("cholesky", "lu")
 MASSES = ("consistent", "lumped")
 STARTS = ("zero", "linearized", "current")
@@ -85,7 +85,9 @@ class NewtonOptions:
         linear_solver: ``"direct"`` (MUMPS; :mod:`~shellobstacle.solvers.linear.zone` or
             :mod:`~shellobstacle.solvers.linear.direct`) or ``"iterative"`` (inexact Newton
             with a Krylov method and a field split, GAMG on ζ_α:
-            :mod:`~shellobstacle.solvers.linear.iterative`).
+            :mod:`~shellobstacle.solvers.linear.iterative`) or ``"multigrid"`` (inexact Newton
+            with CG and geometric multigrid on the mesh's refinement levels:
+            :mod:`~shellobstacle.solvers.linear.multigrid`).
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ; the Jacobians are
             symmetric positive definite: half the memory of LU) or ``"lu"``.
         contact_zone: with the direct solver, condense every Newton step onto a contact zone

@@ -8,7 +8,9 @@ A strategy solves the Newton equation ``J δ = −R(ζ)`` of a
 * :class:`~.direct.DirectStrategy`: one MUMPS factorization per κ, reused by conjugate
   gradients at the κ's later steps (``solver.contact_zone = false``);
 * :class:`~.iterative.IterativeStrategy`: inexact Newton with flexible CG and a field split,
-  GAMG on ζ_α (``solver.linear_solver = "iterative"``).
+  GAMG on ζ_α (``solver.linear_solver = "iterative"``);
+* :class:`~.multigrid.MultigridStrategy`: inexact Newton with CG and geometric multigrid on
+  the mesh hierarchy (``solver.linear_solver = "multigrid"``).
 
 :func:`make_strategy` picks one from :class:`~shellobstacle.solvers.options.NewtonOptions`;
 a strategy built by hand (with its own knobs) can be given to the solver instead.
@@ -67,10 +69,13 @@ def make_strategy(options: NewtonOptions, comm: object) -> LinearStrategy:
     """The strategy the options ask for (the zone when MUMPS' selected inverse is reachable)."""
     from shellobstacle.solvers.linear.direct import DirectStrategy
     from shellobstacle.solvers.linear.iterative import IterativeStrategy
+    from shellobstacle.solvers.linear.multigrid import MultigridStrategy
     from shellobstacle.solvers.linear.zone import ZoneStrategy, zone_available
 
     if options.linear_solver == "iterative":
         return IterativeStrategy(options.linear_rtol)
+    if options.linear_solver == "multigrid":
+        return MultigridStrategy(options.linear_rtol)
     if options.contact_zone and zone_available(comm):
         return ZoneStrategy(options.factorization, options.linear_rtol)
     return DirectStrategy(options.factorization, options.linear_rtol)

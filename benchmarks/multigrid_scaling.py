@@ -1,0 +1,102 @@
+"""The paper's problem (κ = h^1.5 continuation) by the direct path and by multigrid, as h halves.
+
+For each gmsh size and each linear solver: one solve from the config (examples/paper.toml with
+``domain.h`` and ``solver.linear_solver`` set), then one JSON line with the dofs, the mesh
+levels multigrid used, Newton steps (per κ and in all), Krylov iterations per Newton step
+(mean and max over the steps; the direct path's are the CG iterations with a kept
+factorization or on the contact zone), the continuation's seconds and phases (``solve.*``:
+set-up, multigrid's part of it, assembly, linear solves, line searches, ...), the contact area
+and its relative difference to the direct path's, peak RSS of the process so far and the load
+average before and after (the machine may be shared: the times are as noisy as that). A table
+follows at the end.
+
+    .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058,0.0029,0.00145
+    .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import time
+
+from mpi4py import MPI
+
+import numpy as np
+
+from shellobstacle.api import solve_config
+from shellobstacle.config.loader import load_config
+from shellobstacle.mesh.domains import coarsening_steps
+from shellobstacle.post.contact import Postprocessor
+from shellobstacle.solvers.options import LINEAR_SOLVERS
+
+PAPER = "examples/paper.toml"
+
+
+def run(h: float, linear_solver: str) -> dict:
+    """One solve of the paper's problem at gmsh size ``h`` with ``linear_solver``."""
+    comm = MPI.COMM_WORLD
+    cfg = load_config(PAPER, [f"domain.h={h}", f'solver.linear_solver="{linear_solver}"'])
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    result = solve_config(cfg)
+    seconds = time.perf_counter() - t0
+    area = Postprocessor(result.problem).contact()["contact_area"]
+    newton = [s.iterations for s in result.steps]
+    krylov = [n for s in result.steps for n in s.record.linear_iterations]
+    return {
+        "h": h,
+        "linear_solver": linear_solver,
+        "ranks": comm.size,
+        "dofs": result.problem.num_dofs,
+        "mesh_levels": coarsening_steps(cfg.domain) + cfg.domain.refinements + 1,
+        "converged": result.converged,
+        "newton_per_kappa": newton,
+        "newton": sum(newton),
+        "krylov_per_step_mean": round(float(np.mean(krylov)), 2),
+        "krylov_per_step_max": int(max(krylov)),
+        "krylov_per_kappa": [s.record.linear_iterations for s in result.steps],
+        "solve_s": round(result.timings.get("solve", float("nan")), 2),
+        "end_to_end_s": round(seconds, 2),
+        "phases_s": {k: round(v, 2) for k, v in result.timings.items() if k.startswith("solve.")},
+        "contact_area": area,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
+        "load_before": round(load, 2),
+        "load_after": round(os.getloadavg()[0], 2),
+    }
+
+
+def main() -> None:
+    """Run the sizes and solvers, print JSON lines and a table on rank 0."""
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--sizes", default="0.0058,0.0029,0.00145", help="gmsh target sizes")
+    ap.add_argument("--solvers", default="direct,multigrid", help=f"of {LINEAR_SOLVERS}")
+    args = ap.parse_args()
+    comm = MPI.COMM_WORLD
+    rows = []
+    for h in (float(s) for s in args.sizes.split(",")):
+        direct_area = None
+        for linear_solver in args.solvers.split(","):
+            row = run(h, linear_solver)
+            if linear_solver == "direct":
+                direct_area = row["contact_area"]
+            if direct_area is not None:
+                row["area_vs_direct"] = abs(row["contact_area"] - direct_area) / direct_area
+            rows.append(row)
+            if comm.rank == 0:
+                print(json.dumps(row), flush=True)
+    if comm.rank == 0:
+        print("| dofs | solver | Newton steps | Krylov its/step (mean, max) | solve s | area |")
+        print("|---:|---|---:|---:|---:|---:|")
+        for r in rows:
+            print(
+                f"| {r['dofs']:,} | {r['linear_solver']} | {r['newton']} | "
+                f"{r['krylov_per_step_mean']:.1f}, {r['krylov_per_step_max']} | "
+                f"{r['solve_s']:.1f} | {r['contact_area']:.6f} |"
+            )
+
+
+if __name__ == "__main__":
+    main()
