@@ -52,11 +52,11 @@ def test_koiter_limit_on_the_paper_fits_the_documented_machine(monkeypatch, tmp_
     with pytest.raises(Reached):
         main(["experiment", "koiter-limit", PAPER, "-q"])
 
-    from shellobstacle.cli.main import _parser
+    from shellobstacle.cli.parser import parser
     from shellobstacle.config.loader import load_config
 
     cfg = load_config(PAPER)
-    args = _parser().parse_args(["experiment", "koiter-limit", PAPER])
+    args = parser().parse_args(["experiment", "koiter-limit", PAPER])
     domains = experiment_domains(args, cfg, experiment_options(args, cfg))
     assert domains
     for domain in domains:
