@@ -50,7 +50,9 @@ LONG_C_CALL = textwrap.dedent(
 HANDLED = textwrap.dedent(
     """
     try:
-        time.sleep(60)
+        for _ in range(600):  # Python work with the library's meeting points between its steps
+            time.sleep(0.1)
+            interrupt.agree()
     except KeyboardInterrupt:
         interrupt.acknowledge()
         time.sleep(3)  # longer than the grace: cleaning up is allowed
@@ -87,6 +89,29 @@ def test_a_long_call_into_c_is_stopped() -> None:
     result = _interrupt(LONG_C_CALL)
     assert result.returncode == 130, result
     assert "meshed" not in result.stdout
+    assert result.stderr.splitlines() == [
+        "shellobstacle: interrupted (still inside a library call 1 s after Ctrl-C); stopping it"
+    ]
+
+
+#: Python code between the library's meeting points, as a callback that C++ (nanobind) calls
+BETWEEN_MEETING_POINTS = textwrap.dedent(
+    """
+    try:
+        time.sleep(60)
+    except KeyboardInterrupt:
+        print("raised between meeting points", flush=True)
+    """
+)
+
+
+def test_ctrl_c_is_not_raised_between_meeting_points() -> None:
+    """A ``KeyboardInterrupt`` raised at any bytecode could land in a Python function that C++
+    called, which then aborts the process (``std::terminate``): Ctrl-C waits for the next
+    meeting point, or the watcher stops the process after the grace."""
+    result = _interrupt(BETWEEN_MEETING_POINTS)
+    assert result.returncode == 130, result
+    assert "raised" not in result.stdout
     assert result.stderr.splitlines() == [
         "shellobstacle: interrupted (still inside a library call 1 s after Ctrl-C); stopping it"
     ]

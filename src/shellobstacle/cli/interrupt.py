@@ -12,12 +12,13 @@ no PETSc error dump (PETSc catches SIGTERM) and no "bad termination" of ``mpiexe
 reports a rank killed by any signal). Where that handler cannot be installed, or the process
 does not end, the watcher goes on with SIGTERM, then SIGKILL.
 
-Under MPI (several ranks; ``mpiexec`` passes Ctrl-C on to every rank) an interrupt must stop
-all ranks at the same point: a rank that stopped while another waits for it inside a collective
-call leaves that one stuck until the watcher kills it. There, Ctrl-C only marks the interrupt,
-and the ranks raise ``KeyboardInterrupt`` together at the next point that all of them reach
-together (:func:`agree`: the start and end of every phase and each Newton or Brezis–Sibony
-step, :mod:`shellobstacle.progress`).
+Ctrl-C only marks the interrupt, and ``KeyboardInterrupt`` is raised at the next point of
+:func:`agree` (the start and end of every phase and each Newton or Brezis–Sibony step,
+:mod:`shellobstacle.progress`). Under MPI (``mpiexec`` passes Ctrl-C on to every rank) the
+ranks raise it there together: a rank that stopped while another waits for it inside a
+collective call leaves that one stuck until the watcher kills it. On one rank too: raised at
+any bytecode, it can land in a Python function that C++ called (nanobind), which then ends the
+process with ``std::terminate`` (3 of 488 interrupted runs did so before).
 
 Result folders stay consistent after such a stop: every file is written atomically, a staged
 ``--overwrite`` leaves the old folder untouched, and ``--resume`` continues from the recorded
@@ -35,9 +36,10 @@ import os
 import signal
 import subprocess
 import sys
+from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["GRACE", "STOP", "acknowledge", "agree", "install"]
+__all__ = ["GRACE", "STOP", "acknowledge", "agree", "immediate", "install"]
 
 #: Seconds a long call into C may keep running after Ctrl-C.
 GRACE = 2.0
@@ -50,9 +52,13 @@ INTERRUPTED = 130
 _stop_handler: Any = None
 
 _ack_fd: int | None = None
-#: under MPI: the communicator whose ranks stop together, and whether Ctrl-C came
+#: the communicator whose ranks stop together (None: one process), and whether Ctrl-C came
 _comm: Any = None
 _pending = False
+#: whether Ctrl-C is deferred to :func:`agree` (after :func:`install`)
+_deferred = False
+#: the depth of :func:`immediate` blocks (Ctrl-C raised at once inside them)
+_immediate = 0
 
 # The watcher: argv = parent pid, grace, the acknowledgement's fd, the signal that makes the
 # parent exit at once (0: none), whether to print (rank 0); fd 0 = the signals.
@@ -106,9 +112,9 @@ while True:
 
 def install(grace: float = GRACE, comm: Any = None) -> bool:
     """Start the watcher of this process; False (and nothing changed) where it cannot run
-    (not the main thread, no SIGINT handler of Python's, no ``fork``). With ``comm`` of
-    several ranks, Ctrl-C takes effect at the next :func:`agree`."""
-    global _ack_fd, _comm
+    (not the main thread, no SIGINT handler of Python's, no ``fork``). Ctrl-C then takes effect
+    at the next :func:`agree`, on all ranks of ``comm`` together."""
+    global _ack_fd, _comm, _deferred
     if _ack_fd is not None:
         return True
     if signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
@@ -134,12 +140,12 @@ def install(grace: float = GRACE, comm: Any = None) -> bool:
         return False
     os.close(sig_r)
     os.close(ack_r)
-    if comm is not None and comm.size > 1:
-        from shellobstacle.progress import set_meeting_point
+    from shellobstacle.progress import set_meeting_point
 
-        signal.signal(signal.SIGINT, _mark)
-        _comm = comm
-        set_meeting_point(agree)  # every phase and step of the library is such a point
+    signal.signal(signal.SIGINT, _mark)
+    _comm = comm if comm is not None and comm.size > 1 else None
+    _deferred = True
+    set_meeting_point(agree)  # every phase and step of the library is such a point
     signal.set_wakeup_fd(sig_w, warn_on_full_buffer=False)
     _ack_fd = ack_w
     return True
@@ -176,20 +182,45 @@ def _exit_on(signum: int) -> bool:
 
 
 def _mark(signum: int, frame: Any) -> None:
-    """Ctrl-C under MPI: remembered until the ranks agree (the watcher still times it)."""
+    """Ctrl-C: remembered until the next :func:`agree` (the watcher still times it), or
+    raised at once inside :func:`immediate`."""
     global _pending
+    if _immediate:
+        raise KeyboardInterrupt
     _pending = True
+
+
+@contextlib.contextmanager
+def immediate() -> Iterator[None]:
+    """Ctrl-C raises ``KeyboardInterrupt`` at once inside the block, on one process (Python
+    code and subprocesses that no C++ calls back into: FFCx's compilation and its wait for
+    another process's, which clean up after themselves); under MPI it stays deferred."""
+    global _immediate, _pending
+    if not _deferred or _comm is not None:
+        yield
+        return
+    _immediate += 1
+    try:
+        if _pending:
+            _pending = False
+            raise KeyboardInterrupt
+        yield
+    finally:
+        _immediate -= 1
 
 
 def agree() -> None:
     """A point that every rank reaches together: if Ctrl-C reached any of them, raise
-    ``KeyboardInterrupt`` on all. Nothing without MPI's deferral (:func:`install`)."""
+    ``KeyboardInterrupt`` on all. Nothing before :func:`install`."""
     global _pending
-    if _comm is None:
+    if not _deferred:
         return
-    from mpi4py import MPI
+    pending = _pending
+    if _comm is not None:
+        from mpi4py import MPI
 
-    if _comm.allreduce(_pending, op=MPI.LOR):
+        pending = _comm.allreduce(_pending, op=MPI.LOR)
+    if pending:
         _pending = False
         raise KeyboardInterrupt
 

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from shellobstacle.cli.interrupt import immediate
+
 __all__ = [
     "NO_MODULE",
     "NO_SOURCE",
@@ -68,7 +70,8 @@ def _abandon(sources: list[Path]) -> None:
 
 def _recording(get_cached_module: Callable[..., Any]) -> Callable[..., Any]:
     def recorded(module_name: str, object_names: Any, cache_dir: Any, timeout: int) -> Any:
-        found = get_cached_module(module_name, object_names, cache_dir, timeout)
+        with immediate():  # may wait for another process's compilation
+            found = get_cached_module(module_name, object_names, cache_dir, timeout)
         if found[0] is None:  # this process created the source: it compiles it
             _compiling.append(Path(cache_dir) / f"{module_name}.c")
         return found
@@ -80,7 +83,8 @@ def _guarding(compile_objects: Callable[..., Any]) -> Callable[..., Any]:
     def guarded(*args: Any, **kwargs: Any) -> Any:
         mark = len(_compiling)
         try:
-            return compile_objects(*args, **kwargs)
+            with immediate():
+                return compile_objects(*args, **kwargs)
         except Exception:
             raise  # (FFCx renames the source to NAME.c.failed itself)
         except BaseException:
