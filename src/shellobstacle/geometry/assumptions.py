@@ -17,7 +17,7 @@ import numpy as np
 
 from shellobstacle.geometry.finiteness import Failure, first_failure, require_finite
 from shellobstacle.geometry.surface import Geometry
-from shellobstacle.obstacle import from_spec
+from shellobstacle.obstacle import Obstacle, from_spec
 from shellobstacle.spec import Shell
 
 __all__ = ["AssumptionError", "Check", "check_assumptions", "format_checks", "sample_points"]
@@ -84,9 +84,8 @@ def _local_extreme(values: np.ndarray, points: np.ndarray, kind: str) -> Extreme
     return (float(values[i]), (float(points[i, 0]), float(points[i, 1])))
 
 
-def _quantities(shell: Shell, G: Geometry, n: int) -> list[np.ndarray]:
+def _quantities(shell: Shell, obstacle: Obstacle, G: Geometry, n: int) -> list[np.ndarray]:
     """det(a_αβ), K, θ·q, a³·q and ε·max|κ_principal| from ``G`` evaluated at ``n`` points."""
-    obstacle = from_spec(shell.obstacle, shell.material.epsilon)
     with np.errstate(invalid="ignore", divide="ignore"):
         det_a = np.asarray(G.det_a, float)
         K = np.asarray(G.gaussian_curvature, float)
@@ -165,13 +164,14 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
             (:mod:`shellobstacle.geometry.finiteness`): the assumptions are then meaningless.
     """
     pts = sample_points(mesh)
+    obstacle = from_spec(shell.obstacle, shell.material.epsilon)
     found: list[list[Extreme]] = [[] for _ in ROWS]
     failures: list[Failure | None] = []
     for start in range(0, max(len(pts), 1), CHUNK):
         chunk = pts[start : start + CHUNK]
         G = shell.surface.geometry_numpy(chunk)
         failures.append(first_failure(shell, G, chunk))
-        quantities = _quantities(shell, G, len(chunk))
+        quantities = _quantities(shell, obstacle, G, len(chunk))
         for row, values, found_row in zip(ROWS, quantities, found, strict=True):
             found_row.append(_local_extreme(values, chunk, row[2]))
     require_finite(shell, failures, mesh.comm)
@@ -186,7 +186,7 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
             requirement, ok = "none (Koiter's model)", bool(np.isfinite(value))
         checks.append(Check(name, quantity, value, where, requirement, ok, hint))
     if shell.obstacle.kind != "plane":
-        convex = from_spec(shell.obstacle).convex
+        convex = obstacle.convex
         checks.append(
             Check(
                 "convex admissible set", "1 yes, 0 no, nan unknown",

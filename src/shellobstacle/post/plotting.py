@@ -38,38 +38,24 @@ def _heights(sec: CrossSection, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _draw(ax, sections, t, ref_label: bool) -> None:
-    """Obstacle, reference shell and deformed curves on one axes."""
-    first = sections[0][1]
-    if _curved(sections):
-        _draw_curved(ax, sections, t, ref_label)
-        return
-    ax.axhline(0.0, color="0.45", lw=3.0, zorder=1)
-    ax.axhspan(-1e3, 0.0, facecolor="0.92", edgecolor="0.6", hatch="///", lw=0.0, zorder=0)
-    ax.plot(
-        first.reference @ t,
-        first.height_reference,
-        ls="--",
-        color="0.25",
-        lw=1.2,
-        label="reference shell θ" if ref_label else None,
-        zorder=2,
-    )
-    colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(len(sections), 1)))
-    for (label, sec), color in zip(sections, colors, strict=False):
-        ax.plot(sec.deformed @ t, sec.height_deformed, color=color, lw=1.6, label=label, zorder=3)
-
-
-def _draw_curved(ax, sections, t, ref_label: bool) -> None:
-    """A curved obstacle's profile (thick grey, hatched below), the reference shell and the
-    deformed curves at their heights ``x·q``."""
+    """Obstacle, reference shell and deformed curves on one axes: over a plane the gaps ``g``
+    (the plane at 0), over a curved obstacle its profile (thick grey, hatched below) and the
+    heights ``x·q`` (:func:`_heights`)."""
     first = sections[0][1]
     q = np.asarray(first.q, float)
-    s, z = first.obstacle_s, first.obstacle_height
-    ax.plot(s, z, color="0.45", lw=3.0, zorder=1, label="obstacle g = 0" if ref_label else None)
-    ax.fill_between(s, z, -1e3, facecolor="0.92", edgecolor="0.6", hatch="///", lw=0.0, zorder=0)
+    if _curved(sections):
+        s, z = first.obstacle_s, first.obstacle_height
+        label = "obstacle g = 0" if ref_label else None
+        ax.plot(s, z, color="0.45", lw=3.0, zorder=1, label=label)
+        ax.fill_between(
+            s, z, -1e3, facecolor="0.92", edgecolor="0.6", hatch="///", lw=0.0, zorder=0
+        )
+    else:
+        ax.axhline(0.0, color="0.45", lw=3.0, zorder=1)
+        ax.axhspan(-1e3, 0.0, facecolor="0.92", edgecolor="0.6", hatch="///", lw=0.0, zorder=0)
     ax.plot(
         first.reference @ t,
-        first.reference @ q,
+        _heights(first, q)[0],
         ls="--",
         color="0.25",
         lw=1.2,
@@ -78,7 +64,7 @@ def _draw_curved(ax, sections, t, ref_label: bool) -> None:
     )
     colors = plt.get_cmap("viridis")(np.linspace(0.0, 0.9, max(len(sections), 1)))
     for (label, sec), color in zip(sections, colors, strict=False):
-        ax.plot(sec.deformed @ t, sec.deformed @ q, color=color, lw=1.6, label=label, zorder=3)
+        ax.plot(sec.deformed @ t, _heights(sec, q)[1], color=color, lw=1.6, label=label, zorder=3)
 
 
 def plot_cross_section(
