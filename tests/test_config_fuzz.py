@@ -391,7 +391,11 @@ def test_expression_keys_parse_or_raise_config_error(section: str, i: int, text:
     assert not SENTINEL.exists(), f"code injected through {section} ran: {text!r}"
 
 
-@pytest.mark.parametrize("payload", PAYLOADS)
+# ids without the session's temporary path: the same on every process (pytest-xdist's
+# workers must collect the same names)
+@pytest.mark.parametrize(
+    "payload", PAYLOADS, ids=[p.replace(str(SENTINEL), "SENTINEL") for p in PAYLOADS]
+)
 @pytest.mark.parametrize("where", ["load", "surface"])
 def test_injection_payloads_are_refused(payload: str, where: str) -> None:
     """Known injection attempts raise ConfigError and leave no trace."""

@@ -1,7 +1,13 @@
 """The documentation's generated parts cannot drift from the code they describe."""
 
 import re
+import subprocess
+import sys
 from pathlib import Path
+
+from mpi4py import MPI
+
+import pytest
 
 import shellobstacle
 from shellobstacle.config.schema import reference_text
@@ -92,3 +98,17 @@ def test_performance_page_is_a_summary() -> None:
     assert not [e for e in entries if e.startswith("perf/")]
     for record in (DOCS / "perf").rglob("*.md"):
         assert record.read_text().startswith("---\norphan: true\n---"), record
+
+
+@pytest.mark.slow  # Sphinx executes every demo: about a minute
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="one build, serially")
+def test_the_site_builds_with_warnings_as_errors() -> None:
+    """``./run docs -W --keep-going -E``: every page read again, every demo executed, no
+    warning. A test, so that ``./run test`` builds the site on a free core beside the others
+    (pytest-xdist) instead of after them."""
+    done = subprocess.run(
+        [sys.executable, "-m", "sphinx", "-b", "html", "-W", "--keep-going", "-q", "-E",
+         str(DOCS), str(DOCS / "_build" / "html")],
+        cwd=ROOT, capture_output=True, text=True, timeout=1800,
+    )  # fmt: skip
+    assert done.returncode == 0, (done.stdout + done.stderr)[-4000:]
