@@ -63,3 +63,14 @@ def shared_dir(tmp_path):
     from cli_helpers import shared_folder
 
     yield from shared_folder(tmp_path)
+
+
+#: test files that take a minute or more of one core, started first so that pytest-xdist's
+#: workers finish together (a long file scheduled last would run on its own at the end)
+LONG_FIRST = ("test_docs.py", "test_imports.py", "test_cli_fuzz.py", "test_adapt_experiment.py")
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """The files of :data:`LONG_FIRST` first, in that order; the rest as collected."""
+    rank = {name: k for k, name in enumerate(LONG_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(LONG_FIRST)))
