@@ -83,8 +83,8 @@ def test_newton_keeps_its_solver_from_pass_to_pass(built, monkeypatch) -> None:
 
 
 def test_balls_of_two_radii_share_their_compiled_forms() -> None:
-    """The radius and the centre are Constants: the forms of R = 10 and R = 100 are one
-    compiled module each, and each problem's gap holds its own ball."""
+    """The radius and the centre are Constants: the forms of R = 10 and R = 100 share one
+    compiled module per form, and each problem's gap holds its own ball."""
     mesh = square(n=8)
     problems = [
         PenalizedProblem(dataclasses.replace(paper_shell(), obstacle=ball(R)), mesh, kappa=1e-3)
@@ -92,7 +92,7 @@ def test_balls_of_two_radii_share_their_compiled_forms() -> None:
     ]
     modules = [{name: f.module.__name__ for name, f in _forms(p)} for p in problems]
     assert modules[0] == modules[1] and "residual" in modules[0]
-    for problem in problems:  # the Constants' gap is the floats' (the obstacle's own UFL)
+    for problem in problems:  # the gap with Constants is the one with literals
         dx = problem.dx
         literal = problem.obstacle.reference_gap(problem.G)
         values = [
