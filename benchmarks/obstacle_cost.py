@@ -3,8 +3,8 @@
 The paper's problem (``examples/paper.toml``) at ``domain.h`` (0.0029: about 329k dofs) on
 its plane and pressed onto a large ball (``examples/cap_on_ball.toml`` with the radius given),
 alternated in one process after one warm-up solve of each (which compiles the forms). Prints
-one line per solve (time, Newton steps, linearization passes, dofs, contact area) and the
-median ratio ball/plane.
+one line per solve (time, Newton steps, linearization passes, the seconds of setting up
+Newton's solver over all passes, dofs, contact area) and the median ratio ball/plane.
 
     .venv/bin/python benchmarks/obstacle_cost.py [--h 0.0029] [--radius 100] [--pairs 3]
 """
@@ -31,7 +31,8 @@ def one(path: Path, overrides: list[str]) -> tuple[float, str]:
     area = Postprocessor(r.problem, r.constraint).contact()["contact_area"]
     line = (
         f"{path.stem:12s} {seconds:7.2f} s  Newton steps {r.iterations:3d}  passes "
-        f"{r.extra.get('linearizations', '-')}  dofs {r.problem.num_dofs}  contact area {area:.6g}"
+        f"{r.extra.get('linearizations', '-')}  set-up {r.timings.get('setup', 0.0):5.2f} s  "
+        f"dofs {r.problem.num_dofs}  contact area {area:.6g}"
     )
     return seconds, line
 

@@ -17,6 +17,7 @@ from shellobstacle.api import solve
 from shellobstacle.obstacle import Sphere, from_spec
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor
+from shellobstacle.solvers.registry import METHODS
 from shellobstacle.solvers.result import SolveResult
 from shellobstacle.spec import Discretization, Obstacle
 from tests.test_active_set import paper_shell, square
@@ -24,6 +25,8 @@ from tests.test_active_set import paper_shell, square
 COMM = MPI.COMM_WORLD
 PENALTY = PenaltySpec(exponent=1.5)
 VERTEX = Discretization(penalty_quadrature="vertex")
+#: the paper's load widened to |y| < 0.15: five vertices of a 6 × 6 square touch (h ≈ 0.12)
+WIDE_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.15), (0, True))"
 
 
 def ball(radius: float, side: str = "outside", **kw) -> Obstacle:
@@ -37,9 +40,11 @@ def _solve(
     comm: MPI.Comm = COMM,
     penalty: PenaltySpec | None = PENALTY,
     discretization: Discretization | None = None,
+    n: int = 24,
+    load: str | None = None,
 ) -> tuple[SolveResult, dict]:
-    shell = dataclasses.replace(paper_shell(), obstacle=obstacle)
-    r = solve(shell, square(comm), penalty, discretization, method=method)
+    shell = dataclasses.replace(paper_shell(*([load] if load else [])), obstacle=obstacle)
+    r = solve(shell, square(comm, n), penalty, discretization, method=method)
     assert r.converged, r.error
     return r, Postprocessor(r.problem, r.constraint).contact()
 
@@ -54,13 +59,15 @@ def _max(a: np.ndarray) -> float:
     return COMM.allreduce(float(np.max(np.abs(a), initial=0.0)), op=MPI.MAX)
 
 
-@pytest.mark.parametrize(("method", "penalty"), [("newton", PENALTY), ("active-set", None)])
-def test_a_plane_written_as_a_formula_is_the_plane(method: str, penalty) -> None:
+@pytest.mark.parametrize("method", list(METHODS))
+def test_a_plane_written_as_a_formula_is_the_plane(method: str) -> None:
+    """Every method, on a 6 × 6 square (the nodal ones with the nodes' constraint)."""
     expression = Obstacle(kind="expression", g="x3")
     assert from_spec(expression).affine
-    disc = None if penalty else VERTEX
-    r_plane, c_plane = _solve(Obstacle(), method, penalty=penalty, discretization=disc)
-    r_expr, c_expr = _solve(expression, method, penalty=penalty, discretization=disc)
+    penalty, disc = (PENALTY, None) if METHODS[method].penalized else (None, VERTEX)
+    kw = {"penalty": penalty, "discretization": disc, "n": 6, "load": WIDE_LOAD}
+    r_plane, c_plane = _solve(Obstacle(), method, **kw)
+    r_expr, c_expr = _solve(expression, method, **kw)
     assert not r_expr.problem.linearized
     assert _max(_zeta(r_expr) - _zeta(r_plane)) <= 1e-14
     assert c_expr["contact_area"] == pytest.approx(c_plane["contact_area"], rel=1e-12)

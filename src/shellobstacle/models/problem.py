@@ -1,7 +1,9 @@
 """The discrete penalized problem P_{M,κ}^{ε,h} (docs/model.md §4–5) as compiled DOLFINx forms.
 
 One :class:`PenalizedProblem` is compiled once per mesh; ``κ`` and the load
-parameters are ``dolfinx.fem.Constant`` objects, so a sweep over them reuses it.
+parameters are ``dolfinx.fem.Constant`` objects, so a sweep over them reuses it. So are a
+ball's or a cylinder's parameters: a problem with another radius builds the same forms, which
+the JIT compiler finds in its cache.
 """
 
 from __future__ import annotations
@@ -196,21 +198,24 @@ class PenalizedProblem:
         constraint acts on the linearization ``g(ζ̄) + c(ζ̄)·(ζ − ζ̄)`` at
         :attr:`zeta_lin` ``= ζ̄`` (:mod:`shellobstacle.solvers.linearization` moves ``ζ̄`` to
         ``ζ`` until they agree), and the penalty's weight ``1/|c|`` is taken at ``ζ = 0``, so
-        that ``J_κ`` is one energy whatever ``ζ̄``.
+        that ``J_κ`` is one energy whatever ``ζ̄``. The obstacle's parameters enter as
+        Constants (:meth:`~shellobstacle.obstacle.base.Obstacle.on_mesh`): another radius
+        compiles no new forms.
         """
+        obstacle = self.obstacle.on_mesh(self.mesh)
         zeta = [self.zeta[i] for i in range(3)]
-        self.c_norm = self.obstacle.c_norm(G)
-        self.g = self.obstacle.gap(G, zeta)  # g(ζ)
+        self.c_norm = obstacle.c_norm(G)
+        self.g = obstacle.gap(G, zeta)  # g(ζ)
         self.zeta_lin: dolfinx.fem.Function | None = None
-        if self.obstacle.affine:
-            self.c = self.obstacle.c(G)  # c_j = ∂g/∂ζ_j
-            self.g0 = self.obstacle.reference_gap(G)
+        if obstacle.affine:
+            self.c = obstacle.c(G)  # c_j = ∂g/∂ζ_j
+            self.g0 = obstacle.reference_gap(G)
             self.g_penalty = self.g
             return
         self.zeta_lin = dolfinx.fem.Function(self.V, name="zeta_lin")
         lin = [self.zeta_lin[i] for i in range(3)]
-        self.c = self.obstacle.c(G, lin)
-        self.g0 = self.obstacle.gap(G, lin) - sum(self.c[j] * lin[j] for j in range(3))
+        self.c = obstacle.c(G, lin)
+        self.g0 = obstacle.gap(G, lin) - sum(self.c[j] * lin[j] for j in range(3))
         self.g_penalty = self.g0 + sum(self.c[j] * zeta[j] for j in range(3))
 
     @property

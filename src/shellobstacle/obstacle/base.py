@@ -12,16 +12,24 @@ contact is measured there is :mod:`shellobstacle.obstacle.points`.
 
 from __future__ import annotations
 
+import copy
+import numbers
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from shellobstacle.geometry.surface import Geometry, Surface, dot
 
-__all__ = ["Obstacle", "PointGap"]
+__all__ = ["Obstacle", "PointGap", "number"]
+
+
+def number(v: Any) -> Any:
+    """A parameter's entry as every backend takes it: a Python float (from a NumPy one), or
+    a UFL scalar (an entry of a :meth:`Obstacle.on_mesh` copy's Constant) as it is."""
+    return float(v) if isinstance(v, numbers.Real) else v
 
 
 @dataclass(frozen=True)
@@ -53,13 +61,39 @@ class Obstacle(ABC):
         convex: whether the admissible set ``{g ≥ 0}`` is convex (the paper's theory); None
             when not known (a user's curved ``g``).
         offset: ``s``, the contact face's distance from the middle surface along ``a_3``.
+        constant_parameters: the attributes (numbers, or arrays of three) that
+            :meth:`on_mesh` makes ``dolfinx.fem.Constant`` objects.
     """
 
     affine: bool = False
     convex: bool | None = False
+    constant_parameters: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, offset: float = 0.0) -> None:
         self.offset = float(offset)
+
+    def on_mesh(self, mesh: Any) -> Obstacle:
+        """This obstacle for the UFL forms on ``mesh``: a copy whose
+        :attr:`constant_parameters` are ``dolfinx.fem.Constant`` objects holding their
+        values (a vector's entries as the UFL scalars ``C[k]``), so that the forms of another
+        radius, centre, axis, … are the same forms, compiled once. For UFL only; the copy's
+        ``constants`` holds the Constants by name. An obstacle without such parameters is
+        its own copy."""
+        if not self.constant_parameters:
+            return self
+        from petsc4py import PETSc
+
+        import dolfinx.fem
+
+        out = copy.copy(self)
+        out.constants = {}
+        for name in self.constant_parameters:
+            value = np.asarray(getattr(self, name), dtype=PETSc.ScalarType)
+            constant = dolfinx.fem.Constant(mesh, value)
+            out.constants[name] = constant
+            entries = [constant[k] for k in range(value.size)] if value.ndim else constant
+            setattr(out, name, entries)
+        return out
 
     @abstractmethod
     def value(self, G: Geometry, x: Sequence[Any]) -> Any:

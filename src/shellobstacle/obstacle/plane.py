@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 
 from shellobstacle.geometry.surface import Geometry, Surface, dot
-from shellobstacle.obstacle.base import Obstacle
+from shellobstacle.obstacle.base import Obstacle, number
 
 __all__ = ["Plane"]
 
@@ -29,6 +29,7 @@ class Plane(Obstacle):
 
     affine = True
     convex = True
+    constant_parameters = ("q", "level")
 
     def __init__(self, q: Sequence[float], c: float = 0.0, offset: float = 0.0) -> None:
         super().__init__(offset)
@@ -43,12 +44,13 @@ class Plane(Obstacle):
         return f"Plane(q={tuple(float(v) for v in self.q)}{extra})"
 
     def value(self, G: Geometry, x: Sequence[Any]) -> Any:
-        """``x·q − c``."""
-        return dot(x, self.q) - self.level if self.level else dot(x, self.q)
+        """``x·q − c`` (``x·q`` for a number ``c = 0``)."""
+        g = dot(x, self.q)
+        return g if isinstance(self.level, float) and self.level == 0.0 else g - self.level
 
     def gradient(self, G: Geometry, x: Sequence[Any]) -> list[Any]:
         """``q``."""
-        return [float(v) for v in self.q]
+        return [number(v) for v in self.q]
 
     def gap(self, G: Geometry, eta: Sequence[Any]) -> Any:
         """``g(η) = g(θ + s a_3) + η_j c_j``."""

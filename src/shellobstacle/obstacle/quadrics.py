@@ -14,13 +14,14 @@ from typing import Any
 import numpy as np
 
 from shellobstacle.geometry.surface import Geometry, dot
-from shellobstacle.obstacle.base import Obstacle
+from shellobstacle.obstacle.base import Obstacle, number
 
 __all__ = ["Cylinder", "Sphere"]
 
 
 class _Round(Obstacle):
-    """A surface at distance ``R`` from a centre (a point or a line)."""
+    """A surface at distance ``R`` from a centre (a point or a line); its parameters are
+    Constants in the forms (:meth:`~shellobstacle.obstacle.base.Obstacle.on_mesh`)."""
 
     def __init__(self, radius: float, side: str, offset: float) -> None:
         super().__init__(offset)
@@ -51,6 +52,8 @@ class _Round(Obstacle):
 class Sphere(_Round):
     """The ball ``|x − center| ≤ R``: the shell stays outside it or inside it."""
 
+    constant_parameters = ("center", "radius")
+
     def __init__(
         self, center: Sequence[float], radius: float, side: str = "outside", offset: float = 0.0
     ) -> None:
@@ -61,11 +64,13 @@ class Sphere(_Round):
         return f"Sphere(center={tuple(self.center)}, radius={self.radius:g}, side={self.side!r})"
 
     def radial(self, x: Sequence[Any]) -> list[Any]:
-        return [x[k] - float(self.center[k]) for k in range(3)]
+        return [x[k] - number(self.center[k]) for k in range(3)]
 
 
 class Cylinder(_Round):
     """The round cylinder of radius ``R`` about the line through ``point`` along ``axis``."""
+
+    constant_parameters = ("origin", "axis", "radius")
 
     def __init__(
         self,
@@ -90,6 +95,7 @@ class Cylinder(_Round):
         )
 
     def radial(self, x: Sequence[Any]) -> list[Any]:
-        d = [x[k] - float(self.origin[k]) for k in range(3)]
-        t = dot(d, [float(a) for a in self.axis])
-        return [d[k] - t * float(self.axis[k]) for k in range(3)]
+        d = [x[k] - number(self.origin[k]) for k in range(3)]
+        axis = [number(a) for a in self.axis]
+        t = dot(d, axis)
+        return [d[k] - t * axis[k] for k in range(3)]

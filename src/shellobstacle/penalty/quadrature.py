@@ -65,6 +65,9 @@ class QuadraturePenalty:
         M: ``diag(D) B`` (rows: owned quadrature points; Dirichlet columns zeroed).
         D: ``w_k ε / |c|(x_k)`` at the owned points.
         g0: ``g(θ)`` (the obstacle's reference gap) at the owned points.
+
+    For a curved obstacle ``B`` and ``g0`` are those of the gap's linearization at
+    ``problem.zeta_lin`` (:meth:`refresh` follows it when it moves).
     """
 
     def __init__(self, problem: PenalizedProblem) -> None:
@@ -79,19 +82,36 @@ class QuadraturePenalty:
         dxq = problem.dx_penalty
         c = problem.c
         g0 = problem.g0  # g(θ), or a curved obstacle's linearization at ζ = 0
-        self.M = dolfinx.fem.petsc.assemble_matrix(
-            dolfinx.fem.form(sum(c[j] * u[j] for j in range(3)) * r * weight * dxq),
-            bcs=problem.bcs,
-        )
+        # M and g0 read the gap's linearization (a curved obstacle's): kept for refresh()
+        self._M_form = dolfinx.fem.form(sum(c[j] * u[j] for j in range(3)) * r * weight * dxq)
+        self._gD_form = dolfinx.fem.form(g0 * weight * r * dxq)
+        self.M = dolfinx.fem.petsc.assemble_matrix(self._M_form, bcs=problem.bcs)
         self.M.assemble()
-        n = Q.dofmap.index_map.size_local
+        self._n = n = Q.dofmap.index_map.size_local
         D = dolfinx.fem.assemble_vector(dolfinx.fem.form(weight * r * dxq))
-        gD = dolfinx.fem.assemble_vector(dolfinx.fem.form(g0 * weight * r * dxq))
         self.D = np.array(D.array[:n])
-        self.g0 = np.array(gD.array[:n]) / self.D
+        self.g0 = self._reference_gap()
         self._work_q = self.M.createVecLeft()
         self._work_v = self.M.createVecRight()
         self._MT: PETSc.Mat | None = None  # Mᵀ, if stored (:meth:`store_transpose`)
+
+    def _reference_gap(self) -> np.ndarray:
+        """``g0`` at the owned points: ``∫ g0 w r dy / D`` (the rule's value there)."""
+        gD = dolfinx.fem.assemble_vector(self._gD_form)
+        return np.array(gD.array[: self._n]) / self.D
+
+    def refresh(self) -> None:
+        """``M`` and ``g0`` assembled again, in place, after the problem's gap was linearized
+        anew (:meth:`~shellobstacle.models.problem.PenalizedProblem.linearize`): ``M`` keeps
+        its sparsity (the solvers that hold it keep their symbolic analyses), ``D`` does not
+        move (``|c|`` is taken at ``ζ = 0``), and a stored ``Mᵀ`` is made again."""
+        self.M.zeroEntries()
+        dolfinx.fem.petsc.assemble_matrix(self.M, self._M_form, bcs=self.problem.bcs)
+        self.M.assemble()
+        self.g0 = self._reference_gap()
+        if self._MT is not None:
+            self._MT.destroy()
+            self._MT = self.M.transpose(PETSc.Mat())
 
     @property
     def num_points(self) -> int:

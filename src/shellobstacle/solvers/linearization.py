@@ -11,7 +11,9 @@ the linearized gap, its derivative and hence the penalized equation (and the exa
 KKT conditions at the constraint's points) are those of the curved obstacle.
 
 The first pass goes through the whole κ ladder; the later ones solve at the target κ only,
-from the previous answer.
+from the previous answer, with what the method kept from the pass before
+(:func:`~shellobstacle.solvers.registry.keeping`: Newton's solver, its penalty's point
+operators assembled again in place).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from shellobstacle.solvers.registry import keeping
 from shellobstacle.solvers.result import MethodResult
 
 __all__ = ["MAX_LINEARIZATIONS", "RTOL", "solve_with"]
@@ -58,29 +61,30 @@ def solve_with(
     ladder = list(kappas)
     problem.linearize()
     error = LinearizationError(problem)
-    for k in range(1, MAX_LINEARIZATIONS + 1):
-        done = method.solve(problem, h, ladder, options, say, newton_progress)
-        for step in done.steps:
-            step.details["linearization"] = k
-        total.steps.extend(done.steps)
-        total.extra.update(done.extra)
-        for key, seconds in done.timings.items():
-            total.timings[key] = total.timings.get(key, 0.0) + seconds
-        if not done.converged:
-            total.converged, total.error = False, done.error
-            break
-        changes.append(error())
-        say(f"linearization {k}: max |g(ζ) − g_ζ̄(ζ)| / max |g(ζ)| = {changes[-1]:.1e}")
-        if changes[-1] <= RTOL:
-            break
-        problem.linearize()
-        ladder = list(kappas[-1:])
-    else:
-        total.converged = False
-        total.error = (
-            f"the curved obstacle's linearization did not settle in {MAX_LINEARIZATIONS} "
-            f"passes (last change {changes[-1]:.1e} > {RTOL:g})"
-        )
+    with keeping(method, problem):  # a method may keep its solver from pass to pass
+        for k in range(1, MAX_LINEARIZATIONS + 1):
+            done = method.solve(problem, h, ladder, options, say, newton_progress)
+            for step in done.steps:
+                step.details["linearization"] = k
+            total.steps.extend(done.steps)
+            total.extra.update(done.extra)
+            for key, seconds in done.timings.items():
+                total.timings[key] = total.timings.get(key, 0.0) + seconds
+            if not done.converged:
+                total.converged, total.error = False, done.error
+                break
+            changes.append(error())
+            say(f"linearization {k}: max |g(ζ) − g_ζ̄(ζ)| / max |g(ζ)| = {changes[-1]:.1e}")
+            if changes[-1] <= RTOL:
+                break
+            problem.linearize()
+            ladder = list(kappas[-1:])
+        else:
+            total.converged = False
+            total.error = (
+                f"the curved obstacle's linearization did not settle in {MAX_LINEARIZATIONS} "
+                f"passes (last change {changes[-1]:.1e} > {RTOL:g})"
+            )
     total.extra["linearizations"] = len(changes)
     total.extra["linearization_change"] = changes
     return total

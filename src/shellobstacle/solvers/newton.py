@@ -147,6 +147,17 @@ class NewtonSolver:
             self.linear.attach(self.system, self.timings)
         self.timings["setup"] = time.perf_counter() - t0
 
+    def refresh(self) -> None:
+        """Follow the problem's gap after it was linearized anew
+        (:meth:`~shellobstacle.models.problem.PenalizedProblem.linearize`): the penalty's
+        point operators and what the linear strategy built from them are made again in place;
+        ``K``, the contact zone and the factorizations' analyses are kept. The next
+        :meth:`solve` is then that of a solver built anew, but for those kept parts."""
+        t0 = time.perf_counter()
+        self.system.refresh()
+        self.linear.refresh()
+        self.timings["setup"] += time.perf_counter() - t0
+
     @property
     def kappa(self) -> float:
         """The current penalty parameter."""

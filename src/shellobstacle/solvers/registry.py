@@ -12,7 +12,9 @@ they solve.
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable, Mapping, Sequence
+from contextlib import AbstractContextManager
 from typing import Any, Protocol, runtime_checkable
 
 from shellobstacle.solvers.methods.base import build_options
@@ -22,6 +24,7 @@ __all__ = [
     "DEFAULT",
     "METHODS",
     "Method",
+    "keeping",
     "method_help",
     "method_table",
     "options_for",
@@ -46,15 +49,19 @@ class Method(Protocol):
         options_type: the dataclass of its options (None: it takes none).
         summary: one line on what it does (the config reference, the docs' table).
 
-    Two members are optional (a method without options needs neither):
+    Three members are optional (a method without options needs neither of the first two):
 
     * ``solver_fields``: ``[solver]`` key → the field of its options that key sets
       (:func:`solver_fields`; none when absent).
     * ``options_from(values)``: its options from the config's ``[solver]`` values, for a
       method that checks them (:func:`options_from`; when absent,
       :func:`~shellobstacle.solvers.methods.base.build_options`).
+    * ``keeping(problem)``: a context manager inside which ``solve`` may keep what it builds
+      for ``problem`` and reuse it at the next solve of ``problem``, whose gap's linearization
+      has moved in between (:func:`keeping`; the passes of
+      :func:`~shellobstacle.solvers.linearization.solve_with`); when absent, nothing is kept.
 
-    :class:`~shellobstacle.solvers.methods.base.MethodBase` gives both their defaults.
+    :class:`~shellobstacle.solvers.methods.base.MethodBase` gives all three their defaults.
     """
 
     name: str
@@ -154,6 +161,13 @@ def options_from(method: Method, values: Mapping[str, Any]) -> Any:
     """
     own = getattr(method, "options_from", None)
     return own(values) if own is not None else build_options(method, values)
+
+
+def keeping(method: Method, problem: Any) -> AbstractContextManager[Any]:
+    """``method.keeping(problem)`` when the method has it, else a context that keeps nothing:
+    the solves of ``problem`` inside it may reuse what the method built for it."""
+    own = getattr(method, "keeping", None)
+    return own(problem) if own is not None else contextlib.nullcontext()
 
 
 def method_table() -> str:

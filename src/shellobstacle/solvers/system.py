@@ -80,6 +80,14 @@ class PenalizedSystem:
         """The iterate ``ζ`` (the problem's own vector)."""
         return self.problem.zeta.x.petsc_vec
 
+    def refresh(self) -> None:
+        """Follow the problem's gap after it was linearized anew: the penalty's point operators
+        are assembled again in place (:meth:`QuadraturePenalty.refresh`) and the Jacobian's
+        penalty part is summed anew at its next use; ``K`` and the Jacobian's matrix (its
+        pattern, hence its solvers' analyses) are kept."""
+        self.penalty.refresh()
+        self._held = None
+
     def contact(self) -> bool:
         """Whether the current iterate penetrates anywhere (collective)."""
         return self.comm.allreduce(bool((self.g < 0).any()), op=MPI.LOR)

@@ -53,6 +53,10 @@ class LinearStrategy(Protocol):
     def begin(self) -> None:
         """A new solve starts (its result must not depend on earlier solves)."""
 
+    def refresh(self) -> None:
+        """The penalty's point operators were assembled anew (a curved obstacle's gap
+        linearized again; their sparsity unchanged): drop what was built from their values."""
+
     def direction(self, history: list[float], target: float) -> int:
         """``δ ← J⁻¹(−R)`` for a full Newton step (``system.R`` holds ``−R``); returns the
         linear iterations. ``history``: the residual norms so far, ``target``: Newton's

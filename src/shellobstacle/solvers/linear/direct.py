@@ -87,6 +87,10 @@ class DirectStrategy:
         self.factorizations = 0
         self.reuse_failures = 0
 
+    def refresh(self) -> None:
+        """Nothing built from the penalty's values is kept past :meth:`begin` (the Jacobian's
+        analysis, its pattern's, is kept)."""
+
     def reduced(self, floor_factor: float) -> None:
         """No smaller model: every step is a full one."""
         return None

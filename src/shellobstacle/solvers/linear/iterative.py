@@ -119,6 +119,11 @@ class IterativeStrategy:
         """A new solve: its first forcing term is chosen afresh."""
         self._eta = None
 
+    def refresh(self) -> None:
+        """The kept GAMG hierarchy was built from Jacobians of the old penalty: the next
+        direction builds it again, as a new solver's first would."""
+        self._multigrid_diagonal = None
+
     def reduced(self, floor_factor: float) -> None:
         """No smaller model: every step is a full one."""
         return None

@@ -92,6 +92,11 @@ class ZoneStrategy:
         self.zone.forget_factorization()
         self.zone.set_load(self.system.f)
 
+    def refresh(self) -> None:
+        """The zone's own problem takes the penalty's new point operators; the zone, its
+        condensation of ``K`` and its factorizations' analyses are kept."""
+        self.zone.refresh()
+
     def tangent(self, b: PETSc.Vec) -> bool:
         """No prediction: from the previous solution the zone's steps are as few."""
         return False

@@ -3,7 +3,9 @@ values (the optional members of :class:`~shellobstacle.solvers.registry.Method`)
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Mapping
+from contextlib import AbstractContextManager
 from typing import Any, ClassVar
 
 __all__ = ["MethodBase", "build_options"]
@@ -21,8 +23,8 @@ def build_options(method: Any, values: Mapping[str, Any]) -> Any:
 
 
 class MethodBase:
-    """The defaults of a method's optional members: no ``[solver]`` key of its own, and its
-    options built by :func:`build_options`."""
+    """The defaults of a method's optional members: no ``[solver]`` key of its own, its
+    options built by :func:`build_options`, and nothing kept between solves."""
 
     #: ``[solver]`` key → the field of the options that key sets
     solver_fields: ClassVar[Mapping[str, str]] = {}
@@ -30,3 +32,8 @@ class MethodBase:
     def options_from(self, values: Mapping[str, Any]) -> Any:
         """The options from the config's ``[solver]`` values (:func:`build_options`)."""
         return build_options(self, values)
+
+    def keeping(self, problem: Any) -> AbstractContextManager[Any]:
+        """Inside it, :meth:`solve` may keep what it builds for ``problem`` for its next solve
+        (:func:`~shellobstacle.solvers.registry.keeping`); by default nothing is kept."""
+        return contextlib.nullcontext()

@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import math
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any, ClassVar
 
 from shellobstacle.solvers.methods.base import MethodBase
@@ -16,7 +17,12 @@ __all__ = ["NewtonContinuation"]
 
 class NewtonContinuation(MethodBase):
     """Newton's method at each κ of the ladder, warm-started from the previous κ
-    (:func:`~shellobstacle.solvers.continuation.continuation`)."""
+    (:func:`~shellobstacle.solvers.continuation.continuation`).
+
+    Inside :meth:`keeping` its solver of a problem is kept from one solve to the next and
+    refreshed for the problem's new linearized gap
+    (:meth:`~shellobstacle.solvers.newton.NewtonSolver.refresh`) instead of built again.
+    """
 
     name = "newton"
     penalized = True
@@ -30,6 +36,20 @@ class NewtonContinuation(MethodBase):
             "petsc_options",
         )
     }  # fmt: skip
+
+    def __init__(self) -> None:
+        # problem → (options, its solver), or None until the first solve: the problems
+        # whose solver is kept (inside keeping())
+        self._kept: dict[Any, tuple[Any, Any] | None] = {}
+
+    @contextlib.contextmanager
+    def keeping(self, problem: Any) -> Iterator[None]:
+        """Keep the solver of ``problem`` between the solves inside (released at the end)."""
+        self._kept[problem] = None
+        try:
+            yield
+        finally:
+            self._kept.pop(problem, None)
 
     def solve(
         self,
@@ -49,8 +69,18 @@ class NewtonContinuation(MethodBase):
         say(f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ")
         out = MethodResult()
         t = time.perf_counter()
-        with phase("setting up Newton's solver"):
-            solver = NewtonSolver(problem, options)
+        kept = self._kept.get(problem)
+        before: dict[str, float] = {}  # the kept solver's seconds before this solve
+        if kept is not None and kept[0] is options:
+            solver = kept[1]
+            before = dict(solver.timings)
+            with phase("refreshing Newton's solver"):
+                solver.refresh()
+        else:
+            with phase("setting up Newton's solver"):
+                solver = NewtonSolver(problem, options)
+            if problem in self._kept:
+                self._kept[problem] = (options, solver)
         out.timings["setup"] = time.perf_counter() - t
         try:
             out.steps = list(
@@ -63,5 +93,5 @@ class NewtonContinuation(MethodBase):
                 out.steps.append(KappaStep(kappa, err.result, math.nan))
             out.converged, out.error = False, str(err)
         for key, value in solver.timings.items():
-            out.timings[f"solve.{key}"] = value
+            out.timings[f"solve.{key}"] = value - before.get(key, 0.0)
         return out

@@ -124,6 +124,13 @@ class ContactZone:
             self.problem = ZoneProblem(self.cond, self.penalty, self.points, self.timings)
         self.builds += 1
 
+    def refresh(self) -> None:
+        """The zone's problem made again from the penalty's point operators, after they were
+        assembled anew (their pattern, hence the zone's points and condensation, unchanged)."""
+        if self.problem is not None:
+            self.problem.destroy()
+            self.problem = ZoneProblem(self.cond, self.penalty, self.points, self.timings)
+
     def _blocks(self) -> HybridBlocks | None:
         """The block matrix in ``(ζ, t)`` of a hybrid stiffness ``K`` (made once), or None."""
         problem = self.penalty.problem
