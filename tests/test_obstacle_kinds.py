@@ -88,6 +88,20 @@ def test_a_large_ball_tends_to_the_plane_at_the_rate_one_over_r() -> None:
     assert np.all(np.abs(rates - 1.0) < 0.02), (errors, rates)
 
 
+def test_a_ball_too_large_for_the_stopping_test_settles_at_round_off() -> None:
+    """``|x − c| − R`` with ``R = 10⁵`` is evaluated to about 1e-10 of ``max |g|``, above
+    :data:`~shellobstacle.solvers.linearization.RTOL`: the passes stop when the error stops
+    falling (no failure after 30 passes), and ζ is the plane's to ``O(1/R)``."""
+    from shellobstacle.solvers.linearization import RTOL, STALL
+
+    zeta_plane = _zeta(_solve(Obstacle(), n=12)[0])
+    r, _ = _solve(ball(1e5), n=12)
+    changes = r.extra["linearization_change"]
+    assert changes[-1] > RTOL and changes[-1] <= STALL and changes[-1] > changes[-2] / 2
+    assert r.extra["linearizations"] <= 4
+    assert _max(_zeta(r) - zeta_plane) < 1e-7
+
+
 def test_the_lower_face_touches_about_epsilon_earlier() -> None:
     """The lower face θ − ε a_3 must stay above the plane: ζ_3 stops ε·(a_3·q) ≈ ε (a_3 ≈ e_3
     at the cap's top) higher."""

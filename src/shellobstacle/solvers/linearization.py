@@ -6,9 +6,10 @@ iteration) nor the exact solvers' nodal bounds hold. Each method therefore solve
 whose gap is linearized at ``ζ̄``, ``g(ζ̄) + c(ζ̄)·(ζ − ζ̄)``
 (:meth:`~shellobstacle.models.problem.PenalizedProblem.linearize`), with all its machinery
 unchanged, and ``ζ̄`` moves to the answer until the linearized gap at the answer is the
-curved one (:data:`RTOL`). At a fixed point ``ζ = ζ̄``
-the linearized gap, its derivative and hence the penalized equation (and the exact problem's
-KKT conditions at the constraint's points) are those of the curved obstacle.
+curved one (:data:`RTOL`), or to the round-off of evaluating ``g`` (:data:`STALL`). At a
+fixed point ``ζ = ζ̄`` the linearized gap, its derivative and hence the penalized equation
+(and the exact problem's KKT conditions at the constraint's points) are those of the curved
+obstacle.
 
 The first pass goes through the whole κ ladder; the later ones solve at the target κ only,
 from the previous answer, with what the method kept from the pass before
@@ -26,12 +27,17 @@ import numpy as np
 from shellobstacle.solvers.registry import keeping
 from shellobstacle.solvers.result import MethodResult
 
-__all__ = ["MAX_LINEARIZATIONS", "RTOL", "solve_with"]
+__all__ = ["MAX_LINEARIZATIONS", "RTOL", "STALL", "solve_with"]
 
 RTOL = 1e-12
 """Stop when the linearization's error at the answer, ``max |g(ζ) − g_ζ̄(ζ)|`` over the
 penalty rule's points, is at most ``RTOL · max |g(ζ)|``: the gap is then the curved
 obstacle's to about the accuracy the solvers compute it with."""
+
+STALL = 1e-8
+"""A linearization error that no longer halves from one pass to the next is the round-off of
+evaluating ``g`` (a ball of radius 10⁴ evaluates ``|x − c| − R`` to about 1e-11 of ``max |g|``,
+above :data:`RTOL`): the passes stop there if it is at most ``STALL``, and fail otherwise."""
 
 MAX_LINEARIZATIONS = 30
 
@@ -77,13 +83,17 @@ def solve_with(
             say(f"linearization {k}: max |g(ζ) − g_ζ̄(ζ)| / max |g(ζ)| = {changes[-1]:.1e}")
             if changes[-1] <= RTOL:
                 break
+            if len(changes) > 1 and STALL >= changes[-1] > changes[-2] / 2:
+                say(f"linearization {k}: settled at the round-off of evaluating g")
+                break
             problem.linearize()
             ladder = list(kappas[-1:])
         else:
             total.converged = False
             total.error = (
                 f"the curved obstacle's linearization did not settle in {MAX_LINEARIZATIONS} "
-                f"passes (last change {changes[-1]:.1e} > {RTOL:g})"
+                f"passes (last change {changes[-1]:.1e}: above {RTOL:g}, and still falling or "
+                f"above {STALL:g})"
             )
     total.extra["linearizations"] = len(changes)
     total.extra["linearization_change"] = changes
