@@ -76,9 +76,8 @@ class Obstacle(ABC):
         """This obstacle for the UFL forms on ``mesh``: a copy whose
         :attr:`constant_parameters` are ``dolfinx.fem.Constant`` objects holding their
         values (a vector's entries as the UFL scalars ``C[k]``), so that the forms of another
-        radius, centre, axis, … are the same forms, compiled once. For UFL only; the copy's
-        ``constants`` holds the Constants by name. An obstacle without such parameters is
-        its own copy."""
+        radius, centre, axis, … are the same forms, compiled once. For UFL only. An
+        obstacle without such parameters is its own copy."""
         if not self.constant_parameters:
             return self
         from petsc4py import PETSc
@@ -86,11 +85,9 @@ class Obstacle(ABC):
         import dolfinx.fem
 
         out = copy.copy(self)
-        out.constants = {}
         for name in self.constant_parameters:
             value = np.asarray(getattr(self, name), dtype=PETSc.ScalarType)
             constant = dolfinx.fem.Constant(mesh, value)
-            out.constants[name] = constant
             entries = [constant[k] for k in range(value.size)] if value.ndim else constant
             setattr(out, name, entries)
         return out
