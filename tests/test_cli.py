@@ -14,6 +14,8 @@ from shellobstacle import tuning
 from shellobstacle.cli.main import main
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
+#: for the tests whose subject is not the 3D picture (tests/test_pictures.py)
+NO_PICTURES = ["--set", "output.pictures=false"]
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
 
 
@@ -68,6 +70,7 @@ def test_default_folder_is_new_each_time(tmp_path: Path, monkeypatch: pytest.Mon
     """Without -o, each run gets its own folder named after the config."""
     monkeypatch.chdir(tmp_path)
     args = ["solve", str(SMALL), "-q", "--set", "domain.h=0.08", "--set", "output.paraview=false"]
+    args += NO_PICTURES
     assert main(args) == 0
     assert main(args) == 0
     assert (tmp_path / "small-solve" / "summary.json").is_file()
@@ -119,6 +122,7 @@ def test_force_proceeds_and_records_the_warning(tmp_path: Path) -> None:
         "domain.h=0.08",
         "--set",
         "output.paraview=false",
+        *NO_PICTURES,
     ]
     assert main(args) == 0
     summary = json.loads((out / "summary.json").read_text())
@@ -186,6 +190,7 @@ def test_solver_failure_writes_the_last_iterate(tmp_path: Path) -> None:
         "solver.max_iterations=1",
         "--set",
         "output.paraview=false",
+        *NO_PICTURES,
     ]
     assert main(args) == 1
     summary = json.loads((out / "summary.json").read_text())
@@ -207,6 +212,7 @@ def test_active_set_method_reports_kkt(tmp_path: Path) -> None:
         "solver.method=active-set",
         "--set",
         "discretization.penalty_quadrature=vertex",
+        *NO_PICTURES,
     ]
     assert main(args) == 0
     summary = json.loads((out / "summary.json").read_text())
@@ -234,6 +240,7 @@ def test_brezis_sibony_method_cap_is_reported(tmp_path: Path) -> None:
         "solver.bs_max_iterations=50",
         "--set",
         "output.paraview=false",
+        *NO_PICTURES,
     ]
     assert main(args) == 1
     summary = json.loads((out / "summary.json").read_text())

@@ -287,6 +287,7 @@ def test_load_experiment_describes_the_users_problem(capsys, tmp_path, monkeypat
     labels = _horizontal_line_labels(monkeypatch)
     out = tmp_path / "load"
     args = ["--set", "domain.h=0.1", "--values", "0,20", "-o", str(out), "-q"]
+    args += ["--set", "output.pictures=false"]
     code, _, err = run(capsys, "experiment", "load", str(EXAMPLES / "paraboloid.toml"), *args)
     assert code == 0, err
     report = (out / "report.md").read_text()

@@ -142,6 +142,7 @@ def test_ctrl_c_under_mpiexec_stops_every_rank_cleanly(tmp_path: Path) -> None:
     out = tmp_path / "b1"
     command = [mpiexec(), "-n", "2", sys.executable, "-m", "shellobstacle", "experiment"]
     command += ["penalty", str(SMALL), "-q", "--set", "domain.h=0.015", "-o", str(out)]
+    command += ["--set", "output.pictures=false"]  # the stop and the resume are under test
     proc = subprocess.Popen(
         command,
         stdout=subprocess.PIPE,
@@ -270,5 +271,6 @@ def test_ctrl_c_during_a_factorization_is_one_line_and_exit_130(tmp_path: Path, 
         "shellobstacle: interrupted (still inside a library call 0.5 s after Ctrl-C); stopping it"
     ]
     again = [sys.executable, "-m", "shellobstacle", "solve", str(SMALL), "-q", "-o", str(out)]
-    rerun = subprocess.run([*again, "--set", "domain.h=0.1"], capture_output=True, text=True)
+    again += ["--set", "domain.h=0.1", "--set", "output.pictures=false"]
+    rerun = subprocess.run(again, capture_output=True, text=True)
     assert rerun.returncode == 0, rerun.stderr

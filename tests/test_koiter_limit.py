@@ -139,7 +139,7 @@ def test_koiter_limit_verbose_prints_each_newton_step(tmp_path: Path) -> None:
     out = tmp_path / "verbose"
     args = ["experiment", "koiter-limit", str(PAPER), "-o", str(out), "-v"]
     args += ["--set", "domain.h=0.1", "--epsilons", "1e-1", "--edge-h", "0.05"]
-    assert main(args) == 0
+    assert main([*args, "--set", "output.pictures=false"]) == 0
     log = (out / "log.txt").read_text()
     assert "Newton 1: relative residual" in log and "Newton: " in log
 

@@ -134,6 +134,7 @@ def test_too_large_for_this_machine_unless_force(
     monkeypatch.setattr(resources, "machine_memory", lambda: 0.25 * 2.0**30)
     args = [*([command] if command != "experiment" else ["experiment", "solvers"]), PAPER]
     args += ["-q", "--set", "domain.h=0.1", "--set", "output.paraview=false"]
+    args += ["--set", "output.pictures=false"]
     if command == "experiment":
         args += ["--sizes", "0.15"]
     if command == "check":

@@ -29,10 +29,12 @@ serial = pytest.mark.skipif(COMM.size > 1, reason="runs serially")
 
 SOLVE = ["solve", SMALL, "-q", "--set", "domain.h=0.1", "--set", "output.figures=false"]
 NO_PARAVIEW = ["--set", "output.paraview=false"]
+#: the folders, not the 3D pictures (tests/test_pictures.py), are under test here
+NO_PICTURES = ["--set", "output.pictures=false"]
 #: the shell through the plane: the assumptions fail after the folder is prepared
 THROUGH_PLANE = ["--set", "surface.offset=1.2"]
-PENALTY = ["experiment", "penalty", SMALL, "-q", "--set", "domain.h=0.1"]
-PENALTY += ["--quadratures", "vertex", "--q-max", "2"]
+SWEEP = ["experiment", "penalty", SMALL, "-q", "--set", "domain.h=0.1"]
+PENALTY = [*SWEEP, *NO_PICTURES, "--quadratures", "vertex", "--q-max", "2"]
 
 
 def interrupt_solve(monkeypatch: pytest.MonkeyPatch, at: int) -> None:
@@ -79,7 +81,7 @@ def test_an_experiment_with_a_bad_option_creates_no_folder(
 ) -> None:
     """Options are checked before the folder is made: exit 2, one line, nothing written."""
     monkeypatch.chdir(tmp_path)
-    assert main([*PENALTY[:-4], "--quadratures", "gaus"]) == 2
+    assert main([*SWEEP, "--quadratures", "gaus"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("shellobstacle: error: --quadratures: 'gaus' is not one of 'gauss'")
     assert len(err.strip().splitlines()) == 1
@@ -288,7 +290,7 @@ def test_a_saved_config_reruns_from_anywhere(
     text = Path(SMALL).read_text().replace('kind = "disk"', 'kind = "file"\npath = "disk.msh"')
     config.write_text(text.replace("h = 0.04", ""))
     first = tmp_path / "first"
-    assert main(["solve", str(config), "-q", *NO_PARAVIEW, "-o", str(first)]) == 0
+    assert main(["solve", str(config), "-q", *NO_PARAVIEW, *NO_PICTURES, "-o", str(first)]) == 0
     saved = tomllib.loads((first / "config.toml").read_text())
     assert saved["domain"]["path"] == str(project / "disk.msh")
     elsewhere, cwd = tmp_path / "elsewhere", tmp_path / "cwd"

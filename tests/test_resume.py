@@ -28,6 +28,9 @@ PENALTY = ["experiment", "penalty", PAPER, "--set", "domain.h=0.06", "--quadratu
 MESH = ["experiment", "mesh", PAPER, "--set", "domain.h=0.15", "--refinements", "2"]
 MESH += ["--q", "0.5,1.0"]
 LOAD = ["experiment", "load", PARABOLOID, "--set", "domain.h=0.06", "--values", "0,40,80"]
+# what is resumed is the tables and the solutions: no 3D picture (tests/test_pictures.py)
+for _sweep in (PENALTY, MESH, LOAD):
+    _sweep += ["--set", "output.pictures=false"]
 
 
 class Solves:

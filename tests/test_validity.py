@@ -27,6 +27,8 @@ from shellobstacle.post.validity import THRESHOLDS, TRIVIAL, assess
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 #: a uniform pressure 1000 times the peak of the paper's load (examples/small.toml)
 CRUSHING = "load.p=['0', '0', '-1000*(2*epsilon/25)*0.295']"
+#: the validity, not the 3D picture (tests/test_pictures.py), is under test here
+NO_PICTURES = ["--set", "output.pictures=false"]
 
 
 @pytest.fixture(scope="module")
@@ -96,7 +98,8 @@ def test_the_papers_problem_is_inside_and_a_crushing_load_outside(tmp_path_facto
     terminal and in summary.json, every file still written (the same on 2 ranks)."""
     comm = MPI.COMM_WORLD
     base = Path(comm.bcast(str(tmp_path_factory.mktemp("validity")) if comm.rank == 0 else None))
-    ok = main(["solve", str(SMALL), "-o", str(base / "ok"), "-q", "--set", "domain.h=0.06"])
+    args = ["solve", str(SMALL), "-q", *NO_PICTURES, "--set", "domain.h=0.06"]
+    ok = main([*args, "-o", str(base / "ok")])
     assert ok == EXIT_OK
     comm.barrier()  # rank 0 writes the files
     summary = json.loads((base / "ok" / "summary.json").read_text())
@@ -104,9 +107,7 @@ def test_the_papers_problem_is_inside_and_a_crushing_load_outside(tmp_path_facto
     assert 0 < summary["validity"]["penetration"] < THRESHOLDS["penetration"]
 
     out = base / "crushed"
-    code = main(
-        ["solve", str(SMALL), "-o", str(out), "-q", "--set", "domain.h=0.06", "--set", CRUSHING]
-    )
+    code = main([*args, "-o", str(out), "--set", CRUSHING])
     assert code == EXIT_INVALID
     comm.barrier()
     summary = json.loads((out / "summary.json").read_text())
@@ -130,6 +131,7 @@ def test_a_load_sweep_names_the_values_outside_the_validity(tmp_path: Path) -> N
     out = tmp_path / "sweep"
     paraboloid = str(Path(__file__).parents[1] / "examples" / "paraboloid.toml")
     args = ["experiment", "load", paraboloid, "-q", "-o", str(out), "--set", "domain.h=0.06"]
+    args += NO_PICTURES
     assert main([*args, "--parameter", "ell", "--values", "40,4000"]) == EXIT_OK
     report = (out / "report.md").read_text()
     assert "**Outside the model's validity**" in report
@@ -153,7 +155,7 @@ def test_the_python_api_measures_a_solve() -> None:
 def _solve(folder: Path, *settings: str) -> tuple[int, dict]:
     """``solve`` of examples/small.toml at h = 0.08 with ``settings``: the exit code and the
     summary."""
-    args = ["solve", str(SMALL), "-o", str(folder), "-q", "--set", "domain.h=0.08"]
+    args = ["solve", str(SMALL), "-o", str(folder), "-q", "--set", "domain.h=0.08", *NO_PICTURES]
     code = main([*args, *(x for item in settings for x in ("--set", item))])
     MPI.COMM_WORLD.barrier()  # rank 0 writes the files
     return code, json.loads((folder / "summary.json").read_text())
