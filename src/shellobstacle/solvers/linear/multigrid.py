@@ -238,13 +238,14 @@ class MultigridStrategy(IterativeStrategy):
     def _solve(self, b: PETSc.Vec) -> None:
         """``δ ← A⁻¹ b`` by CG with a V-cycle set up for the current Jacobian; with bounds
         kept from an earlier step, a failed or stagnating solve is repeated with new ones."""
-        if self._P:
-            self._coarse_operators()
         if not self._estimators:
+            if self._P:
+                self._coarse_operators()
             self._solve_once(b)
             return
         kept = self._bounds_current
         if not kept:
+            self._coarse_operators()
             self._bounds()
         max_it = self.ksp.getTolerances()[3]
         if kept:
@@ -254,6 +255,7 @@ class MultigridStrategy(IterativeStrategy):
         self.ksp.setTolerances(max_it=max_it)
         if kept and self.ksp.getConvergedReason() < 0:
             self._rejected += self.ksp.getIterationNumber()
+            self._coarse_operators()
             self._bounds()
             self._solve_once(b)
         self._bounds_most = max(self._bounds_most, self.ksp.getIterationNumber())
