@@ -3,10 +3,9 @@
 The meshes of a uniformly refined mesh (:mod:`~shellobstacle.mesh.hierarchy`) carry nested
 Lagrange spaces; PETSc's PCMG runs V-cycles on them with the interpolation between the levels
 (the three components each interpolated by itself) and Galerkin coarse operators ``Pᵀ J P`` of
-every Jacobian ``J = K + H``: ``Pᵀ K P`` is made once, and only the penalty part ``H`` (the
-rows of the active points' cells) is multiplied out at each step; the active points reach the
-coarse levels through it.
-The coarsest level (gmsh's mesh) is factorized by MUMPS.
+a Jacobian ``J = K + H``: ``Pᵀ K P`` is made once, and only the penalty part ``H`` (the rows of
+the active points' cells) is multiplied out; the active points reach the coarse levels through
+it. The coarsest level (gmsh's mesh) is factorized by MUMPS.
 
 The smoother is two Chebyshev iterations preconditioned by the Jacobian's diagonal (point
 Jacobi; the same on any number of ranks): ζ_α is an elliptic H¹ system, whose high
@@ -15,13 +14,15 @@ penalty-augmented mass matrix, well conditioned once scaled by its diagonal). Ch
 the V-cycle are symmetric, so the Krylov method is plain CG. Point-block Jacobi (each node's
 3×3 block inverted) needs several times more iterations at small κ (docs/perf/multigrid.md).
 
-Chebyshev needs a bound of the largest eigenvalue of ``D⁻¹A`` on each level. PETSc estimates it
-(Lanczos, ten steps) at every set-up with a new matrix, that is at every Newton step; here it is
-estimated the same way once per solve (one κ) and given to the smoothers
-(:func:`largest_eigenvalue`, PETSc's interval ``[0.1, 1.1]`` times the estimate): within a κ
-only the active points move, a few per cent of them. A direction whose CG fails, or needs more
+The levels are set up once per solve (one κ), at its first Newton step, and kept over its
+other steps, where only the active points move (a few per cent of them): the coarser levels'
+operators, the coarse factorization, and Chebyshev's bound of the largest eigenvalue of
+``D⁻¹A`` on each smoothed level, which PETSc would estimate (Lanczos, ten steps) at every
+set-up with a new matrix; here it is estimated the same way (:func:`largest_eigenvalue`) and
+given to the smoothers with PETSc's interval, ``[0.1, 1.1]`` times the estimate. CG runs with
+the current Jacobian, the finest level's smoother too. A direction whose CG fails, or needs more
 than :data:`~shellobstacle.solvers.linear.iterative.KEPT_ITERATION_FACTOR` times the most
-iterations since the estimate, is solved again with new estimates.
+iterations since the set-up, is solved again with the levels set up anew.
 
 A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls back to
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
@@ -100,10 +101,10 @@ class MultigridStrategy(IterativeStrategy):
             raise ValueError(f"levels must be >= 1, got {levels}")
         self.smoother, self.max_levels = smoother, levels
         self.levels = 1  # of the V-cycle (1: algebraic multigrid)
-        self.estimates = 0  # of the levels' eigenvalue bounds (one per level and solve)
+        self.estimates = 0  # of a level's eigenvalue bound
         self._estimators: list[PETSc.KSP] = []  # per smoothed level (empty: PETSc's own)
-        self._bounds_current = False  # estimated for this solve
-        self._bounds_most = 0  # the most CG iterations of a solve since the estimate
+        self._levels_current = False  # set up in this solve
+        self._levels_most = 0  # the most CG iterations of a direction since the set-up
 
     def attach(self, system: PenalizedSystem, timings: dict[str, float]) -> None:
         """CG with PCMG on the mesh hierarchy (GAMG without one) under a prefix of its own."""
@@ -184,14 +185,14 @@ class MultigridStrategy(IterativeStrategy):
             H.destroy()
 
     def begin(self) -> None:
-        """A new solve (a new κ): new forcing terms and new Chebyshev bounds."""
+        """A new solve (a new κ): new forcing terms, the levels set up at its first step."""
         super().begin()
-        self._bounds_current = False
+        self._levels_current = False
 
     def refresh(self) -> None:
-        """The penalty's operators were made anew: new Chebyshev bounds at the next step."""
+        """The penalty's operators were made anew: the levels set up anew at the next step."""
         super().refresh()
-        self._bounds_current = False
+        self._levels_current = False
 
     def _make_estimators(self, prefix: str) -> list[PETSc.KSP]:
         """CG with each smoothed level's preconditioner, for :func:`largest_eigenvalue`
@@ -233,37 +234,41 @@ class MultigridStrategy(IterativeStrategy):
             if error:
                 raise RuntimeError(f"KSPChebyshevSetEigenvalues failed (PETSc error {error})")
             self.estimates += 1
-        self._bounds_current, self._bounds_most = True, 0
+
+    def _set_up_levels(self) -> None:
+        """The coarser levels' operators for the current Jacobian and, unless PETSc makes
+        them, the smoothers' bounds (collective)."""
+        self._coarse_operators()
+        if self._estimators:
+            self._bounds()
+        self.multigrid_builds += 1
+        self._levels_current, self._levels_most = True, 0
 
     def _solve(self, b: PETSc.Vec) -> None:
-        """``δ ← A⁻¹ b`` by CG with a V-cycle set up for the current Jacobian; with bounds
-        kept from an earlier step, a failed or stagnating solve is repeated with new ones."""
-        if not self._estimators:
-            if self._P:
-                self._coarse_operators()
+        """``δ ← A⁻¹ b`` by CG with the V-cycle; with levels kept from an earlier step of the
+        solve, a failed or stagnating CG is repeated with the levels set up anew."""
+        if not self._P:  # algebraic multigrid: PETSc sets it up at every step
             self._solve_once(b)
+            self.multigrid_builds += 1
             return
-        kept = self._bounds_current
+        kept = self._levels_current
         if not kept:
-            self._coarse_operators()
-            self._bounds()
+            self._set_up_levels()
         max_it = self.ksp.getTolerances()[3]
         if kept:
-            cap = max(KEPT_MIN_ITERATIONS, KEPT_ITERATION_FACTOR * self._bounds_most)
+            cap = max(KEPT_MIN_ITERATIONS, KEPT_ITERATION_FACTOR * self._levels_most)
             self.ksp.setTolerances(max_it=min(max_it, cap))
         self._solve_once(b)
         self.ksp.setTolerances(max_it=max_it)
         if kept and self.ksp.getConvergedReason() < 0:
             self._rejected += self.ksp.getIterationNumber()
-            self._coarse_operators()
-            self._bounds()
+            self._set_up_levels()
             self._solve_once(b)
-        self._bounds_most = max(self._bounds_most, self.ksp.getIterationNumber())
+        self._levels_most = max(self._levels_most, self.ksp.getIterationNumber())
 
     def _solve_once(self, b: PETSc.Vec) -> None:
         """One CG solve into ``system.dz``."""
         self.ksp.solve(b, self.system.dz)
-        self.multigrid_builds += 1
 
 
 def largest_eigenvalue(estimator: PETSc.KSP, A: PETSc.Mat) -> float:
