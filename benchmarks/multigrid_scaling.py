@@ -5,10 +5,11 @@ For each gmsh size and each linear solver: one solve from the config (examples/p
 levels multigrid used, Newton steps (per κ and in all), Krylov iterations per Newton step
 (mean and max over the steps; the direct path's are the CG iterations with a kept
 factorization or on the contact zone), the continuation's seconds and phases (``solve.*``:
-set-up, multigrid's part of it, assembly, linear solves, line searches, ...), the contact area
-and its relative difference to the direct path's, peak RSS of the process so far and the load
-average before and after (the machine may be shared: the times are as noisy as that). A table
-follows at the end. The peak RSS is the process' high-water mark: put the solver that needs
+set-up, multigrid's part of it, assembly, linear solves, line searches, ...), the process' CPU
+seconds end to end (less sensitive than the wall clock to other jobs on the cores), the
+contact area and its relative difference to the direct path's, peak RSS of the process so far
+and the load average before and after (the machine may be shared: the times are as noisy as
+that). A table follows at the end. The peak RSS is the process' high-water mark: put the solver that needs
 less memory first (``--solvers multigrid,direct``) for both figures to be each solver's own.
 
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058,0.0029,0.00145
@@ -41,9 +42,9 @@ def run(h: float, linear_solver: str) -> dict:
     comm = MPI.COMM_WORLD
     cfg = load_config(PAPER, [f"domain.h={h}", f'solver.linear_solver="{linear_solver}"'])
     load = os.getloadavg()[0]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     result = solve_config(cfg)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     area = Postprocessor(result.problem).contact()["contact_area"]
     newton = [s.iterations for s in result.steps]
     krylov = [n for s in result.steps for n in s.record.linear_iterations]
@@ -61,6 +62,7 @@ def run(h: float, linear_solver: str) -> dict:
         "krylov_per_kappa": [s.record.linear_iterations for s in result.steps],
         "solve_s": round(result.timings.get("solve", float("nan")), 2),
         "end_to_end_s": round(seconds, 2),
+        "end_to_end_cpu_s": round(cpu, 2),
         "phases_s": {k: round(v, 2) for k, v in result.timings.items() if k.startswith("solve.")},
         "contact_area": area,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
