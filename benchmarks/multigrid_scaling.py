@@ -9,8 +9,9 @@ set-up, multigrid's part of it, assembly, linear solves, line searches, ...), th
 seconds end to end (less sensitive than the wall clock to other jobs on the cores), the
 contact area and its relative difference to the direct path's, peak RSS of the process so far
 and the load average before and after (the machine may be shared: the times are as noisy as
-that). A table follows at the end. The peak RSS is the process' high-water mark: put the solver that needs
-less memory first (``--solvers multigrid,direct``) for both figures to be each solver's own.
+that). A table follows at the end. The peak RSS is the process' high-water mark: put the
+solver that needs less memory first (``--solvers multigrid,direct``) for both figures to be
+each solver's own.
 
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058,0.0029,0.00145
     .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058
