@@ -145,3 +145,25 @@ def test_a_stagnating_cg_with_kept_levels_sets_them_up_again(monkeypatch) -> Non
     assert all(s.newton.converged for s in steps)
     assert solver.linear.multigrid_builds > len(kappas) + 2
     assert l2_norm(direct.zeta - problem.zeta) <= 1e-8 * l2_norm(direct.zeta)
+
+
+def test_without_petscs_setter_petsc_estimates_the_bounds(monkeypatch) -> None:
+    """A PETSc without ``KSPChebyshevSetEigenvalues``: the smoothers keep PETSc's own
+    estimates (none of the strategy's) and the answer is the direct path's."""
+    lookup = libpetsc._lookup
+
+    def failing(name: str):
+        if name == "KSPChebyshevSetEigenvalues":
+            raise AttributeError(f"undefined symbol: {name}")
+        return lookup(name)
+
+    monkeypatch.setattr(libpetsc, "_lookup", failing)
+    mesh = disk(1)
+    kappas = ladder(mesh)
+    direct = PenalizedProblem(paper_shell(), mesh)
+    continuation(direct, NewtonSolver(direct), kappas)
+    problem = PenalizedProblem(paper_shell(), mesh)
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
+    continuation(problem, solver, kappas)
+    assert solver.linear.levels == 2 and solver.linear.estimates == 0
+    assert l2_norm(direct.zeta - problem.zeta) <= 1e-8 * l2_norm(direct.zeta)
