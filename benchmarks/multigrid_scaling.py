@@ -5,10 +5,13 @@ For each gmsh size and each linear solver: one solve from the config (examples/p
 levels multigrid used, Newton steps (per κ and in all), Krylov iterations per Newton step
 (mean and max over the steps; the direct path's are the CG iterations with a kept
 factorization or on the contact zone), the continuation's seconds and phases (``solve.*``:
-set-up, multigrid's part of it, assembly, linear solves, line searches, ...), the contact area
-and its relative difference to the direct path's, peak RSS of the process so far and the load
-average before and after (the machine may be shared: the times are as noisy as that). A table
-follows at the end.
+set-up, multigrid's part of it, assembly, linear solves, line searches, ...), the process' CPU
+seconds end to end (less sensitive than the wall clock to other jobs on the cores), the
+contact area and its relative difference to the direct path's, peak RSS of the process so far
+and the load average before and after (the machine may be shared: the times are as noisy as
+that). A table follows at the end. The peak RSS is the process' high-water mark: put the
+solver that needs less memory first (``--solvers multigrid,direct``) for both figures to be
+each solver's own.
 
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058,0.0029,0.00145
     .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058
@@ -40,9 +43,9 @@ def run(h: float, linear_solver: str) -> dict:
     comm = MPI.COMM_WORLD
     cfg = load_config(PAPER, [f"domain.h={h}", f'solver.linear_solver="{linear_solver}"'])
     load = os.getloadavg()[0]
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     result = solve_config(cfg)
-    seconds = time.perf_counter() - t0
+    seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     area = Postprocessor(result.problem).contact()["contact_area"]
     newton = [s.iterations for s in result.steps]
     krylov = [n for s in result.steps for n in s.record.linear_iterations]
@@ -60,6 +63,7 @@ def run(h: float, linear_solver: str) -> dict:
         "krylov_per_kappa": [s.record.linear_iterations for s in result.steps],
         "solve_s": round(result.timings.get("solve", float("nan")), 2),
         "end_to_end_s": round(seconds, 2),
+        "end_to_end_cpu_s": round(cpu, 2),
         "phases_s": {k: round(v, 2) for k, v in result.timings.items() if k.startswith("solve.")},
         "contact_area": area,
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
@@ -77,24 +81,26 @@ def main() -> None:
     comm = MPI.COMM_WORLD
     rows = []
     for h in (float(s) for s in args.sizes.split(",")):
-        direct_area = None
-        for linear_solver in args.solvers.split(","):
-            row = run(h, linear_solver)
-            if linear_solver == "direct":
-                direct_area = row["contact_area"]
-            if direct_area is not None:
-                row["area_vs_direct"] = abs(row["contact_area"] - direct_area) / direct_area
-            rows.append(row)
+        pair = [run(h, linear_solver) for linear_solver in args.solvers.split(",")]
+        direct = [r["contact_area"] for r in pair if r["linear_solver"] == "direct"]
+        for row in pair:
+            if direct:
+                row["area_vs_direct"] = abs(row["contact_area"] - direct[0]) / direct[0]
             if comm.rank == 0:
                 print(json.dumps(row), flush=True)
+        rows += pair
     if comm.rank == 0:
-        print("| dofs | solver | Newton steps | Krylov its/step (mean, max) | solve s | area |")
-        print("|---:|---|---:|---:|---:|---:|")
+        print(
+            "| dofs | solver | Newton steps (per κ) | Krylov its/step (mean, max) | solve s "
+            "| contact area | peak RSS GB |"
+        )
+        print("|---:|---|---:|---:|---:|---:|---:|")
         for r in rows:
+            per_kappa = "/".join(str(n) for n in r["newton_per_kappa"])
             print(
-                f"| {r['dofs']:,} | {r['linear_solver']} | {r['newton']} | "
+                f"| {r['dofs']:,} | {r['linear_solver']} | {r['newton']} ({per_kappa}) | "
                 f"{r['krylov_per_step_mean']:.1f}, {r['krylov_per_step_max']} | "
-                f"{r['solve_s']:.1f} | {r['contact_area']:.6f} |"
+                f"{r['solve_s']:.1f} | {r['contact_area']:.7f} | {r['peak_rss_mb'] / 1024:.2f} |"
             )
 
 

@@ -210,8 +210,8 @@ def _without(monkeypatch: pytest.MonkeyPatch, name: str) -> None:
 
 
 def test_petscs_mumps_functions_are_found_through_petsc4py() -> None:
-    """Both functions are reached in the libpetsc petsc4py runs on; a name PETSc lacks is
-    reported missing and gives no function (the real lookup, nothing patched)."""
+    """Every function of ``SIGNATURES`` is reached in the libpetsc petsc4py runs on; a name
+    PETSc lacks is reported missing and gives no function (the real lookup, nothing patched)."""
     from shellobstacle.solvers import libpetsc, mumps
 
     for name in libpetsc.SIGNATURES:

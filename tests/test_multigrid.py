@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import ctypes
+
 from mpi4py import MPI
 
 import dolfinx
@@ -16,7 +18,9 @@ from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
+from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.continuation import continuation
+from shellobstacle.solvers.linear import multigrid
 from shellobstacle.solvers.linear.multigrid import MultigridStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 
@@ -101,3 +105,65 @@ def test_cg_iterations_per_newton_step_stay_bounded_as_h_halves() -> None:
         iterations = [n for s in steps for n in s.newton.linear_iterations]
         means.append(float(np.mean(iterations)))
     assert max(means) <= 1.5 * min(means), means
+
+
+def test_the_levels_are_set_up_once_per_kappa() -> None:
+    """The V-cycle's levels (the coarser operators, the coarse factorization, Chebyshev's
+    bounds) are set up at each κ's first Newton step and kept over its other steps; PETSc's
+    own eigenvalue estimator, which would run at every step, is off on every smoothed level."""
+    mesh = disk(2)
+    kappas = ladder(mesh)
+    problem = PenalizedProblem(paper_shell(), mesh)
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
+    steps = continuation(problem, solver, kappas)
+    linear = solver.linear
+    assert sum(len(s.newton.linear_iterations) for s in steps) > 2 * len(kappas)
+    assert linear.multigrid_builds == len(kappas)
+    assert linear.estimates == len(kappas) * (linear.levels - 1)
+    estimator_of = libpetsc.function("KSPChebyshevEstEigGetKSP")
+    for level in range(1, linear.levels):
+        estimator = ctypes.c_void_p()
+        smoother = linear.ksp.getPC().getMGSmoother(level)
+        assert smoother.getType() == "chebyshev"
+        assert estimator_of(smoother.handle, ctypes.byref(estimator)) == 0
+        assert estimator.value is None
+
+
+def test_a_stagnating_cg_with_kept_levels_sets_them_up_again(monkeypatch) -> None:
+    """A direction whose CG with the kept levels needs more than the cap (here one
+    iteration) is solved again with the levels set up for its Jacobian; the answer is the
+    direct path's."""
+    monkeypatch.setattr(multigrid, "KEPT_MIN_ITERATIONS", 1)
+    monkeypatch.setattr(multigrid, "KEPT_ITERATION_FACTOR", 0)
+    mesh = disk(1)
+    kappas = ladder(mesh)
+    direct = PenalizedProblem(paper_shell(), mesh)
+    continuation(direct, NewtonSolver(direct), kappas)
+    problem = PenalizedProblem(paper_shell(), mesh)
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
+    steps = continuation(problem, solver, kappas)
+    assert all(s.newton.converged for s in steps)
+    assert solver.linear.multigrid_builds > len(kappas) + 2
+    assert l2_norm(direct.zeta - problem.zeta) <= 1e-8 * l2_norm(direct.zeta)
+
+
+def test_without_petscs_setter_petsc_estimates_the_bounds(monkeypatch) -> None:
+    """A PETSc without ``KSPChebyshevSetEigenvalues``: the smoothers keep PETSc's own
+    estimates (none of the strategy's) and the answer is the direct path's."""
+    lookup = libpetsc._lookup
+
+    def failing(name: str):
+        if name == "KSPChebyshevSetEigenvalues":
+            raise AttributeError(f"undefined symbol: {name}")
+        return lookup(name)
+
+    monkeypatch.setattr(libpetsc, "_lookup", failing)
+    mesh = disk(1)
+    kappas = ladder(mesh)
+    direct = PenalizedProblem(paper_shell(), mesh)
+    continuation(direct, NewtonSolver(direct), kappas)
+    problem = PenalizedProblem(paper_shell(), mesh)
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
+    continuation(problem, solver, kappas)
+    assert solver.linear.levels == 2 and solver.linear.estimates == 0
+    assert l2_norm(direct.zeta - problem.zeta) <= 1e-8 * l2_norm(direct.zeta)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty import quadrature
 from shellobstacle.penalty.quadrature import QuadraturePenalty
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear.direct import DirectStrategy
@@ -151,3 +152,25 @@ def test_cholesky_and_lu_give_the_same_solution() -> None:
         solutions.append(problem.zeta.x.petsc_vec.copy())
     solutions[1].axpy(-1.0, solutions[0])
     assert solutions[1].norm() <= 1e-8 * solutions[0].norm()
+
+
+@pytest.mark.mpi
+def test_a_residual_at_a_few_points_multiplies_their_rows_only(monkeypatch) -> None:
+    """Values nonzero at a few points (an active set of about 1 %): ``add_residual`` takes
+    those rows of ``M`` only, and its sum is bit for bit ``M``'s full transpose product."""
+    problem = PenalizedProblem(paper_shell(), square(n=16))
+    penalty = QuadraturePenalty(problem)
+    values = np.zeros(penalty.D.size)
+    values[::97] = -np.linspace(1.0, 2.0, values[::97].size)
+    b = dolfinx.fem.petsc.create_vector(problem.V)
+    b.array[:] = np.sin(np.arange(b.getLocalSize()))
+    expected = b.copy()
+    q = penalty.M.createVecLeft()
+    q.array[:] = values / KAPPA
+    penalty.M.multTransposeAdd(q, expected, expected)
+    rows = []
+    rows_of = quadrature.rows_of
+    monkeypatch.setattr(quadrature, "rows_of", lambda M, p: rows.append(p.size) or rows_of(M, p))
+    penalty.add_residual(values, KAPPA, b)
+    assert rows == [np.count_nonzero(values)]
+    assert np.array_equal(b.array, expected.array)

@@ -1,10 +1,11 @@
 """The PETSc functions the solvers call that petsc4py does not wrap, through ``ctypes``.
 
-MUMPS' selected inverse entries (``MatMumpsGetInverse``) and its variable blocks
-(``MatMumpsSetBlk``) are looked up in the libpetsc that petsc4py runs on, through petsc4py's
-own compiled module: the dynamic linker's lookup on that module's handle searches it and the
-libraries it was linked with, libpetsc among them, so no file is searched for and no other
-PETSc can be picked. Where PETSc lacks a function (an older release, a build without MUMPS,
+MUMPS' selected inverse entries (``MatMumpsGetInverse``), its variable blocks
+(``MatMumpsSetBlk``) and Chebyshev's eigenvalue bounds (``KSPChebyshevSetEigenvalues``,
+``KSPChebyshevEstEigGetKSP``) are looked up in the libpetsc that petsc4py runs on, through
+petsc4py's own compiled module: the dynamic linker's lookup on that module's handle searches it
+and the libraries it was linked with, libpetsc among them, so no file is searched for and no
+other PETSc can be picked. Where PETSc lacks a function (an older release, a build without MUMPS,
 a static build that hides its symbols), :func:`function` is None and :func:`missing` says
 why; each caller then takes its path without it.
 """
@@ -26,6 +27,11 @@ _INT = ctypes.c_int64 if np.dtype(PETSc.IntType) == np.int64 else ctypes.c_int32
 SIGNATURES: dict[str, tuple[list, type]] = {
     "MatMumpsGetInverse": ([ctypes.c_void_p, ctypes.c_void_p], ctypes.c_int),
     "MatMumpsSetBlk": ([ctypes.c_void_p, _INT, ctypes.c_void_p, ctypes.c_void_p], ctypes.c_int),
+    "KSPChebyshevSetEigenvalues": (
+        [ctypes.c_void_p, ctypes.c_double, ctypes.c_double],
+        ctypes.c_int,
+    ),
+    "KSPChebyshevEstEigGetKSP": ([ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p)], ctypes.c_int),
 }
 
 

@@ -3,10 +3,9 @@
 The meshes of a uniformly refined mesh (:mod:`~shellobstacle.mesh.hierarchy`) carry nested
 Lagrange spaces; PETSc's PCMG runs V-cycles on them with the interpolation between the levels
 (the three components each interpolated by itself) and Galerkin coarse operators ``Pᵀ J P`` of
-every Jacobian ``J = K + H``: ``Pᵀ K P`` is made once, and only the penalty part ``H`` (the
-rows of the active points' cells) is multiplied out at each step; the active points reach the
-coarse levels through it.
-The coarsest level (gmsh's mesh) is factorized by MUMPS.
+a Jacobian ``J = K + H``: ``Pᵀ K P`` is made once, and only the penalty part ``H`` (the rows of
+the active points' cells) is multiplied out; the active points reach the coarse levels through
+it. The coarsest level (gmsh's mesh) is factorized by MUMPS.
 
 The smoother is two Chebyshev iterations preconditioned by the Jacobian's diagonal (point
 Jacobi; the same on any number of ranks): ζ_α is an elliptic H¹ system, whose high
@@ -14,6 +13,16 @@ frequencies Chebyshev damps, and ζ_3 enters without derivatives (its block is a
 penalty-augmented mass matrix, well conditioned once scaled by its diagonal). Chebyshev and
 the V-cycle are symmetric, so the Krylov method is plain CG. Point-block Jacobi (each node's
 3×3 block inverted) needs several times more iterations at small κ (docs/perf/multigrid.md).
+
+The levels are set up once per solve (one κ), at its first Newton step, and kept over its
+other steps, where only the active points move (a few per cent of them): the coarser levels'
+operators, the coarse factorization, and Chebyshev's bound of the largest eigenvalue of
+``D⁻¹A`` on each smoothed level, which PETSc would estimate (Lanczos, ten steps) at every
+set-up with a new matrix; here it is estimated the same way (:func:`largest_eigenvalue`) and
+given to the smoothers with PETSc's interval, ``[0.1, 1.1]`` times the estimate. CG runs with
+the current Jacobian, the finest level's smoother too. A direction whose CG fails, or needs more
+than :data:`~shellobstacle.solvers.linear.iterative.KEPT_ITERATION_FACTOR` times the most
+iterations since the set-up, is solved again with the levels set up anew.
 
 A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls back to
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
@@ -36,11 +45,16 @@ import numpy as np
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.penalty.quadrature import penalty_hessian
+from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.base import set_options, unique_prefix
-from shellobstacle.solvers.linear.iterative import IterativeStrategy
+from shellobstacle.solvers.linear.iterative import (
+    KEPT_ITERATION_FACTOR,
+    KEPT_MIN_ITERATIONS,
+    IterativeStrategy,
+)
 from shellobstacle.solvers.system import PenalizedSystem
 
-__all__ = ["SMOOTHERS", "MultigridStrategy"]
+__all__ = ["CHEBYSHEV_INTERVAL", "SMOOTHERS", "MultigridStrategy", "largest_eigenvalue"]
 
 #: the level smoothers' preconditioners: point Jacobi or point-block (3×3 per node) Jacobi
 SMOOTHERS = ("jacobi", "pbjacobi")
@@ -52,6 +66,10 @@ _LEVELS = {
     "mg_coarse_pc_type": "cholesky",
     "mg_coarse_pc_factor_mat_solver_type": "mumps",
 }
+#: Chebyshev's interval as multiples of the estimated ``λ_max(D⁻¹A)`` (PETSc's default)
+CHEBYSHEV_INTERVAL = (0.1, 1.1)
+#: Lanczos steps of an estimate (PETSc's default)
+ESTIMATE_STEPS = 10
 _GEOMETRIC = {"pc_type": "mg", **_LEVELS}
 _ALGEBRAIC = {"pc_type": "gamg", "pc_gamg_threshold": 0.02, **_LEVELS}
 
@@ -83,6 +101,10 @@ class MultigridStrategy(IterativeStrategy):
             raise ValueError(f"levels must be >= 1, got {levels}")
         self.smoother, self.max_levels = smoother, levels
         self.levels = 1  # of the V-cycle (1: algebraic multigrid)
+        self.estimates = 0  # of a level's eigenvalue bound
+        self._estimators: list[PETSc.KSP] = []  # per smoothed level (empty: PETSc's own)
+        self._levels_current = False  # set up in this solve
+        self._levels_most = 0  # the most CG iterations of a direction since the set-up
 
     def attach(self, system: PenalizedSystem, timings: dict[str, float]) -> None:
         """CG with PCMG on the mesh hierarchy (GAMG without one) under a prefix of its own."""
@@ -112,6 +134,8 @@ class MultigridStrategy(IterativeStrategy):
         ksp.setNormType(PETSc.KSP.NormType.UNPRECONDITIONED)
         ksp.setTolerances(rtol=self.rtol, atol=1e-50, max_it=2000)
         ksp.setFromOptions()
+        if transfers:
+            self._estimators = self._make_estimators(prefix)
         system.on_new_jacobian = self._new_jacobian
         timings["multigrid_setup"] = time.perf_counter() - t0
 
@@ -160,9 +184,114 @@ class MultigridStrategy(IterativeStrategy):
         if H is not None:
             H.destroy()
 
-    def _solve(self, b: PETSc.Vec) -> None:
-        """``δ ← A⁻¹ b`` by CG with a V-cycle set up for the current Jacobian."""
-        if self._P:
-            self._coarse_operators()
-        self.ksp.solve(b, self.system.dz)
+    def begin(self) -> None:
+        """A new solve (a new κ): new forcing terms, the levels set up at its first step."""
+        super().begin()
+        self._levels_current = False
+
+    def refresh(self) -> None:
+        """The penalty's operators were made anew: the levels set up anew at the next step."""
+        super().refresh()
+        self._levels_current = False
+
+    def _make_estimators(self, prefix: str) -> list[PETSc.KSP]:
+        """CG with each smoothed level's preconditioner, for :func:`largest_eigenvalue`
+        (empty, and PETSc estimates at every set-up, if the levels are not Chebyshev's, if
+        the user's options set its bounds, or if PETSc lacks ``KSPChebyshevSetEigenvalues``)."""
+        if libpetsc.function("KSPChebyshevSetEigenvalues") is None:
+            return []
+        database = PETSc.Options()
+        if any(
+            k.startswith(prefix + "mg_levels") and "chebyshev_e" in k for k in database.getAll()
+        ):
+            return []
+        pc = self.ksp.getPC()
+        estimators = []
+        for level in range(1, self.levels):
+            smoother = pc.getMGSmoother(level)
+            smoother.setFromOptions()
+            if smoother.getType() != PETSc.KSP.Type.CHEBYSHEV:
+                return []
+            estimator = PETSc.KSP().create(self.system.comm)
+            estimator.setType("cg")
+            estimator.getPC().setType(smoother.getPC().getType())
+            estimator.setComputeEigenvalues(True)
+            estimator.setTolerances(rtol=1e-12, atol=1e-300, max_it=ESTIMATE_STEPS)
+            estimators.append(estimator)
+        return estimators
+
+    def _bounds(self) -> None:
+        """Chebyshev's interval on every smoothed level from ``λ_max(D⁻¹A)`` of its current
+        operator (collective)."""
+        pc = self.ksp.getPC()
+        fine = self.system.A
+        set_eigenvalues = libpetsc.function("KSPChebyshevSetEigenvalues")
+        low, high = CHEBYSHEV_INTERVAL
+        for level, estimator in enumerate(self._estimators, start=1):
+            A = self._A[level] if level < self.levels - 1 else fine
+            emax = largest_eigenvalue(estimator, A)
+            error = set_eigenvalues(pc.getMGSmoother(level).handle, high * emax, low * emax)
+            if error:
+                raise RuntimeError(f"KSPChebyshevSetEigenvalues failed (PETSc error {error})")
+            self.estimates += 1
+
+    def _set_up_levels(self) -> None:
+        """The coarser levels' operators for the current Jacobian and, unless PETSc makes
+        them, the smoothers' bounds (collective)."""
+        self._coarse_operators()
+        if self._estimators:
+            self._bounds()
         self.multigrid_builds += 1
+        self._levels_current, self._levels_most = True, 0
+
+    def _solve(self, b: PETSc.Vec) -> None:
+        """``δ ← A⁻¹ b`` by CG with the V-cycle; with levels kept from an earlier step of the
+        solve, a failed or stagnating CG is repeated with the levels set up anew."""
+        if not self._P:  # algebraic multigrid: PETSc sets it up at every step
+            self._solve_once(b)
+            self.multigrid_builds += 1
+            return
+        kept = self._levels_current
+        if not kept:
+            self._set_up_levels()
+        max_it = self.ksp.getTolerances()[3]
+        if kept:
+            cap = max(KEPT_MIN_ITERATIONS, KEPT_ITERATION_FACTOR * self._levels_most)
+            self.ksp.setTolerances(max_it=min(max_it, cap))
+        self._solve_once(b)
+        self.ksp.setTolerances(max_it=max_it)
+        if kept and self.ksp.getConvergedReason() < 0:
+            self._rejected += self.ksp.getIterationNumber()
+            self._set_up_levels()
+            self._solve_once(b)
+        self._levels_most = max(self._levels_most, self.ksp.getIterationNumber())
+
+    def _solve_once(self, b: PETSc.Vec) -> None:
+        """One CG solve into ``system.dz``."""
+        self.ksp.solve(b, self.system.dz)
+
+
+def largest_eigenvalue(estimator: PETSc.KSP, A: PETSc.Mat) -> float:
+    """An estimate of ``λ_max(D⁻¹A)``, ``D`` the preconditioner of ``estimator`` (a CG KSP
+    that computes eigenvalues): the Ritz values of :data:`ESTIMATE_STEPS` CG steps from a
+    fixed noisy right-hand side, PETSc's (a hash of the global index), as Chebyshev's own
+    estimate (collective)."""
+    estimator.setOperators(A)
+    b, x = A.createVecs()
+    start, end = b.getOwnershipRange()
+    b.array[:] = _noise(np.arange(start, end))
+    estimator.solve(b, x)
+    values = estimator.computeEigenvalues()
+    for v in (b, x):
+        v.destroy()
+    return float(np.max(values.real))
+
+
+def _noise(index: np.ndarray) -> np.ndarray:
+    """PETSc's noisy vector of Chebyshev's estimates: an integer hash of each global index,
+    scaled to about [−1, 1]."""
+    x = index.astype(np.uint32)
+    x = ((x >> np.uint32(16)) ^ x) * np.uint32(0x45D9F3B)
+    x = ((x >> np.uint32(16)) ^ x) * np.uint32(0x45D9F3B)
+    x = (x >> np.uint32(16)) ^ x
+    return (x.astype(np.int64) - 2147483648) * 5.0e-10
