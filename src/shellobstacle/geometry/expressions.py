@@ -228,8 +228,15 @@ def _check_expr(expr: Any, what: str, text: str) -> None:
 
 def _check_constants(expr: sp.Expr, what: str, text: str) -> None:
     """Refuse constant parts that are no finite real double (``exp(1000)``, ``1e400``): the
-    forms and the checks evaluate them in double precision."""
-    for node in sp.preorder_traversal(expr):
+    forms and the checks evaluate them in double precision. A part that occurs many times
+    (SymPy shares equal subexpressions) is checked once."""
+    seen: set[sp.Basic] = set()
+    nodes = sp.preorder_traversal(expr)
+    for node in nodes:
+        if node in seen:
+            nodes.skip()  # checked with everything below it
+            continue
+        seen.add(node)
         if not isinstance(node, sp.Expr) or node.free_symbols or node in (sp.pi, sp.E):
             continue
         try:
@@ -249,10 +256,17 @@ def _check_constants(expr: sp.Expr, what: str, text: str) -> None:
 
 
 def _check_powers(tree: Any, what: str, text: str) -> None:
-    """Refuse constant powers with huge exponents (an unevaluated tree is walked)."""
+    """Refuse constant powers with huge exponents (an unevaluated tree is walked; a part that
+    occurs many times is checked once)."""
     if not isinstance(tree, sp.Basic):
         return
-    for node in sp.preorder_traversal(tree):
+    seen: set[sp.Basic] = set()
+    nodes = sp.preorder_traversal(tree)
+    for node in nodes:
+        if node in seen:
+            nodes.skip()
+            continue
+        seen.add(node)
         if isinstance(node, sp.Pow) and not node.exp.free_symbols:
             try:
                 size = abs(complex(node.exp.evalf(15)))
