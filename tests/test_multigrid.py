@@ -36,6 +36,19 @@ def ladder(mesh: dolfinx.mesh.Mesh) -> list[float]:
     return [h**0.5, h, h**1.5]
 
 
+def direct_and_multigrid(
+    mesh: dolfinx.mesh.Mesh, kappas: list[float] | None = None
+) -> tuple[PenalizedProblem, PenalizedProblem, NewtonSolver, list]:
+    """The paper's problem on ``mesh`` continued along ``kappas`` (default :func:`ladder`) by
+    the direct path and by multigrid: both problems, multigrid's solver and its steps."""
+    kappas = ladder(mesh) if kappas is None else kappas
+    direct = PenalizedProblem(paper_shell(), mesh)
+    continuation(direct, NewtonSolver(direct), kappas)
+    problem = PenalizedProblem(paper_shell(), mesh)
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
+    return direct, problem, solver, continuation(problem, solver, kappas)
+
+
 @pytest.mark.mpi
 def test_the_prolongation_interpolates_the_coarse_space_exactly() -> None:
     """``P u_c`` is the coarse function at the fine nodes: exact for functions the coarse P1
@@ -59,14 +72,8 @@ def test_the_prolongation_interpolates_the_coarse_space_exactly() -> None:
 def test_multigrid_gives_the_direct_solution() -> None:
     """The continuation to κ = h^1.5 by CG with the V-cycle on the three mesh levels ends at
     the direct path's ζ and contact area to the solver's tolerance (serially and on 2 ranks)."""
-    mesh = disk(2)
-    kappas = ladder(mesh)
-    direct = PenalizedProblem(paper_shell(), mesh)
-    continuation(direct, NewtonSolver(direct), kappas)
-    multigrid = PenalizedProblem(paper_shell(), mesh)
-    solver = NewtonSolver(multigrid, NewtonOptions(linear_solver="multigrid"))
+    direct, multigrid, solver, steps = direct_and_multigrid(disk(2))
     assert isinstance(solver.linear, MultigridStrategy) and solver.linear.levels == 3
-    steps = continuation(multigrid, solver, kappas)
     assert all(s.newton.converged for s in steps)
     assert l2_norm(direct.zeta - multigrid.zeta) <= 1e-8 * l2_norm(direct.zeta)
     areas = [Postprocessor(p).contact()["contact_area"] for p in (direct, multigrid)]
@@ -78,12 +85,7 @@ def test_without_a_hierarchy_it_is_algebraic_multigrid() -> None:
     (one level of its own), with the direct path's answer."""
     mesh = dolfinx.mesh.create_rectangle(MPI.COMM_WORLD, [[-0.25, -0.25], [0.25, 0.25]], [16, 16])
     assert coarser_meshes(mesh) == []
-    kappas = [1e-1, 1e-2, 1e-3]
-    direct = PenalizedProblem(paper_shell(), mesh)
-    continuation(direct, NewtonSolver(direct), kappas)
-    algebraic = PenalizedProblem(paper_shell(), mesh)
-    solver = NewtonSolver(algebraic, NewtonOptions(linear_solver="multigrid"))
-    continuation(algebraic, solver, kappas)
+    direct, algebraic, solver, _ = direct_and_multigrid(mesh, [1e-1, 1e-2, 1e-3])
     assert solver.linear.levels == 1
     assert solver.linear.ksp.getPC().getType() == "gamg"
     assert l2_norm(direct.zeta - algebraic.zeta) <= 1e-8 * l2_norm(direct.zeta)
@@ -135,15 +137,9 @@ def test_a_stagnating_cg_with_kept_levels_sets_them_up_again(monkeypatch) -> Non
     direct path's."""
     monkeypatch.setattr(multigrid, "KEPT_MIN_ITERATIONS", 1)
     monkeypatch.setattr(multigrid, "KEPT_ITERATION_FACTOR", 0)
-    mesh = disk(1)
-    kappas = ladder(mesh)
-    direct = PenalizedProblem(paper_shell(), mesh)
-    continuation(direct, NewtonSolver(direct), kappas)
-    problem = PenalizedProblem(paper_shell(), mesh)
-    solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
-    steps = continuation(problem, solver, kappas)
+    direct, problem, solver, steps = direct_and_multigrid(disk(1))
     assert all(s.newton.converged for s in steps)
-    assert solver.linear.multigrid_builds > len(kappas) + 2
+    assert solver.linear.multigrid_builds > len(steps) + 2
     assert l2_norm(direct.zeta - problem.zeta) <= 1e-8 * l2_norm(direct.zeta)
 
 
@@ -158,12 +154,6 @@ def test_without_petscs_setter_petsc_estimates_the_bounds(monkeypatch) -> None:
         return lookup(name)
 
     monkeypatch.setattr(libpetsc, "_lookup", failing)
-    mesh = disk(1)
-    kappas = ladder(mesh)
-    direct = PenalizedProblem(paper_shell(), mesh)
-    continuation(direct, NewtonSolver(direct), kappas)
-    problem = PenalizedProblem(paper_shell(), mesh)
-    solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
-    continuation(problem, solver, kappas)
+    direct, problem, solver, _ = direct_and_multigrid(disk(1))
     assert solver.linear.levels == 2 and solver.linear.estimates == 0
     assert l2_norm(direct.zeta - problem.zeta) <= 1e-8 * l2_norm(direct.zeta)
