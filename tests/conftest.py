@@ -65,9 +65,19 @@ def shared_dir(tmp_path):
     yield from shared_folder(tmp_path)
 
 
-#: test files that take a minute or more of one core, started first so that pytest-xdist's
-#: workers finish together (a long file scheduled last would run on its own at the end)
-LONG_FIRST = ("test_docs.py", "test_imports.py", "test_cli_fuzz.py", "test_adapt_experiment.py")
+#: test files that take half a minute or more of one core (measured from a clean clone),
+#: started first so that pytest-xdist's workers finish together (a long file scheduled last
+#: would run on its own at the end)
+LONG_FIRST = (
+    "test_docs.py",
+    "test_manufactured.py",
+    "test_adapt_experiment.py",
+    "test_cli_fuzz.py",
+    "test_multigrid_ranks.py",
+    "test_interrupt.py",
+    "test_pictures.py",
+    "test_jit_cache.py",
+)
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
