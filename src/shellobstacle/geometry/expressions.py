@@ -17,7 +17,7 @@ import math
 import re
 import tokenize
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from io import StringIO
 from typing import Any
 
@@ -230,13 +230,7 @@ def _check_constants(expr: sp.Expr, what: str, text: str) -> None:
     """Refuse constant parts that are no finite real double (``exp(1000)``, ``1e400``): the
     forms and the checks evaluate them in double precision. A part that occurs many times
     (SymPy shares equal subexpressions) is checked once."""
-    seen: set[sp.Basic] = set()
-    nodes = sp.preorder_traversal(expr)
-    for node in nodes:
-        if node in seen:
-            nodes.skip()  # checked with everything below it
-            continue
-        seen.add(node)
+    for node in _distinct_parts(expr):
         if not isinstance(node, sp.Expr) or node.free_symbols or node in (sp.pi, sp.E):
             continue
         try:
@@ -255,11 +249,9 @@ def _check_constants(expr: sp.Expr, what: str, text: str) -> None:
             )
 
 
-def _check_powers(tree: Any, what: str, text: str) -> None:
-    """Refuse constant powers with huge exponents (an unevaluated tree is walked; a part that
-    occurs many times is checked once)."""
-    if not isinstance(tree, sp.Basic):
-        return
+def _distinct_parts(tree: sp.Basic) -> Iterator[sp.Basic]:
+    """The parts of ``tree`` in preorder, each distinct one once: below a part equal to one
+    already yielded nothing is yielded again (a check of it has seen all of it)."""
     seen: set[sp.Basic] = set()
     nodes = sp.preorder_traversal(tree)
     for node in nodes:
@@ -267,6 +259,15 @@ def _check_powers(tree: Any, what: str, text: str) -> None:
             nodes.skip()
             continue
         seen.add(node)
+        yield node
+
+
+def _check_powers(tree: Any, what: str, text: str) -> None:
+    """Refuse constant powers with huge exponents (an unevaluated tree is walked; a part that
+    occurs many times is checked once)."""
+    if not isinstance(tree, sp.Basic):
+        return
+    for node in _distinct_parts(tree):
         if isinstance(node, sp.Pow) and not node.exp.free_symbols:
             try:
                 size = abs(complex(node.exp.evalf(15)))
