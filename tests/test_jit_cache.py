@@ -247,3 +247,39 @@ def test_broken_entries_by_hand(tmp_path: Path) -> None:
     assert jit_cache.broken_entries(tmp_path, now=math.inf) == [
         jit_cache.BrokenEntry(tmp_path / "libffcx_forms_compiling.c", jit_cache.UNFINISHED)
     ]
+
+
+def test_a_cached_form_is_found_by_its_file_name(tmp_path, monkeypatch) -> None:
+    """FFCx 0.11 lists the whole cache folder to load a cached form (a cost growing with every
+    form ever compiled); with :func:`~shellobstacle.compat.locate_jit_modules_by_path` a form
+    compiled once is loaded again without any listing, and a new form still compiles."""
+    import ffcx.codegeneration.jit as jit
+    import ufl
+    from dolfinx import fem, mesh
+
+    from shellobstacle.compat import locate_jit_modules_by_path
+
+    assert locate_jit_modules_by_path() and locate_jit_modules_by_path()  # FFCx 0.11, once
+    domain = mesh.create_unit_square(MPI.COMM_SELF, 2, 2)
+    V = fem.functionspace(domain, ("Lagrange", 1))
+    x = ufl.SpatialCoordinate(domain)
+    forms = [x[0] ** k * ufl.TestFunction(V) * ufl.dx for k in (3, 4)]
+    options = {"cache_dir": str(tmp_path)}
+    fem.form(forms[0], jit_options=options)  # compiled into the empty folder
+
+    listings = []
+    find_spec = importlib.machinery.FileFinder.find_spec
+
+    def listing(finder, name, target=None):
+        if Path(finder.path) == tmp_path:
+            listings.append(name)
+        return find_spec(finder, name, target)
+
+    monkeypatch.setattr(importlib.machinery.FileFinder, "find_spec", listing)
+    fem.form(forms[0], jit_options=options)
+    assert listings == []
+    fem.form(forms[1], jit_options=options)  # not cached yet: FFCx's own way
+    assert len(list(tmp_path.glob("*.c.cached"))) == 2
+    monkeypatch.setattr(jit, "get_cached_module", jit.get_cached_module.ffcx)
+    fem.form(forms[0], jit_options=options)  # FFCx 0.11's lookup: the probe sees its listing
+    assert listings
