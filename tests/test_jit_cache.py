@@ -115,24 +115,30 @@ def test_an_interrupted_run_leaves_another_process_s_compilation_alone(
     tmp_path: Path, env: dict[str, str]
 ) -> None:
     """A solve is interrupted while another process has built a form's module but not yet
-    written its marker; that process finishes, and a third compiles the form again."""
+    written its marker; that process finishes, and a third compiles the form again. (The solve
+    runs for a minute at h = 0.01: it is still running when interrupted a few seconds in.)"""
     out = tmp_path / "out"
-    run = start(env, "-m", "shellobstacle", "solve", SMALL, "--set", "domain.h=0.1", "-o", str(out))
+    run = start(
+        env, "-m", "shellobstacle", "solve", SMALL, "--set", "domain.h=0.01", "-o", str(out)
+    )
+    go = tmp_path / "go"
+    other = None
     try:
         wait_for(run, f"results go to {out}/", "stderr")
-    except BaseException:
-        run.kill()
-        raise
-    go = tmp_path / "go"
-    other = start(env, "-c", COMPILE, "3", "after", str(go))
-    wait_for(other, "compiled")
-    run.send_signal(signal.SIGINT)
-    _, err = run.communicate(timeout=120)
-    assert run.returncode == 130, err
-    assert err.strip().endswith("shellobstacle: interrupted"), err
-    go.touch()
-    _, err = other.communicate(timeout=120)
-    assert other.returncode == 0, err
+        other = start(env, "-c", COMPILE, "3", "after", str(go))
+        wait_for(other, "compiled")
+        run.send_signal(signal.SIGINT)
+        _, err = run.communicate(timeout=120)
+        assert run.returncode == 130, err
+        assert err.strip().endswith("shellobstacle: interrupted"), err
+        go.touch()
+        _, err = other.communicate(timeout=120)
+        assert other.returncode == 0, err
+    finally:  # no process of this test outlives it
+        for proc in (run, other):
+            if proc is not None and proc.poll() is None:
+                proc.kill()
+                proc.wait()
     assert unfinished(env) == []  # the interrupted run's own source is gone too
     third = compile_form(env, 3)
     assert third.returncode == 0, third.stderr
