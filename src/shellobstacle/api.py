@@ -114,9 +114,11 @@ def solve(
     t = time.perf_counter()
     if isinstance(domain, DomainSpec):
         if not force:
-            from shellobstacle.mesh.resources import require_fits
+            from shellobstacle.mesh.resources import linear_solver_of, require_fits
 
-            require_fits(domain, shell.model, (discretization or Discretization()).degree)
+            degree = (discretization or Discretization()).degree
+            linear = linear_solver_of(method, options)
+            require_fits(domain, shell.model, degree, linear_solver=linear)
         say(f"meshing {domain.kind} (target h = {domain.h})")
         mesh = make_mesh(domain, ghosted=shell.model == "koiter" or adapt is not None)
     else:

@@ -101,10 +101,11 @@ def run_and_write(
     from shellobstacle.io.folders import prepare_folder
     from shellobstacle.io.records import atomic_write
     from shellobstacle.io.summary import write_solution
-    from shellobstacle.mesh.resources import require_fits
+    from shellobstacle.mesh.resources import linear_solver_of, require_fits
 
     if not force:
-        require_fits(cfg.domain, cfg.shell.model, cfg.discretization.degree)
+        linear = linear_solver_of(cfg.method, cfg.solver)
+        require_fits(cfg.domain, cfg.shell.model, cfg.discretization.degree, linear_solver=linear)
     where = prepare_folder(output, default, overwrite)
     if args is not None:
         args.folder = where

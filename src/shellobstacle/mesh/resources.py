@@ -10,8 +10,11 @@ memory, ``docs/perf/koiter/`` and the 1.93 M-dof runs of ``docs/performance.md``
 per dof for the membrane model with P1, 3.4 kB with P2, 9.1 kB for Koiter's model with P2
 (whose factor fills more); a mesh alone costs 0.6–0.7 kB per vertex. The figures below round
 them up; they are estimates within a factor of about 1.5, good for refusing what is far out of
-reach, not for planning a run to the last gigabyte (``--force`` proceeds anyway). Messages give
-memory in GiB (2³⁰ bytes), the unit ``free -g`` and the documentation use.
+reach, not for planning a run to the last gigabyte (``--force`` proceeds anyway). Multigrid
+(``solver.linear_solver = "multigrid"``, membrane P1) factorizes only gmsh's coarse mesh: 2.0–2.1
+kB per dof from 1.3 M to 7.7 M dofs (``docs/perf/multigrid/``), so a mesh refused for the direct
+solver may fit with it, and the refusal says so. Messages give memory in GiB (2³⁰ bytes), the
+unit ``free -g`` and the documentation use.
 """
 
 from __future__ import annotations
@@ -21,16 +24,27 @@ import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from mpi4py import MPI
 
 from shellobstacle.config.loader import ConfigError
 from shellobstacle.mesh.domains import DomainSpec, estimated_vertices
 
-__all__ = ["GIB", "Estimate", "ResourceError", "estimate", "machine_memory", "require_fits"]
+__all__ = [
+    "GIB",
+    "Estimate",
+    "ResourceError",
+    "estimate",
+    "linear_solver_of",
+    "machine_memory",
+    "require_fits",
+]
 
-#: Peak memory per dof of a solve, bytes, by (model, degree).
+#: Peak memory per dof of a solve with a factorization, bytes, by (model, degree).
 BYTES_PER_DOF = {("membrane", 1): 3.5e3, ("membrane", 2): 4.0e3, ("koiter", 2): 10.0e3}
+#: Peak memory per dof of a membrane P1 solve with multigrid, bytes.
+BYTES_PER_DOF_MULTIGRID = 2.2e3
 #: Memory per vertex of a mesh and the assumption checks (no solve), bytes.
 BYTES_PER_VERTEX_MESH = 1.0e3
 #: The interpreter with DOLFINx, PETSc and the compiled forms, bytes per process.
@@ -76,15 +90,30 @@ def _points_along(length: float, h: float) -> float:
     return float(math.ceil(cells)) + 1.0 if math.isfinite(cells) else math.inf
 
 
-def estimate(spec: DomainSpec, model: str = "membrane", degree: int = 1) -> Estimate | None:
+def linear_solver_of(method: str, options: Any) -> str:
+    """The linear solver whose memory a solve needs: Newton's ``options.linear_solver``, a
+    factorization (``"direct"``) for every other method."""
+    return getattr(options, "linear_solver", "direct") if method == "newton" else "direct"
+
+
+def _bytes_per_dof(model: str, degree: int, linear_solver: str) -> float:
+    if linear_solver == "multigrid" and (model, degree) == ("membrane", 1):
+        return BYTES_PER_DOF_MULTIGRID
+    return BYTES_PER_DOF.get((model, degree), BYTES_PER_DOF[("koiter", 2)])
+
+
+def estimate(
+    spec: DomainSpec, model: str = "membrane", degree: int = 1, linear_solver: str = "direct"
+) -> Estimate | None:
     """Vertices, dofs (3 components; P2 adds the edge midpoints, about 3 per vertex) and the
-    peak memory of meshing only and of a solve; None when the mesh size cannot be known."""
+    peak memory of meshing only and of a solve with ``linear_solver``; None when the mesh size
+    cannot be known."""
     vertices = mesh_vertices(spec)
     if vertices is None:
         return None
     nodes = vertices if degree == 1 else 4.0 * vertices
     dofs = 3.0 * nodes
-    per_dof = BYTES_PER_DOF.get((model, degree), BYTES_PER_DOF[("koiter", 2)])
+    per_dof = _bytes_per_dof(model, degree, linear_solver)
     return Estimate(vertices, dofs, vertices * BYTES_PER_VERTEX_MESH, dofs * per_dof)
 
 
@@ -100,21 +129,27 @@ def require_fits(
     solve: bool = True,
     what: str = "[domain]",
     comm: MPI.Comm = MPI.COMM_WORLD,
+    linear_solver: str = "direct",
 ) -> Estimate | None:
-    """Raise :class:`ResourceError` (on every rank) when the mesh of ``spec`` (and its solve,
-    if ``solve``) would need more than :data:`MEMORY_SHARE` of this machine's memory.
+    """Raise :class:`ResourceError` (on every rank) when the mesh of ``spec`` (and its solve
+    with ``linear_solver``, if ``solve``) would need more than :data:`MEMORY_SHARE` of this
+    machine's memory.
 
     The ranks on this machine need their share of the whole run's memory (the mesh is
     distributed evenly), plus :data:`BASE_BYTES` each.
     """
-    est = estimate(spec, model, degree)
+    est = estimate(spec, model, degree, linear_solver)
     if est is None:
         return None
     local = comm.Split_type(MPI.COMM_TYPE_SHARED)
     on_node = local.size
     local.Free()
-    need = (est.bytes_solve if solve else est.bytes_mesh) * on_node / comm.size
-    need += BASE_BYTES * on_node
+
+    def need_with(per_dof: float) -> float:
+        share = (est.dofs * per_dof if solve else est.bytes_mesh) * on_node / comm.size
+        return share + BASE_BYTES * on_node
+
+    need = need_with(_bytes_per_dof(model, degree, linear_solver))
     have = machine_memory()
     if not need <= MEMORY_SHARE * have:
         size = _describe(spec)
@@ -124,11 +159,17 @@ def require_fits(
                 f"{what}: {size} gives more vertices than a float can count (over 1e308): "
                 "use a larger h"
             )
+        multigrid = need_with(_bytes_per_dof(model, degree, "multigrid"))
+        instead = (
+            f', solver.linear_solver = "multigrid" (about {multigrid / GIB:.3g} GiB)'
+            if solve and multigrid <= MEMORY_SHARE * have and linear_solver != "multigrid"
+            else ""
+        )
         raise ResourceError(
             f"{what}: {size} gives about {est.vertices:.2g} vertices and {est.dofs:.2g} dofs; "
             f"{task} needs about {need / GIB:.3g} GiB on this machine, more than "
-            f"{MEMORY_SHARE:.0%} of its {have / GIB:.3g} GiB: use a larger h (or more machines "
-            "under MPI), or pass --force"
+            f"{MEMORY_SHARE:.0%} of its {have / GIB:.3g} GiB: use a larger h{instead}, more "
+            "machines under MPI, or pass --force"
         )
     return est
 
