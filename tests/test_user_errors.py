@@ -92,6 +92,43 @@ def test_arithmetic_on_a_condition_is_refused(text: str) -> None:
         parse(text, NAMES, "load.p[3]")
 
 
+POWERS = {  # text: the exponent the refusal names (None: accepted)
+    "9**9**9": "9**9", "2**1001": "1001", "y1^1001": "1001", "y1**(-1001)": "-1001",
+    "2**(10**4)": "10**4", "y1**(-(10**4))": "-1*10**4", "(y1**2)**(3**7)": "3**7",
+    "exp(1)**(epsilon*1e7)": "0.001*10000000.0", "y1**(sqrt(2)*1000)": "sqrt(2)*1000",
+    "y1**1e400": "1e400", "y1**2": None, "y1**y2": None, "2**1000": None, "y1**(-1000)": None,
+    "(1+y1)**0.5": None, "y1**(epsilon*1000)": None, "y1**(y1 - y1 + 5000)": None,
+    "2**2**2**2": None, "y1**-(3/2)": None,
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("text", POWERS)
+def test_constant_powers_with_huge_exponents_are_refused(text: str) -> None:
+    """An exponent without y larger than 1000 in size is refused before SymPy evaluates it, as
+    written (Python's syntax tree) and, for a text Python cannot read, on SymPy's unevaluated
+    tree: both walks give the same verdict and name the same exponent."""
+    import shellobstacle.geometry.expressions as expressions
+
+    names = {**NAMES, "epsilon": 1e-3}
+    verdicts = []
+    for written in (True, False):
+        check = expressions._check_written if written else (lambda *a: False)
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(expressions, "_check_written", check)
+            try:
+                parse(text, names, "load.p[3]")
+                verdicts.append(None)
+            except ExpressionError as err:
+                verdicts.append(str(err))
+    if POWERS[text] is None:
+        assert verdicts == [None, None]
+    else:
+        assert f"the exponent {POWERS[text]} in" in verdicts[0], verdicts[0]
+        assert "is too large (at most 1000)" in verdicts[1], verdicts[1]
+        if text != "y1**1e400":  # SymPy's tree writes 1e400 out in 400 digits
+            assert verdicts[0] == verdicts[1]
+
+
 # --------------------------------------------------------------------------- the config file
 
 

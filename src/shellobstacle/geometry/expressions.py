@@ -12,6 +12,7 @@ echo the text cut to a line (:func:`~shellobstacle.messages.shown`).
 
 from __future__ import annotations
 
+import ast
 import keyword
 import math
 import re
@@ -176,12 +177,12 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
         "Ge": sp.Ge, "Eq": sp.Eq, "Ne": sp.Ne,
     }  # fmt: skip
 
-    def build(evaluate: bool) -> Any:
+    def build(evaluate: bool, source: str = code) -> Any:
         with warnings.catch_warnings():
             # ``True*y1``: arithmetic on a condition, which SymPy only warns about
             warnings.simplefilter("error", SymPyDeprecationWarning)
             return parse_expr(
-                code,
+                source,
                 local_dict=local,
                 global_dict=global_dict if evaluate else {**global_dict, **unevaluated},
                 transformations=(*standard_transformations, convert_xor),
@@ -189,19 +190,26 @@ def parse(text: str | float | int, names: Mapping[str, Any], what: str = "expres
             )
 
     try:
-        _check_powers(build(False), what, text)  # before SymPy evaluates 9**9**9 exactly
+        # before SymPy evaluates 9**9**9 exactly: the powers as written, else SymPy's
+        # unevaluated tree
+        if not _check_written(code, local, lambda part: build(False, part), what, text):
+            _check_powers(build(False), what, text)
         expr = build(True)
         _check_expr(expr, what, text)
     except ExpressionError:
         raise
     except SymPyDeprecationWarning:
-        raise ExpressionError(
-            f"{what}: {shown(text)} computes with a condition (True, False or a comparison): "
-            "write Piecewise((value, condition), (other, True))"
-        ) from None
+        raise _with_condition(what, text) from None
     except Exception as err:  # SymPy raises many types for malformed input
         raise ExpressionError(f"{what}: cannot parse {shown(text)}: {reason(err)}") from None
     return expr
+
+
+def _with_condition(what: str, text: str) -> ExpressionError:
+    return ExpressionError(
+        f"{what}: {shown(text)} computes with a condition (True, False or a comparison): "
+        "write Piecewise((value, condition), (other, True))"
+    )
 
 
 def reason(err: Exception) -> str:
@@ -269,15 +277,86 @@ def _check_powers(tree: Any, what: str, text: str) -> None:
         return
     for node in _distinct_parts(tree):
         if isinstance(node, sp.Pow) and not node.exp.free_symbols:
-            try:
-                size = abs(complex(node.exp.evalf(15)))
-            except (TypeError, ValueError, OverflowError):
-                size = float("inf")
+            size = _size(node.exp)
             if not size <= _MAX_EXPONENT:
                 raise ExpressionError(
                     f"{what}: the exponent {node.exp} in {shown(text)} is too large "
                     f"(at most {_MAX_EXPONENT})"
                 )
+
+
+def _check_written(
+    code: str, local: Mapping[str, Any], unevaluated: Any, what: str, text: str
+) -> bool:
+    """Refuse arithmetic on a condition and constant powers with huge exponents, walking
+    Python's syntax tree of ``code`` (SymPy's unevaluated parse of a long text costs more than
+    its evaluated one); an exponent that is no plain number is parsed alone by
+    ``unevaluated``. False when Python cannot read ``code`` (the caller then walks SymPy's
+    unevaluated tree)."""
+    source = code.replace("^", "**")  # SymPy's convert_xor; strings are refused before
+    try:
+        tree = ast.parse(source, mode="eval")
+    except (SyntaxError, ValueError, RecursionError, MemoryError):
+        return False
+    symbolic = {n for n, v in local.items() if isinstance(v, sp.Basic) and v.free_symbols}
+    parts: dict[str, tuple[str, float]] = {}  # an exponent as SymPy shows it, its size
+    for node in ast.walk(tree):
+        operands = (
+            [node.left, node.right] if isinstance(node, ast.BinOp)
+            else [node.operand] if isinstance(node, ast.UnaryOp) else []
+        )  # fmt: skip
+        if any(_is_condition(operand) for operand in operands):
+            raise _with_condition(what, text)
+        if not (isinstance(node, ast.BinOp) and isinstance(node.op, ast.Pow)):
+            continue
+        exponent = node.right
+        if any(isinstance(n, ast.Name) and n.id in symbolic for n in ast.walk(exponent)):
+            continue  # depends on y (as SymPy's ``free_symbols``)
+        size = _number_size(exponent)
+        if size is None:
+            written = ast.unparse(exponent)  # the subtree alone (a source segment costs a split)
+            if written not in parts:
+                part = unevaluated(written)
+                if isinstance(part, bool | sp.logic.boolalg.Boolean):
+                    raise _with_condition(what, text)
+                parts[written] = (str(part), _size(part))
+            written, size = parts[written]
+        elif not size <= _MAX_EXPONENT:
+            written = ast.get_source_segment(source, exponent) or ""
+        if not size <= _MAX_EXPONENT:
+            raise ExpressionError(
+                f"{what}: the exponent {written} in {shown(text)} is too large "
+                f"(at most {_MAX_EXPONENT})"
+            )
+    return True
+
+
+def _is_condition(node: ast.expr) -> bool:
+    """A written ``True``, ``False`` or comparison."""
+    return isinstance(node, ast.Compare) or (
+        isinstance(node, ast.Constant) and isinstance(node.value, bool)
+    )
+
+
+def _number_size(node: ast.expr) -> float | None:
+    """``|n|`` of a written number ``n`` or ``±n`` (None for anything else)."""
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub | ast.UAdd):
+        node = node.operand
+    value = node.value if isinstance(node, ast.Constant) else None
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        return abs(float(value))
+    except OverflowError:
+        return math.inf
+
+
+def _size(exponent: Any) -> float:
+    """``|exponent|`` of a constant SymPy exponent (inf when it cannot be evaluated)."""
+    try:
+        return abs(complex(sp.sympify(exponent).evalf(15)))
+    except (TypeError, ValueError, OverflowError):
+        return math.inf
 
 
 def is_safe_name(name: str) -> bool:
