@@ -174,3 +174,33 @@ def test_a_residual_at_a_few_points_multiplies_their_rows_only(monkeypatch) -> N
     penalty.add_residual(values, KAPPA, b)
     assert rows == [np.count_nonzero(values)]
     assert np.array_equal(b.array, expected.array)
+
+
+@pytest.mark.mpi
+def test_the_penalty_hessian_added_on_its_columns_is_the_full_products() -> None:
+    """``add_penalty_hessian`` (the incremental Jacobian's update, on the columns the points
+    touch) gives ``K ± P_A`` of ``penalty_hessian`` and ``MatAXPY``: bit for bit serially, to
+    round-off on several ranks; also for a handful of points and for a rank without any."""
+    problem = PenalizedProblem(paper_shell(), square(n=16), kappa=KAPPA)
+    pressed(problem)
+    pen = QuadraturePenalty(problem)
+    g = pen.gap(problem.zeta.x.petsc_vec)
+    active = np.flatnonzero(g < 0)
+    comm = problem.mesh.comm
+    cases = [(active, 1.0), (active[::50], -1.0)]
+    if comm.size > 1:
+        cases.append((active[:3] if comm.rank else active[:0], 1.0))
+    for points, sign in cases:
+        assert comm.allreduce(points.size) > 0
+        expected = problem.stiffness().duplicate(copy=True)
+        P = quadrature.penalty_hessian(pen.M, pen.D, points, KAPPA)
+        expected.axpy(sign, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
+        ours = problem.stiffness().duplicate(copy=True)
+        quadrature.add_penalty_hessian(ours, pen.M, pen.D, points, KAPPA, sign)
+        if comm.size == 1:
+            assert all(
+                np.array_equal(a, b)
+                for a, b in zip(ours.getValuesCSR(), expected.getValuesCSR(), strict=True)
+            )
+        ours.axpy(-1.0, expected)
+        assert ours.norm() <= 1e-14 * expected.norm()

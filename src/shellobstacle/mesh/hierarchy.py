@@ -87,7 +87,9 @@ def _host_cells(mesh: dolfinx.mesh.Mesh, x: np.ndarray) -> np.ndarray:
     boxes = dolfinx.geometry.compute_collisions_points(tree, points)
     counts = np.diff(boxes.offsets)
     point, cell = np.repeat(np.arange(len(points)), counts), boxes.array
-    score = _barycentric(mesh, cell, points[point, :2]).min(axis=1)
+    origin, inverse = _affine_inverses(mesh, cells)  # (per cell, not per candidate)
+    X = np.einsum("nij,nj->ni", inverse[cell], points[point, :2] - origin[cell])
+    score = np.minimum(np.minimum(X[:, 0], X[:, 1]), 1.0 - X[:, 0] - X[:, 1])
     best = np.lexsort((-score, point))  # per point, the largest score first
     first = np.flatnonzero(np.r_[True, point[best][1:] != point[best][:-1]]) if best.size else best
     host = np.full(len(points), -1, dtype=np.int32)
@@ -101,11 +103,15 @@ def _host_cells(mesh: dolfinx.mesh.Mesh, x: np.ndarray) -> np.ndarray:
     return host
 
 
-def _barycentric(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, x: np.ndarray) -> np.ndarray:
-    """The barycentric coordinates of the points ``x`` (one row each) in the affine triangles
-    ``cells`` (one each)."""
-    X = _reference(mesh, cells, x)
-    return np.column_stack([1.0 - X.sum(axis=1), X])
+def _affine_inverses(mesh: dolfinx.mesh.Mesh, cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The first node ``x_0`` and the inverse Jacobian ``J⁻¹`` of each affine triangle of
+    ``cells``: the reference coordinates of a point ``x`` are ``J⁻¹ (x − x_0)``."""
+    nodes = mesh.geometry.x[mesh.geometry.dofmaps[0][cells]][:, :, :2]
+    a, c = (nodes[:, 1] - nodes[:, 0]).T  # J = [[a, b], [c, d]]: its columns the edges
+    b, d = (nodes[:, 2] - nodes[:, 0]).T
+    det = a * d - b * c
+    inverse = np.stack([np.stack([d, -b], axis=1), np.stack([-c, a], axis=1)], axis=1)
+    return nodes[:, 0], inverse / det[:, None, None]
 
 
 def _reference(mesh: dolfinx.mesh.Mesh, cells: np.ndarray, x: np.ndarray) -> np.ndarray:

@@ -37,6 +37,7 @@ from shellobstacle.penalty.rule import reference_rule
 __all__ = [
     "SPARSE_ROWS",
     "QuadraturePenalty",
+    "add_penalty_hessian",
     "gap_scale",
     "penalty_hessian",
     "penalty_rule",
@@ -259,3 +260,37 @@ def penalty_hessian(M: PETSc.Mat, D: np.ndarray, active: np.ndarray, kappa: floa
     for obj in (MA, scale):
         obj.destroy()
     return P
+
+
+def add_penalty_hessian(
+    A: PETSc.Mat, M: PETSc.Mat, D: np.ndarray, active: np.ndarray, kappa: float, sign: float
+) -> None:
+    """``A ← A + sign (1/κ) M_Aᵀ diag(1/D_A) M_A`` for the owned rows ``active`` of ``M``,
+    the product taken on the columns those rows touch (collective).
+
+    :func:`penalty_hessian` makes an ``n × n`` matrix, whose set-up costs ``O(n)`` however
+    few the points; here each rank multiplies its rows on their own columns, renumbered in
+    order, and adds the result into ``A`` (whose pattern holds it): serially the same sums
+    in the same order, so the same values as :func:`penalty_hessian` and ``MatAXPY``; with
+    several ranks a product shared by two ranks is summed in ``A``'s assembly instead.
+    """
+    MA = rows_of(M, active)
+    indptr, indices, values = MA.getValuesCSR()
+    MA.destroy()
+    values = values * np.repeat(1.0 / np.sqrt(kappa * D[active]), np.diff(indptr))
+    columns, compact = np.unique(indices, return_inverse=True)
+    if columns.size:
+        local = PETSc.Mat().createAIJ(
+            (indptr.size - 1, columns.size),
+            csr=(indptr, compact.astype(PETSc.IntType), values),
+            comm=PETSc.COMM_SELF,
+        )
+        H = local.transposeMatMult(local)
+        rows, cols, entries = H.getValuesCSR()
+        for obj in (local, H):
+            obj.destroy()
+        A.setValuesIJV(
+            rows, columns[cols].astype(PETSc.IntType), sign * entries,
+            addv=PETSc.InsertMode.ADD_VALUES, rowmap=columns.astype(PETSc.IntType),
+        )  # fmt: skip
+    A.assemble()

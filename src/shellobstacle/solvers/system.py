@@ -26,7 +26,11 @@ import dolfinx.fem.petsc
 import numpy as np
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.quadrature import QuadraturePenalty, penalty_hessian
+from shellobstacle.penalty.quadrature import (
+    QuadraturePenalty,
+    add_penalty_hessian,
+    penalty_hessian,
+)
 from shellobstacle.solvers.line_search import exact_step
 
 __all__ = ["PenalizedSystem"]
@@ -161,9 +165,15 @@ class PenalizedSystem:
 
     def _add_penalty_hessian(self, points: np.ndarray, sign: float) -> None:
         """``A ← A + sign (1/κ) M_Pᵀ diag(1/D_P) M_P`` for the owned points ``P`` where
-        ``points`` holds (nothing where ``P`` is empty on every rank)."""
+        ``points`` holds (nothing where ``P`` is empty on every rank); incrementally on the
+        columns of ``P`` only (:func:`add_penalty_hessian`: few points, no ``O(n)`` product)."""
         rows = np.flatnonzero(points)
-        if self.comm.allreduce(rows.size):
+        if not self.comm.allreduce(rows.size):
+            return
+        if self.incremental:
+            pen = self.penalty
+            add_penalty_hessian(self.A, pen.M, pen.D, rows, self.kappa, sign)
+        else:
             P = penalty_hessian(self.penalty.M, self.penalty.D, rows, self.kappa)
             self.A.axpy(sign, P, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
             P.destroy()
