@@ -15,7 +15,7 @@ each solver's own.
 
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058,0.0029,0.00145
     .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058
-    .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0006 --solvers multigrid --force
+    .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0006 --solvers multigrid
 """
 
 from __future__ import annotations
@@ -82,8 +82,8 @@ def main() -> None:
     ap.add_argument(
         "--force",
         action="store_true",
-        help="solve even where the memory estimate (the direct path's; multigrid needs about "
-        "60 %% of it) exceeds 80 %% of this machine's memory",
+        help="solve even where the memory estimate of the linear solver exceeds 80 %% of this "
+        "machine's memory",
     )
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
