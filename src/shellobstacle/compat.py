@@ -63,10 +63,12 @@ def bootstrap() -> str:
     except ModuleNotFoundError:
         from mpi4py import MPI  # noqa: F401  (what the wheel's bootstrap would load)
 
-        locate_jit_modules_by_path()
-        return "not from the dolfinx-solver wheel (conda-forge, Docker or a source build)"
+        how = "not from the dolfinx-solver wheel (conda-forge, Docker or a source build)"
+    else:
+        name = dolfinx_solver.__name__.replace("_", "-")
+        how = f"the {name} wheel {dolfinx_solver.__version__}"
     locate_jit_modules_by_path()
-    return f"the {dolfinx_solver.__name__.replace('_', '-')} wheel {dolfinx_solver.__version__}"
+    return how
 
 
 def locate_jit_modules_by_path() -> bool:

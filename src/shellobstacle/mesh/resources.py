@@ -145,11 +145,11 @@ def require_fits(
     on_node = local.size
     local.Free()
 
-    def need_with(per_dof: float) -> float:
-        share = (est.dofs * per_dof if solve else est.bytes_mesh) * on_node / comm.size
+    def need_with(bytes_solve: float) -> float:
+        share = (bytes_solve if solve else est.bytes_mesh) * on_node / comm.size
         return share + BASE_BYTES * on_node
 
-    need = need_with(_bytes_per_dof(model, degree, linear_solver))
+    need = need_with(est.bytes_solve)
     have = machine_memory()
     if not need <= MEMORY_SHARE * have:
         size = _describe(spec)
@@ -159,7 +159,7 @@ def require_fits(
                 f"{what}: {size} gives more vertices than a float can count (over 1e308): "
                 "use a larger h"
             )
-        multigrid = need_with(_bytes_per_dof(model, degree, "multigrid"))
+        multigrid = need_with(est.dofs * _bytes_per_dof(model, degree, "multigrid"))
         instead = (
             f', solver.linear_solver = "multigrid" (about {multigrid / GIB:.3g} GiB)'
             if solve and multigrid <= MEMORY_SHARE * have and linear_solver != "multigrid"
