@@ -80,3 +80,26 @@ def test_the_zone_floor_counts_the_rounding_of_its_own_products(
         # (Σ_j |K_S,ij|) |z_i| estimates |K_S||z|: 4 % apart here
         assert value == pytest.approx(whole + exact, rel=0.1, abs=1e-40)
     assert any(exact > 0 for _, exact, _ in seen)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("kind", ["aij", "baij"])
+def test_abs_row_sums_are_the_rows_absolute_sums(kind: str) -> None:
+    """``Σ_j |K_ij|`` of the owned rows: PETSc's own sums for AIJ (``MatGetRowSumAbs``), the
+    copied rows' for another format, both the sums of the entries' absolute values."""
+    from petsc4py import PETSc
+
+    from shellobstacle.solvers.system import ROW_SUM_ABS_TYPES, abs_row_sums
+
+    problem = PenalizedProblem(paper_shell(), square(8), Discretization(degree=1))
+    K = problem.stiffness()
+    A = K if kind == "aij" else K.convert(PETSc.Mat.Type.BAIJ)
+    assert (A.getType() in ROW_SUM_ABS_TYPES) == (kind == "aij")
+    start, end = A.getOwnershipRange()
+    expected = np.array(
+        [np.abs(A.getRow(i)[1]).sum() for i in range(start, end)], dtype=float
+    )
+    sums = abs_row_sums(A)
+    assert sums.shape == (end - start,)
+    assert np.all(expected > 0)
+    np.testing.assert_allclose(sums, expected, rtol=1e-14, atol=0)

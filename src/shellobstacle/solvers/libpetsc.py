@@ -1,8 +1,9 @@
 """The PETSc functions the solvers call that petsc4py does not wrap, through ``ctypes``.
 
 MUMPS' selected inverse entries (``MatMumpsGetInverse``), its variable blocks
-(``MatMumpsSetBlk``) and Chebyshev's eigenvalue bounds (``KSPChebyshevSetEigenvalues``,
-``KSPChebyshevEstEigGetKSP``) are looked up in the libpetsc that petsc4py runs on, through
+(``MatMumpsSetBlk``), Chebyshev's eigenvalue bounds (``KSPChebyshevSetEigenvalues``,
+``KSPChebyshevEstEigGetKSP``) and a matrix's absolute row sums (``MatGetRowSumAbs``) are
+looked up in the libpetsc that petsc4py runs on, through
 petsc4py's own compiled module: the dynamic linker's lookup on that module's handle searches it
 and the libraries it was linked with, libpetsc among them, so no file is searched for and no
 other PETSc can be picked. Where PETSc lacks a function (an older release, a build without MUMPS,
@@ -32,6 +33,7 @@ SIGNATURES: dict[str, tuple[list, type]] = {
         ctypes.c_int,
     ),
     "KSPChebyshevEstEigGetKSP": ([ctypes.c_void_p, ctypes.POINTER(ctypes.c_void_p)], ctypes.c_int),
+    "MatGetRowSumAbs": ([ctypes.c_void_p, ctypes.c_void_p], ctypes.c_int),
 }
 
 

@@ -31,6 +31,7 @@ from shellobstacle.penalty.quadrature import (
     add_penalty_hessian,
     penalty_hessian,
 )
+from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.line_search import exact_step
 
 __all__ = ["PenalizedSystem"]
@@ -264,8 +265,25 @@ class PenalizedSystem:
             self._residual_after_step(t)
 
 
+#: the matrix formats whose absolute row sums PETSc computes itself
+ROW_SUM_ABS_TYPES = frozenset({"seqaij", "mpiaij"})
+
+
 def abs_row_sums(A: PETSc.Mat) -> np.ndarray:
-    """``Σ_j |A_ij|`` for the rows of ``A`` this rank owns (for ``u ‖|A| |x|‖`` estimates)."""
+    """``Σ_j |A_ij|`` for the rows of ``A`` this rank owns (for ``u ‖|A| |x|‖`` estimates).
+
+    PETSc's ``MatGetRowSumAbs`` sums the AIJ formats' rows in place; for another format, or
+    without it (an older PETSc), the rows are copied out (``getValuesCSR``) and summed here.
+    """
+    row_sum_abs = libpetsc.function("MatGetRowSumAbs")
+    if row_sum_abs is not None and A.getType() in ROW_SUM_ABS_TYPES:
+        sums = A.createVecLeft()
+        status = row_sum_abs(A.handle, sums.handle)
+        values = sums.array_r.copy()
+        sums.destroy()
+        if status != 0:
+            raise RuntimeError(f"PETSc's MatGetRowSumAbs failed (error {status})")
+        return values
     rows, _, values = A.getValuesCSR()
     sums = np.zeros(rows.size - 1)
     nonempty = rows[:-1] < rows[1:]
