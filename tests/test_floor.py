@@ -96,9 +96,7 @@ def test_abs_row_sums_are_the_rows_absolute_sums(kind: str) -> None:
     A = K if kind == "aij" else K.convert(PETSc.Mat.Type.BAIJ)
     assert (A.getType() in ROW_SUM_ABS_TYPES) == (kind == "aij")
     start, end = A.getOwnershipRange()
-    expected = np.array(
-        [np.abs(A.getRow(i)[1]).sum() for i in range(start, end)], dtype=float
-    )
+    expected = np.array([np.abs(A.getRow(i)[1]).sum() for i in range(start, end)], dtype=float)
     sums = abs_row_sums(A)
     assert sums.shape == (end - start,)
     assert np.all(expected > 0)
