@@ -21,6 +21,7 @@ from shellobstacle.experiments.penalty import PenaltyStudyOptions, penalty_study
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.mesh.refinement import refine_uniformly
+from shellobstacle.mesh.transfer import Interpolation
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.spec import Discretization, Load
@@ -66,6 +67,35 @@ def test_transfer_between_nested_meshes_is_exact() -> None:
     assert norms(w)["h1"] == pytest.approx(DifferenceNorms(V0)(u)["h1"], rel=1e-12)
 
 
+@pytest.mark.mpi
+def test_interpolation_locates_the_points_once_per_source_space() -> None:
+    """:class:`Interpolation` keeps each source space's point location: interpolating again,
+    or another function of the same space, locates nothing new and gives what a fresh
+    interpolation gives; a new source space is located once; after ``forget`` it is again."""
+    coarse_mesh = create_mesh(DomainSpec("disk", h=0.15, radius=0.5))
+    fine_mesh = refine_uniformly(coarse_mesh)
+    V0 = dolfinx.fem.functionspace(coarse_mesh, ("Lagrange", 1, (3,)))
+    V0b = dolfinx.fem.functionspace(coarse_mesh, ("Lagrange", 1, (3,)))
+    V1 = dolfinx.fem.functionspace(fine_mesh, ("Lagrange", 1, (3,)))
+    rng = np.random.default_rng(MPI.COMM_WORLD.rank)
+    functions = []
+    for V in (V0, V0, V0b):
+        u = dolfinx.fem.Function(V)
+        u.x.array[:] = rng.standard_normal(u.x.array.size)
+        u.x.scatter_forward()
+        functions.append(u)
+    into = Interpolation(V1)
+    for expected_searches, u in zip((1, 1, 2), functions, strict=True):
+        w = into(u)
+        assert into.searches == expected_searches
+        np.testing.assert_array_equal(w.x.array, transfer(u, V1).x.array)
+    into(functions[0])
+    assert into.searches == 2
+    into.forget()
+    into(functions[0])
+    assert into.searches == 3
+
+
 def test_batch2_differences_shrink_with_h(cfg) -> None:
     """On nested meshes with κ = h^q the differences of consecutive solutions decrease."""
     base = create_mesh(DomainSpec("disk", h=0.15, radius=0.5))
@@ -73,6 +103,9 @@ def test_batch2_differences_shrink_with_h(cfg) -> None:
     study = mesh_study(levels, 1.0)
     errors = [r["error_VM"] for r in study.rows]
     assert len(errors) == 2 and errors[1] < errors[0]
+    # another q on the same levels locates no point again
+    mesh_study(levels, 0.9)
+    assert [level.interpolation.searches for level in levels] == [0, 1, 1]
 
 
 def test_batch3_contact_area_grows_with_the_load(cfg) -> None:

@@ -32,6 +32,7 @@ from shellobstacle.adapt.marking import free_boundary_cells, mark_dorfler, marke
 from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.mesh.measures import mesh_size, mesh_size_min, num_cells_global
 from shellobstacle.mesh.refinement import refine_marked
+from shellobstacle.mesh.transfer import Interpolation
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.kappa import MeshKappa, kappa_on_mesh
 from shellobstacle.penalty.spec import PenaltySpec
@@ -219,22 +220,8 @@ def carry_over(
 ) -> list[dolfinx.fem.Function]:
     """Interpolate ``functions`` into ``V``: exact for Lagrange functions of a mesh that
     ``V``'s refines (nested meshes); one point location per distinct source space."""
-    mesh = V.mesh
-    imap = mesh.topology.index_map(mesh.topology.dim)
-    cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
-    data: dict[int, Any] = {}
-    out = []
-    for f in functions:
-        source = f.function_space
-        if id(source) not in data:
-            data[id(source)] = dolfinx.fem.create_interpolation_data(
-                V, source, cells, padding=1e-12
-            )
-        g = dolfinx.fem.Function(V, name=f.name)
-        g.interpolate_nonmatching(f, cells, data[id(source)])
-        g.x.scatter_forward()
-        out.append(g)
-    return out
+    into = Interpolation(V)
+    return [into(f) for f in functions]
 
 
 def _solve_level(

@@ -16,6 +16,7 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.io.records import atomic_write
+from shellobstacle.mesh.transfer import Interpolation
 from shellobstacle.penalty.spec import PenaltySpec
 
 Say = Callable[[str], Any]
@@ -48,12 +49,19 @@ class LazyReference:
     def __init__(self, make: Callable[[], dolfinx.fem.Function]) -> None:
         self._make = make
         self._value: dolfinx.fem.Function | None = None
+        self._into: Interpolation | None = None
 
     def get(self) -> dolfinx.fem.Function:
         """The reference (computed once, collectively)."""
         if self._value is None:
             self._value = self._make()
         return self._value
+
+    def interpolate(self, f: dolfinx.fem.Function) -> dolfinx.fem.Function:
+        """``f`` interpolated into the reference's space (each source space located once)."""
+        if self._into is None:
+            self._into = Interpolation(self.get().function_space)
+        return self._into(f)
 
 
 def reference_of(reference: Any) -> dolfinx.fem.Function | None:
@@ -70,24 +78,13 @@ def newton_finished(newton_progress: Any, result: Any) -> None:
 def transfer(
     coarse: dolfinx.fem.Function, V_fine: dolfinx.fem.FunctionSpace
 ) -> dolfinx.fem.Function:
-    """Interpolate a coarse-mesh Function into a space on a finer (nested) mesh.
+    """Interpolate a coarse-mesh Function into a space on a finer (nested) mesh, once
+    (:class:`~shellobstacle.mesh.transfer.Interpolation` keeps the point location for repeats).
 
     On nested meshes a P1 coarse function is represented exactly, so differences of
     solutions on consecutive meshes measure the discretization alone (docs/model.md §7, batch 2).
     """
-    fine = dolfinx.fem.Function(V_fine)
-    mesh = V_fine.mesh
-    tdim = mesh.topology.dim
-    cells = np.arange(
-        mesh.topology.index_map(tdim).size_local + mesh.topology.index_map(tdim).num_ghosts,
-        dtype=np.int32,
-    )
-    data = dolfinx.fem.create_interpolation_data(
-        V_fine, coarse.function_space, cells, padding=1e-12
-    )
-    fine.interpolate_nonmatching(coarse, cells, data)
-    fine.x.scatter_forward()
-    return fine
+    return Interpolation(V_fine)(coarse)
 
 
 def write_csv(path: Path, rows: Sequence[dict[str, Any]], columns: Sequence[str]) -> None:

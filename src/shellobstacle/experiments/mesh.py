@@ -33,6 +33,7 @@ from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.mesh.refinement import refine_uniformly
+from shellobstacle.mesh.transfer import Interpolation
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.norms import DifferenceNorms
@@ -62,6 +63,8 @@ class MeshLevel:
     problem: PenalizedProblem
     solver: NewtonSolver
     norms: DifferenceNorms
+    #: interpolation into ``problem.V`` (the previous level's solutions, located once)
+    interpolation: Interpolation
     #: resume bookkeeping: the newest saved solution on this level, and a recorded one that
     #: is not yet loaded into ``problem.zeta``
     saved: str | None = None
@@ -119,6 +122,7 @@ def mesh_levels(
                 problem,
                 NewtonSolver(problem, newton),
                 DifferenceNorms(problem.V, discretization.qdegree),
+                Interpolation(problem.V),
             )
         )
         say(f"batch 2: mesh level {k}: h = {levels[-1].h:.4g}, {problem.num_dofs} dofs")
@@ -224,13 +228,18 @@ def _solve_level(
     reference_row = None
     ref = reference_of(reference)
     if ref is not None:
-        fine_V = ref.function_space
-        mine = transfer(level.problem.zeta, fine_V) if k < len(levels) - 1 else level.problem.zeta
+        zeta = level.problem.zeta
+        if k == len(levels) - 1:
+            mine = zeta
+        elif isinstance(reference, LazyReference):
+            mine = reference.interpolate(zeta)
+        else:
+            mine = transfer(zeta, ref.function_space)
         e = levels[-1].norms(mine, ref)
         reference_row = {"q": q, "h": level.h, "error_VM": e["vm"], "error_H1": e["h1"]}
     row = None
     if previous is not None:
-        coarse = transfer(previous.problem.zeta, level.problem.V)
+        coarse = level.interpolation(previous.problem.zeta)
         d = level.norms(coarse, level.problem.zeta)
         row = {"h_1": previous.h, "h_2": level.h, "error_VM": d["vm"], "error_H1": d["h1"]}
     return {

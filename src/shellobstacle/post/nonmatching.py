@@ -22,6 +22,8 @@ import dolfinx.fem
 import numpy as np
 import ufl
 
+from shellobstacle.mesh.transfer import Interpolation
+
 __all__ = ["SampledNorms"]
 
 
@@ -57,10 +59,8 @@ class SampledNorms:
             "h1": dolfinx.fem.form((sum(values) + sum(grads)) * dx),
             "vm": dolfinx.fem.form((sum(values) + grads[0] + grads[1]) * dx),
         }
-        tdim = mesh.topology.dim
-        imap = mesh.topology.index_map(tdim)
-        self.cells = np.arange(imap.size_local + imap.num_ghosts, dtype=np.int32)
-        self._source: tuple[Any, ...] | None = None  # the last sampled space and its data
+        self._into = Interpolation(self.Qv)  # the Gauss points located in each source mesh
+        self._source: tuple[Any, ...] | None = None  # the last sampled u, its gradient's space
 
     def _sample(self, u: dolfinx.fem.Function) -> None:
         """Fill the point values and gradients of ``u`` on the reference's Gauss points."""
@@ -69,14 +69,15 @@ class SampledNorms:
             degree = V.ufl_element().embedded_superdegree
             G = dolfinx.fem.functionspace(V.mesh, ("DG", max(degree - 1, 0), (3, 2)))
             expr = dolfinx.fem.Expression(ufl.grad(u), G.element.interpolation_points)
-            # the values and gradients share the points (one rule), hence their owners
-            data = dolfinx.fem.create_interpolation_data(self.Qv, V, self.cells, padding=1e-12)
-            self._source = (u, dolfinx.fem.Function(G), expr, data)
-        _, grad, expr, data = self._source
+            self._source = (u, dolfinx.fem.Function(G), expr)
+            self._into.forget()  # only the last source is kept
+        _, grad, expr = self._source
         grad.interpolate(expr)
         grad.x.scatter_forward()
-        self.values.interpolate_nonmatching(u, self.cells, data)
-        self.gradients.interpolate_nonmatching(grad, self.cells, data)
+        # the values and gradients share the points (one rule), hence their owners
+        data = self._into.data(V)
+        self.values.interpolate_nonmatching(u, self._into.cells, data)
+        self.gradients.interpolate_nonmatching(grad, self._into.cells, data)
 
     def __call__(self, u: dolfinx.fem.Function) -> dict[str, float]:
         """The norms of ``u − u_ref`` (global; the same on every rank)."""
