@@ -157,13 +157,22 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
 ) -> None:
     """The paper's h = 0.0006 (7.7 M dofs) on a 24 GiB machine: refused for the direct solver
     (3.5 kB per dof), with multigrid named as fitting (2.2 kB per dof, measured 2.0–2.1); with
-    multigrid the estimate passes, and a method that factorizes is estimated as direct."""
+    multigrid the estimate passes, ``"auto"`` (the default) stands for multigrid there, and a
+    method that factorizes is estimated as direct."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(resources, "machine_memory", lambda: 24 * 2.0**30)
     big = DomainSpec("disk", 0.0006)
     est = resources.estimate(big)
     assert est is not None and 7.0e6 < est.dofs < 8.5e6
+    assert NewtonOptions().linear_solver == "auto"
+    assert resources.linear_solver_for("auto", est.dofs, "membrane", 1) == "multigrid"
+    assert resources.linear_solver_for("auto", 1e6, "membrane", 1) == "direct"
+    assert resources.linear_solver_for("auto", est.dofs, "membrane", 2) == "direct"
+    assert resources.linear_solver_for("iterative", est.dofs, "membrane", 1) == "iterative"
+    chosen = resources.require_fits(big, linear_solver="auto")
+    assert chosen == resources.estimate(big, linear_solver="multigrid")
     args = ["solve", PAPER, "-q", "--set", "domain.h=0.0006"]
+    args += ["--set", 'solver.linear_solver="direct"']
     assert main(args) == 2
     err = capsys.readouterr().err
     assert 'solver.linear_solver = "multigrid" (about 1' in err, err
@@ -174,3 +183,27 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
     assert resources.linear_solver_of("brezis-sibony", options) == "direct"
     with pytest.raises(resources.ResourceError, match="multigrid"):
         resources.require_fits(big, linear_solver=resources.linear_solver_of("active-set", None))
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
+@pytest.mark.parametrize(("gib", "expected"), [(24.0, "direct"), (0.42, "multigrid")])
+def test_auto_takes_multigrid_where_only_it_fits(
+    gib: float, expected: str, tmp_path: Path, monkeypatch
+) -> None:
+    """``solver.linear_solver = "auto"`` (the default) solves the paper's problem at about 21k
+    dofs by the direct path on a large machine and by multigrid on one where only multigrid's
+    estimate fits (0.42 GiB: the direct path's 0.37 GB is more than 80 % of it, multigrid's
+    0.35 GB is not); summary.json says which."""
+    import json
+
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(resources, "machine_memory", lambda: gib * 2.0**30)
+    h = 0.0115
+    est = resources.estimate(DomainSpec("disk", h, radius=0.5))
+    assert est is not None and 2.0e4 < est.dofs < 3.5e4, est
+    out = tmp_path / "out"
+    args = ["solve", PAPER, "-q", "-o", str(out), "--set", f"domain.h={h}"]
+    args += ["--set", "output.paraview=false", "--set", "output.pictures=false"]
+    assert main(args) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["converged"] and summary["linear_solver"] == expected

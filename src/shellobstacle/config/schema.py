@@ -211,6 +211,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "linear_solver": solver_key(
             "linear_solver",
             "str",
+            "direct where its memory estimate fits this machine, else multigrid (membrane P1); "
             "MUMPS; inexact Newton with flexible CG and a field split (GAMG on ζ_α): about 70 % "
             "of the memory; or inexact Newton with CG and geometric multigrid on the mesh's "
             "uniform refinements (GAMG on a mesh without them)",

@@ -110,7 +110,7 @@ def validate(
 
     if not epsilons or any(not e > 0 for e in epsilons):
         raise ConfigError(f"--epsilons: expected positive numbers, got {list(epsilons)}")
-    if cfg.solver.linear_solver != "direct":
+    if cfg.solver.linear_solver not in ("auto", "direct"):
         raise ConfigError(
             "koiter-limit solves Koiter's model, which needs solver.linear_solver = 'direct'"
         )

@@ -13,8 +13,9 @@ them up; they are estimates within a factor of about 1.5, good for refusing what
 reach, not for planning a run to the last gigabyte (``--force`` proceeds anyway). Multigrid
 (``solver.linear_solver = "multigrid"``, membrane P1) factorizes only gmsh's coarse mesh: 2.0–2.1
 kB per dof from 1.3 M to 7.7 M dofs (``docs/perf/multigrid/``), so a mesh refused for the direct
-solver may fit with it, and the refusal says so. Messages give memory in GiB (2³⁰ bytes), the
-unit ``free -g`` and the documentation use.
+solver may fit with it: ``solver.linear_solver = "auto"`` (the default) then takes multigrid
+(:func:`linear_solver_for`), and a refusal of ``"direct"`` asked for by name says so. Messages
+give memory in GiB (2³⁰ bytes), the unit ``free -g`` and the documentation use.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ __all__ = [
     "Estimate",
     "ResourceError",
     "estimate",
+    "linear_solver_for",
     "linear_solver_of",
     "machine_memory",
     "require_fits",
@@ -91,9 +93,33 @@ def _points_along(length: float, h: float) -> float:
 
 
 def linear_solver_of(method: str, options: Any) -> str:
-    """The linear solver whose memory a solve needs: Newton's ``options.linear_solver``, a
-    factorization (``"direct"``) for every other method."""
-    return getattr(options, "linear_solver", "direct") if method == "newton" else "direct"
+    """The linear solver whose memory a solve needs: Newton's ``options.linear_solver``
+    (perhaps ``"auto"``), a factorization (``"direct"``) for every other method."""
+    return getattr(options, "linear_solver", "auto") if method == "newton" else "direct"
+
+
+def linear_solver_for(
+    requested: str, dofs: float, model: str, degree: int, comm: MPI.Comm = MPI.COMM_WORLD
+) -> str:
+    """The linear solver of a request: ``"auto"`` is the direct path where its estimate fits
+    in :data:`MEMORY_SHARE` of this machine, and multigrid (membrane P1) where it does not;
+    any other request is itself. Collective: rank 0's machine decides for all."""
+    if requested != "auto":
+        return requested
+    if (model, degree) != ("membrane", 1):
+        return "direct"  # multigrid is the membrane P1's
+    need = _need(dofs * _bytes_per_dof(model, degree, "direct"), comm)
+    fits = need <= MEMORY_SHARE * machine_memory()
+    return comm.bcast("direct" if fits else "multigrid", root=0)
+
+
+def _need(bytes_all: float, comm: MPI.Comm) -> float:
+    """The memory this machine needs for its ranks' share of ``bytes_all`` (the run's whole
+    need, distributed evenly), with :data:`BASE_BYTES` per rank (collective)."""
+    local = comm.Split_type(MPI.COMM_TYPE_SHARED)
+    on_node = local.size
+    local.Free()
+    return bytes_all * on_node / comm.size + BASE_BYTES * on_node
 
 
 def _bytes_per_dof(model: str, degree: int, linear_solver: str) -> float:
@@ -136,18 +162,18 @@ def require_fits(
     machine's memory.
 
     The ranks on this machine need their share of the whole run's memory (the mesh is
-    distributed evenly), plus :data:`BASE_BYTES` each.
+    distributed evenly), plus :data:`BASE_BYTES` each. ``"auto"`` is estimated as the solver
+    it stands for (:func:`linear_solver_for`).
     """
-    est = estimate(spec, model, degree, linear_solver)
+    est = estimate(spec, model, degree, "direct")
     if est is None:
         return None
-    local = comm.Split_type(MPI.COMM_TYPE_SHARED)
-    on_node = local.size
-    local.Free()
+    if linear_solver == "auto" and math.isfinite(est.dofs):
+        linear_solver = linear_solver_for("auto", est.dofs, model, degree, comm)
+    est = estimate(spec, model, degree, linear_solver)
 
     def need_with(bytes_solve: float) -> float:
-        share = (bytes_solve if solve else est.bytes_mesh) * on_node / comm.size
-        return share + BASE_BYTES * on_node
+        return _need(bytes_solve if solve else est.bytes_mesh, comm)
 
     need = need_with(est.bytes_solve)
     have = machine_memory()

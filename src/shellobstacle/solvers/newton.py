@@ -26,6 +26,7 @@ beyond double precision's range) is a failure, not a step below round-off.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 import time
@@ -40,6 +41,7 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 
+from shellobstacle.mesh.resources import linear_solver_for
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import note
 from shellobstacle.solvers.base import ConvergenceError, UserOptions, with_user_options
@@ -136,7 +138,13 @@ class NewtonSolver:
         self.options = opts = options or NewtonOptions()
         t0 = time.perf_counter()
         self.system = PenalizedSystem(problem, opts.floor_factor)
-        self.linear = linear or make_strategy(opts, problem.mesh.comm)
+        #: the linear solver ``options.linear_solver`` stands for (``"auto"`` resolved)
+        self.linear_solver = linear_solver_for(
+            opts.linear_solver, problem.num_dofs, problem.model, problem.disc.degree,
+            problem.mesh.comm,
+        )  # fmt: skip
+        chosen = dataclasses.replace(opts, linear_solver=self.linear_solver)
+        self.linear = linear or make_strategy(chosen, problem.mesh.comm)
         self.timings: dict[str, float] = dict.fromkeys(
             ("assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton"),
             0.0,

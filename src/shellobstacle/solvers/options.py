@@ -25,7 +25,7 @@ __all__ = [
     "SnesVIOptions",
 ]
 
-LINEAR_SOLVERS = ("direct", "iterative", "multigrid")
+LINEAR_SOLVERS = ("auto", "direct", "iterative", "multigrid")
 FACTORIZATIONS = ("cholesky", "lu")
 MASSES = ("consistent", "lumped")
 STARTS = ("zero", "linearized", "current")
@@ -87,7 +87,10 @@ class NewtonOptions:
             with a Krylov method and a field split, GAMG on ζ_α:
             :mod:`~shellobstacle.solvers.linear.iterative`) or ``"multigrid"`` (inexact Newton
             with CG and geometric multigrid on the mesh's refinement levels:
-            :mod:`~shellobstacle.solvers.linear.multigrid`).
+            :mod:`~shellobstacle.solvers.linear.multigrid`); ``"auto"`` (the default):
+            ``"direct"`` where its memory estimate fits this machine, ``"multigrid"`` for the
+            membrane P1 where it does not
+            (:func:`~shellobstacle.mesh.resources.linear_solver_for`).
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ; the Jacobians are
             symmetric positive definite: half the memory of LU) or ``"lu"``.
         contact_zone: with the direct solver, condense every Newton step onto a contact zone
@@ -103,7 +106,7 @@ class NewtonOptions:
     stol: float = 1e-12
     floor_factor: float = 100.0
     max_iterations: int = 100
-    linear_solver: str = field(default="direct", metadata={"choices": LINEAR_SOLVERS})
+    linear_solver: str = field(default="auto", metadata={"choices": LINEAR_SOLVERS})
     factorization: str = field(default="cholesky", metadata={"choices": FACTORIZATIONS})
     contact_zone: bool = True
     linear_rtol: float = 1e-12

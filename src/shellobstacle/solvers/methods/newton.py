@@ -82,6 +82,7 @@ class NewtonContinuation(MethodBase):
             if problem in self._kept:
                 self._kept[problem] = (options, solver)
         out.timings["setup"] = time.perf_counter() - t
+        out.extra["linear_solver"] = solver.linear_solver
         try:
             out.steps = list(
                 continuation(problem, solver, list(kappas), say, newton_progress=newton_progress)
