@@ -84,6 +84,8 @@ class IterativeStrategy:
     """
 
     predicts = False
+    #: continue a direction whose full step keeps the active set to Newton's threshold
+    finishes = False
 
     def __init__(
         self, rtol: float = 1e-12, forcing: str = "eisenstat-walker", seed: bool = True
@@ -93,6 +95,7 @@ class IterativeStrategy:
         self.rtol, self.forcing, self.seed = rtol, forcing, seed
         self.factorizations = 0
         self.multigrid_builds = 0
+        self.finished = 0  # directions continued to Newton's threshold
         self._eta: float | None = None  # the last forcing term
         self._split: list[PETSc.KSP] | None = None  # the split's solvers, after a set-up
         self._blocks: tuple[PETSc.IS, PETSc.Mat, PETSc.Mat, PETSc.Vec] | None = None
@@ -147,6 +150,8 @@ class IterativeStrategy:
         discarded = 0
         if seed is None:
             self._solve(system.R)
+            if self.finishes:
+                discarded = self._finish(target)
         else:
             discarded = self._seeded(seed)
         system.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
@@ -185,6 +190,32 @@ class IterativeStrategy:
             eta = max(eta, 0.5 * target / norms[-1])
         self._eta = min(max(eta, self.rtol), eta_max)
         return self._eta
+
+    def _finish(self, target: float) -> int:
+        """If the full step along the inexact ``δ`` keeps the active set (along it ``J_κ`` is
+        then Newton's quadratic model), CG goes on from ``δ`` to Newton's stopping threshold,
+        and the step ends the solve. Returns the CG iterations of the first solve (0: not
+        continued)."""
+        system = self.system
+        rnorm = system.R.norm()
+        if self.ksp.getConvergedReason() <= 0 or rnorm == 0.0:
+            return 0
+        eta = max(self.rtol, 0.5 * target / rnorm)
+        if eta >= self._eta:
+            return 0
+        active = system.g < 0
+        after = system.g + system.penalty.apply_B(system.dz) < 0
+        if not system.comm.allreduce(bool(np.array_equal(active, after)), op=MPI.LAND):
+            return 0
+        iterations = self.ksp.getIterationNumber()
+        self.ksp.setTolerances(rtol=eta)
+        self.ksp.setInitialGuessNonzero(True)
+        try:
+            self._solve(system.R)
+        finally:
+            self.ksp.setInitialGuessNonzero(False)
+        self.finished += 1
+        return iterations
 
     # -- the seeded first step ----------------------------------------------------------------
     def _seed(self) -> np.ndarray | None:

@@ -86,6 +86,8 @@ class MultigridStrategy(IterativeStrategy):
         levels: the most mesh levels to use (None: all the hierarchy has).
     """
 
+    finishes = True
+
     def __init__(
         self,
         rtol: float = 1e-12,
