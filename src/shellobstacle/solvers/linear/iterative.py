@@ -20,6 +20,13 @@ stops at ``‖J δ + R‖ ≤ η_k ‖R‖`` with ``η_k = 0.9 (‖R_k‖ / ‖R
 that starts from an iterate with contact (a continuation's next κ) takes its first step with
 :data:`WARM_FORCING`: from the previous solution exact steps converge in 2–4 steps, while a
 loose first step sets off a string of inexact ones.
+
+A direction whose full step keeps the active set (``g + Bδ < 0`` where ``g < 0``, nowhere
+else) is continued by CG from ``δ`` to Newton's stopping threshold: along it ``J_κ`` is
+Newton's quadratic model, so the step ends the solve, where Eisenstat–Walker's term would
+leave one more inexact step. Until then, while the active set still moves, the forcing terms
+are kept at least :data:`FINISHING_FORCING_FLOOR`: a tighter solve of a model whose active
+set is about to change buys nothing.
 """
 
 from __future__ import annotations
@@ -37,6 +44,7 @@ from shellobstacle.solvers.seeds import coarse_penetration
 from shellobstacle.solvers.system import PenalizedSystem
 
 __all__ = [
+    "FINISHING_FORCING_FLOOR",
     "KEPT_ITERATION_FACTOR",
     "KEPT_MIN_ITERATIONS",
     "MULTIGRID_DRIFT",
@@ -46,6 +54,9 @@ __all__ = [
 
 #: the first forcing term of a solve from an iterate with contact
 WARM_FORCING = 1e-4
+#: the least Eisenstat–Walker forcing term after a solve's first step, when directions that
+#: keep the active set are finished (below it CG works on a model whose active set moves)
+FINISHING_FORCING_FLOOR = 1e-2
 #: how far the Jacobian's ζ_α diagonal may move (relative, at any dof) before GAMG is rebuilt
 MULTIGRID_DRIFT = 0.05
 #: a solve with a kept hierarchy is given up after this factor times the most iterations of a
@@ -81,18 +92,24 @@ class IterativeStrategy:
             ``rtol``: the iterations per step then measure the preconditioner alone).
         seed: take a solve's first step from an iterate without contact towards the seeded
             model (:mod:`~shellobstacle.solvers.seeds`).
+        finish: continue a direction whose full step keeps the active set to Newton's
+            stopping threshold, with the forcing terms kept at least
+            :data:`FINISHING_FORCING_FLOOR` (Eisenstat–Walker forcing only).
     """
 
     predicts = False
-    #: continue a direction whose full step keeps the active set to Newton's threshold
-    finishes = False
 
     def __init__(
-        self, rtol: float = 1e-12, forcing: str = "eisenstat-walker", seed: bool = True
+        self,
+        rtol: float = 1e-12,
+        forcing: str = "eisenstat-walker",
+        seed: bool = True,
+        finish: bool = True,
     ) -> None:
         if forcing not in FORCINGS:
             raise ValueError(f"forcing must be one of {FORCINGS}, got {forcing!r}")
         self.rtol, self.forcing, self.seed = rtol, forcing, seed
+        self.finish = finish and forcing == "eisenstat-walker"
         self.factorizations = 0
         self.multigrid_builds = 0
         self.finished = 0  # directions continued to Newton's threshold
@@ -147,16 +164,16 @@ class IterativeStrategy:
         self.ksp.setTolerances(rtol=self._forcing(history, target))
         ts = time.perf_counter()
         system.negate_residual()
-        discarded = 0
+        earlier = 0  # CG iterations of a solve discarded or continued
         if seed is None:
             self._solve(system.R)
-            if self.finishes:
-                discarded = self._finish(target)
+            if self.finish:
+                earlier = self._finish(history[-1], target)
         else:
-            discarded = self._seeded(seed)
+            earlier = self._seeded(seed)
         system.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self.timings["solve"] += time.perf_counter() - ts
-        iterations = self.ksp.getIterationNumber() + discarded + self._rejected
+        iterations = self.ksp.getIterationNumber() + earlier + self._rejected
         self._rejected = 0
         if self.ksp.getConvergedReason() < 0:
             raise LinearSolveError(
@@ -185,19 +202,20 @@ class IterativeStrategy:
             previous = gamma * self._eta**alpha
             if previous > 0.1:
                 eta = max(eta, previous)
+            if self.finish:
+                eta = max(eta, FINISHING_FORCING_FLOOR)
             eta = min(eta, eta_max)
         if norms[-1] > 0.0:
             eta = max(eta, 0.5 * target / norms[-1])
         self._eta = min(max(eta, self.rtol), eta_max)
         return self._eta
 
-    def _finish(self, target: float) -> int:
+    def _finish(self, rnorm: float, target: float) -> int:
         """If the full step along the inexact ``δ`` keeps the active set (along it ``J_κ`` is
-        then Newton's quadratic model), CG goes on from ``δ`` to Newton's stopping threshold,
-        and the step ends the solve. Returns the CG iterations of the first solve (0: not
-        continued)."""
+        then Newton's quadratic model), CG goes on from ``δ`` to Newton's stopping threshold
+        (``rnorm``: ``‖R‖``), so that the step ends the solve. Returns the CG iterations of
+        the first solve (0: not continued). Collective."""
         system = self.system
-        rnorm = system.R.norm()
         if self.ksp.getConvergedReason() <= 0 or rnorm == 0.0:
             return 0
         eta = max(self.rtol, 0.5 * target / rnorm)
@@ -214,6 +232,7 @@ class IterativeStrategy:
             self._solve(system.R)
         finally:
             self.ksp.setInitialGuessNonzero(False)
+        self._eta = eta
         self.finished += 1
         return iterations
 

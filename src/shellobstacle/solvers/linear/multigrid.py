@@ -84,9 +84,9 @@ class MultigridStrategy(IterativeStrategy):
             model (:mod:`~shellobstacle.solvers.seeds`).
         smoother: :data:`SMOOTHERS`, the preconditioner of the levels' Chebyshev iteration.
         levels: the most mesh levels to use (None: all the hierarchy has).
+        finish: continue a direction that keeps the active set to Newton's threshold
+            (:class:`~shellobstacle.solvers.linear.iterative.IterativeStrategy`).
     """
-
-    finishes = True
 
     def __init__(
         self,
@@ -95,8 +95,9 @@ class MultigridStrategy(IterativeStrategy):
         seed: bool = True,
         smoother: str = "jacobi",
         levels: int | None = None,
+        finish: bool = True,
     ) -> None:
-        super().__init__(rtol, forcing, seed)
+        super().__init__(rtol, forcing, seed, finish)
         if smoother not in SMOOTHERS:
             raise ValueError(f"smoother must be one of {SMOOTHERS}, got {smoother!r}")
         if levels is not None and levels < 1:
