@@ -106,7 +106,7 @@ def test_a_direction_that_keeps_the_active_set_is_finished() -> None:
         runs.append((newton, linear.finished, problem.zeta.x.array.copy()))
     (finished, count, zeta), (plain, none, zeta_plain) = runs
     assert none == 0 and count >= len(finished)
-    assert sum(finished) < sum(plain) and all(a <= b for a, b in zip(finished, plain))
+    assert sum(finished) < sum(plain) and all(a <= b for a, b in zip(finished, plain, strict=True))
     assert np.linalg.norm(zeta - zeta_plain) <= 1e-8 * np.linalg.norm(zeta_plain)
 
 

@@ -419,7 +419,7 @@ def test_the_iterative_solver_finishes_a_direction_that_keeps_the_active_set() -
         runs.append(([s.newton.iterations for s in steps], linear.finished, problem.zeta.x.array))
     (finished, count, zeta), (plain, none, zeta_plain) = runs
     assert count > 0 and none == 0
-    assert sum(finished) < sum(plain) and all(a <= b for a, b in zip(finished, plain))
+    assert sum(finished) < sum(plain) and all(a <= b for a, b in zip(finished, plain, strict=True))
     assert np.linalg.norm(zeta - zeta_plain) <= 1e-8 * np.linalg.norm(zeta_plain)
 
 
