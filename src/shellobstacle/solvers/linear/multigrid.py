@@ -28,7 +28,7 @@ A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
 component as its near-nullspace.
 
-The Newton side (forcing terms, the seeded first step) is that of
+The Newton side (forcing terms, the seeded first step, the finished direction) is that of
 :class:`~shellobstacle.solvers.linear.iterative.IterativeStrategy`.
 """
 
