@@ -14,19 +14,18 @@ is repeated with a new one. The split keeps its diagonal blocks instead of extra
 every set-up: the ζ_α block is refreshed at a build only, the ζ_3 block gets the current
 diagonal (what Jacobi reads).
 
-The forcing terms are Eisenstat and Walker's choice 2 (SIAM J. Sci. Comput. 17, 1996): CG
-stops at ``‖J δ + R‖ ≤ η_k ‖R‖`` with ``η_k = 0.9 (‖R_k‖ / ‖R_{k−1}‖)²``, safeguarded, at most
-0.1, never below the tolerance nor below what Newton's stopping test can still see. A solve
-that starts from an iterate with contact (a continuation's next κ) takes its first step with
-:data:`WARM_FORCING`: from the previous solution exact steps converge in 2–4 steps, while a
-loose first step sets off a string of inexact ones.
-
-A direction whose full step keeps the active set (``g + Bδ < 0`` where ``g < 0``, nowhere
-else) is continued by CG from ``δ`` to Newton's stopping threshold: along it ``J_κ`` is
-Newton's quadratic model, so the step ends the solve, where Eisenstat–Walker's term would
-leave one more inexact step. Until then, while the active set still moves, the forcing terms
-are kept at least :data:`FINISHING_FORCING_FLOOR`: a tighter solve of a model whose active
-set is about to change buys nothing.
+CG stops at ``‖J δ + R‖ ≤ η ‖R‖``. A direction whose full step keeps the active set
+(``g + Bδ < 0`` where ``g < 0``, nowhere else) is *finished*: CG goes on from ``δ`` to
+Newton's stopping threshold. Along it ``J_κ`` is then Newton's quadratic model, so the step
+ends the solve, as the direct path's exact step does. Until then, while the active set still
+moves, every direction is solved to ``η = 0.1``: a tighter solve of a model whose active set
+is about to change buys nothing. A solve that starts from an iterate with contact (a
+continuation's next κ) takes its first step with :data:`WARM_FORCING`: from the previous
+solution exact steps converge in 2–4 steps, while a loose first step sets off a string of
+inexact ones. Without finishing, the forcing terms are Eisenstat and Walker's choice 2 (SIAM
+J. Sci. Comput. 17, 1996), ``η_k = 0.9 (‖R_k‖ / ‖R_{k−1}‖)²``, safeguarded, at most 0.1.
+Either way ``η`` is never below the tolerance nor below what Newton's stopping test can
+still see.
 """
 
 from __future__ import annotations
@@ -44,7 +43,6 @@ from shellobstacle.solvers.seeds import coarse_penetration
 from shellobstacle.solvers.system import PenalizedSystem
 
 __all__ = [
-    "FINISHING_FORCING_FLOOR",
     "KEPT_ITERATION_FACTOR",
     "KEPT_MIN_ITERATIONS",
     "MULTIGRID_DRIFT",
@@ -54,9 +52,6 @@ __all__ = [
 
 #: the first forcing term of a solve from an iterate with contact
 WARM_FORCING = 1e-4
-#: the least Eisenstat–Walker forcing term after a solve's first step, when directions that
-#: keep the active set are finished (below it CG works on a model whose active set moves)
-FINISHING_FORCING_FLOOR = 1e-2
 #: how far the Jacobian's ζ_α diagonal may move (relative, at any dof) before GAMG is rebuilt
 MULTIGRID_DRIFT = 0.05
 #: a solve with a kept hierarchy is given up after this factor times the most iterations of a
@@ -93,8 +88,8 @@ class IterativeStrategy:
         seed: take a solve's first step from an iterate without contact towards the seeded
             model (:mod:`~shellobstacle.solvers.seeds`).
         finish: continue a direction whose full step keeps the active set to Newton's
-            stopping threshold, with the forcing terms kept at least
-            :data:`FINISHING_FORCING_FLOOR` (Eisenstat–Walker forcing only).
+            stopping threshold, the others solved to ``η_max = 0.1`` (False: Eisenstat–Walker's
+            terms; ``"eisenstat-walker"`` forcing only).
     """
 
     predicts = False
@@ -184,12 +179,12 @@ class IterativeStrategy:
     def _forcing(self, norms: list[float], target: float) -> float:
         """The relative tolerance ``η_k`` of the next direction.
 
-        Eisenstat–Walker choice 2, ``η_k = γ (‖R_k‖/‖R_{k−1}‖)^α`` with ``γ = 0.9``, ``α = 2``,
-        kept above ``γ η_{k−1}^α`` when that exceeds 0.1 (no sudden drop), at most
-        ``η_max = 0.1`` (also the first ``η`` of a cold start; :data:`WARM_FORCING` for the
-        first step from an iterate with contact), at least ``target / (2 ‖R_k‖)`` (a linear
-        residual below half the stopping threshold is invisible to Newton's test) and at least
-        ``rtol``.
+        ``η_max = 0.1`` with finishing (:meth:`_finish` tightens it), else Eisenstat–Walker
+        choice 2, ``η_k = γ (‖R_k‖/‖R_{k−1}‖)^α`` with ``γ = 0.9``, ``α = 2``, kept above
+        ``γ η_{k−1}^α`` when that exceeds 0.1 (no sudden drop), at most ``η_max``; the first
+        ``η`` of a cold start is ``η_max``, of a start with contact :data:`WARM_FORCING`; at
+        least ``target / (2 ‖R_k‖)`` (a linear residual below half the stopping threshold is
+        invisible to Newton's test) and at least ``rtol``.
         """
         if self.forcing == "fixed":
             return self.rtol
@@ -197,13 +192,11 @@ class IterativeStrategy:
         eta = eta_max
         if len(norms) == 1 and self.system.contact():
             eta = WARM_FORCING
-        if len(norms) >= 2 and self._eta is not None and norms[-2] > 0.0:
+        if len(norms) >= 2 and self._eta is not None and norms[-2] > 0.0 and not self.finish:
             eta = gamma * (norms[-1] / norms[-2]) ** alpha
             previous = gamma * self._eta**alpha
             if previous > 0.1:
                 eta = max(eta, previous)
-            if self.finish:
-                eta = max(eta, FINISHING_FORCING_FLOOR)
             eta = min(eta, eta_max)
         if norms[-1] > 0.0:
             eta = max(eta, 0.5 * target / norms[-1])
