@@ -14,12 +14,18 @@ is repeated with a new one. The split keeps its diagonal blocks instead of extra
 every set-up: the ζ_α block is refreshed at a build only, the ζ_3 block gets the current
 diagonal (what Jacobi reads).
 
-The forcing terms are Eisenstat and Walker's choice 2 (SIAM J. Sci. Comput. 17, 1996): CG
-stops at ``‖J δ + R‖ ≤ η_k ‖R‖`` with ``η_k = 0.9 (‖R_k‖ / ‖R_{k−1}‖)²``, safeguarded, at most
-0.1, never below the tolerance nor below what Newton's stopping test can still see. A solve
-that starts from an iterate with contact (a continuation's next κ) takes its first step with
-:data:`WARM_FORCING`: from the previous solution exact steps converge in 2–4 steps, while a
-loose first step sets off a string of inexact ones.
+CG stops at ``‖J δ + R‖ ≤ η ‖R‖``. A direction whose full step keeps the active set
+(``g + Bδ < 0`` where ``g < 0``, nowhere else) is *finished*: CG goes on from ``δ`` to
+Newton's stopping threshold. Along it ``J_κ`` is then Newton's quadratic model, so the step
+ends the solve, as the direct path's exact step does. Until then, while the active set still
+moves, every direction is solved to ``η = 0.1``: a tighter solve of a model whose active set
+is about to change buys nothing. A solve that starts from an iterate with contact (a
+continuation's next κ) takes its first step with :data:`WARM_FORCING`: from the previous
+solution exact steps converge in 2–4 steps, while a loose first step sets off a string of
+inexact ones. Without finishing, the forcing terms are Eisenstat and Walker's choice 2 (SIAM
+J. Sci. Comput. 17, 1996), ``η_k = 0.9 (‖R_k‖ / ‖R_{k−1}‖)²``, safeguarded, at most 0.1.
+Either way ``η`` is never below the tolerance nor below what Newton's stopping test can
+still see.
 """
 
 from __future__ import annotations
@@ -81,18 +87,27 @@ class IterativeStrategy:
             ``rtol``: the iterations per step then measure the preconditioner alone).
         seed: take a solve's first step from an iterate without contact towards the seeded
             model (:mod:`~shellobstacle.solvers.seeds`).
+        finish: continue a direction whose full step keeps the active set to Newton's
+            stopping threshold, the others solved to ``η_max = 0.1`` (False: Eisenstat–Walker's
+            terms; ``"eisenstat-walker"`` forcing only).
     """
 
     predicts = False
 
     def __init__(
-        self, rtol: float = 1e-12, forcing: str = "eisenstat-walker", seed: bool = True
+        self,
+        rtol: float = 1e-12,
+        forcing: str = "eisenstat-walker",
+        seed: bool = True,
+        finish: bool = True,
     ) -> None:
         if forcing not in FORCINGS:
             raise ValueError(f"forcing must be one of {FORCINGS}, got {forcing!r}")
         self.rtol, self.forcing, self.seed = rtol, forcing, seed
+        self.finish = finish and forcing == "eisenstat-walker"
         self.factorizations = 0
         self.multigrid_builds = 0
+        self.finished = 0  # directions continued to Newton's threshold
         self._eta: float | None = None  # the last forcing term
         self._split: list[PETSc.KSP] | None = None  # the split's solvers, after a set-up
         self._blocks: tuple[PETSc.IS, PETSc.Mat, PETSc.Mat, PETSc.Vec] | None = None
@@ -144,14 +159,16 @@ class IterativeStrategy:
         self.ksp.setTolerances(rtol=self._forcing(history, target))
         ts = time.perf_counter()
         system.negate_residual()
-        discarded = 0
+        earlier = 0  # CG iterations of a solve discarded or continued
         if seed is None:
             self._solve(system.R)
+            if self.finish:
+                earlier = self._finish(history[-1], target)
         else:
-            discarded = self._seeded(seed)
+            earlier = self._seeded(seed)
         system.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self.timings["solve"] += time.perf_counter() - ts
-        iterations = self.ksp.getIterationNumber() + discarded + self._rejected
+        iterations = self.ksp.getIterationNumber() + earlier + self._rejected
         self._rejected = 0
         if self.ksp.getConvergedReason() < 0:
             raise LinearSolveError(
@@ -162,12 +179,12 @@ class IterativeStrategy:
     def _forcing(self, norms: list[float], target: float) -> float:
         """The relative tolerance ``η_k`` of the next direction.
 
-        Eisenstat–Walker choice 2, ``η_k = γ (‖R_k‖/‖R_{k−1}‖)^α`` with ``γ = 0.9``, ``α = 2``,
-        kept above ``γ η_{k−1}^α`` when that exceeds 0.1 (no sudden drop), at most
-        ``η_max = 0.1`` (also the first ``η`` of a cold start; :data:`WARM_FORCING` for the
-        first step from an iterate with contact), at least ``target / (2 ‖R_k‖)`` (a linear
-        residual below half the stopping threshold is invisible to Newton's test) and at least
-        ``rtol``.
+        ``η_max = 0.1`` with finishing (:meth:`_finish` tightens it), else Eisenstat–Walker
+        choice 2, ``η_k = γ (‖R_k‖/‖R_{k−1}‖)^α`` with ``γ = 0.9``, ``α = 2``, kept above
+        ``γ η_{k−1}^α`` when that exceeds 0.1 (no sudden drop), at most ``η_max``; the first
+        ``η`` of a cold start is ``η_max``, of a start with contact :data:`WARM_FORCING`; at
+        least ``target / (2 ‖R_k‖)`` (a linear residual below half the stopping threshold is
+        invisible to Newton's test) and at least ``rtol``.
         """
         if self.forcing == "fixed":
             return self.rtol
@@ -175,7 +192,7 @@ class IterativeStrategy:
         eta = eta_max
         if len(norms) == 1 and self.system.contact():
             eta = WARM_FORCING
-        if len(norms) >= 2 and self._eta is not None and norms[-2] > 0.0:
+        if len(norms) >= 2 and self._eta is not None and norms[-2] > 0.0 and not self.finish:
             eta = gamma * (norms[-1] / norms[-2]) ** alpha
             previous = gamma * self._eta**alpha
             if previous > 0.1:
@@ -185,6 +202,32 @@ class IterativeStrategy:
             eta = max(eta, 0.5 * target / norms[-1])
         self._eta = min(max(eta, self.rtol), eta_max)
         return self._eta
+
+    def _finish(self, rnorm: float, target: float) -> int:
+        """If the full step along the inexact ``δ`` keeps the active set (along it ``J_κ`` is
+        then Newton's quadratic model), CG goes on from ``δ`` to Newton's stopping threshold
+        (``rnorm``: ``‖R‖``), so that the step ends the solve. Returns the CG iterations of
+        the first solve (0: not continued). Collective."""
+        system = self.system
+        if self.ksp.getConvergedReason() <= 0 or rnorm == 0.0:
+            return 0
+        eta = max(self.rtol, 0.5 * target / rnorm)
+        if eta >= self._eta:
+            return 0
+        active = system.g < 0
+        after = system.g + system.penalty.apply_B(system.dz) < 0
+        if not system.comm.allreduce(bool(np.array_equal(active, after)), op=MPI.LAND):
+            return 0
+        iterations = self.ksp.getIterationNumber()
+        self.ksp.setTolerances(rtol=eta)
+        self.ksp.setInitialGuessNonzero(True)
+        try:
+            self._solve(system.R)
+        finally:
+            self.ksp.setInitialGuessNonzero(False)
+        self._eta = eta
+        self.finished += 1
+        return iterations
 
     # -- the seeded first step ----------------------------------------------------------------
     def _seed(self) -> np.ndarray | None:

@@ -28,7 +28,7 @@ A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
 component as its near-nullspace.
 
-The Newton side (forcing terms, the seeded first step) is that of
+The Newton side (forcing terms, the seeded first step, the finished direction) is that of
 :class:`~shellobstacle.solvers.linear.iterative.IterativeStrategy`.
 """
 
@@ -84,6 +84,8 @@ class MultigridStrategy(IterativeStrategy):
             model (:mod:`~shellobstacle.solvers.seeds`).
         smoother: :data:`SMOOTHERS`, the preconditioner of the levels' Chebyshev iteration.
         levels: the most mesh levels to use (None: all the hierarchy has).
+        finish: continue a direction that keeps the active set to Newton's threshold
+            (:class:`~shellobstacle.solvers.linear.iterative.IterativeStrategy`).
     """
 
     def __init__(
@@ -93,8 +95,9 @@ class MultigridStrategy(IterativeStrategy):
         seed: bool = True,
         smoother: str = "jacobi",
         levels: int | None = None,
+        finish: bool = True,
     ) -> None:
-        super().__init__(rtol, forcing, seed)
+        super().__init__(rtol, forcing, seed, finish)
         if smoother not in SMOOTHERS:
             raise ValueError(f"smoother must be one of {SMOOTHERS}, got {smoother!r}")
         if levels is not None and levels < 1:
