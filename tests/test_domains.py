@@ -406,9 +406,9 @@ def test_gmsh_max_vertices_must_not_be_negative():
 def test_a_mesh_too_large_for_the_machine_is_refused_on_every_rank(monkeypatch) -> None:
     """require_fits raises the same one-line ResourceError on every rank (the ranks on this
     machine need their share of the run's memory); what fits passes everywhere."""
-    from shellobstacle.mesh import resources
+    from shellobstacle.mesh import memory, resources
 
-    monkeypatch.setattr(resources, "machine_memory", lambda: 2.0**30)
+    monkeypatch.setattr(memory, "machine_memory", lambda: 2.0**30)
     spec = DomainSpec("disk", 0.002)  # about 2.3e5 vertices, 7e5 dofs: 2.2 GiB
     with pytest.raises(resources.ResourceError) as caught:
         resources.require_fits(spec)

@@ -17,7 +17,7 @@ import pytest
 from shellobstacle.cli.main import main
 from shellobstacle.config.loader import ConfigError
 from shellobstacle.experiments.options import MAX_STEPS, numbers
-from shellobstacle.mesh import resources
+from shellobstacle.mesh import memory, resources
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.mesh.resources import estimate, mesh_vertices
@@ -132,7 +132,7 @@ def test_too_large_for_this_machine_unless_force(
     """On a machine with 0.25 GiB the paper's coarse mesh is refused (exit 2, one line with the
     estimate and the machine's memory, no folder); --force proceeds."""
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(resources, "machine_memory", lambda: 0.25 * 2.0**30)
+    monkeypatch.setattr(memory, "machine_memory", lambda: 0.25 * 2.0**30)
     args = [*([command] if command != "experiment" else ["experiment", "solvers"]), PAPER]
     args += ["-q", "--set", "domain.h=0.1", "--set", "output.paraview=false"]
     args += ["--set", "output.pictures=false"]
@@ -160,15 +160,15 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
     multigrid the estimate passes, ``"auto"`` (the default) stands for multigrid there, and a
     method that factorizes is estimated as direct."""
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(resources, "machine_memory", lambda: 24 * 2.0**30)
+    monkeypatch.setattr(memory, "machine_memory", lambda: 24 * 2.0**30)
     big = DomainSpec("disk", 0.0006)
     est = resources.estimate(big)
     assert est is not None and 7.0e6 < est.dofs < 8.5e6
     assert NewtonOptions().linear_solver == "auto"
-    assert resources.linear_solver_for("auto", est.dofs, "membrane", 1) == "multigrid"
-    assert resources.linear_solver_for("auto", 1e6, "membrane", 1) == "direct"
-    assert resources.linear_solver_for("auto", est.dofs, "membrane", 2) == "direct"
-    assert resources.linear_solver_for("iterative", est.dofs, "membrane", 1) == "iterative"
+    assert memory.linear_solver_for("auto", est.dofs, "membrane", 1) == "multigrid"
+    assert memory.linear_solver_for("auto", 1e6, "membrane", 1) == "direct"
+    assert memory.linear_solver_for("auto", est.dofs, "membrane", 2) == "direct"
+    assert memory.linear_solver_for("iterative", est.dofs, "membrane", 1) == "iterative"
     chosen = resources.require_fits(big, linear_solver="auto")
     assert chosen == resources.estimate(big, linear_solver="multigrid")
     args = ["solve", PAPER, "-q", "--set", "domain.h=0.0006"]
@@ -197,7 +197,7 @@ def test_auto_takes_multigrid_where_only_it_fits(
     import json
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(resources, "machine_memory", lambda: gib * 2.0**30)
+    monkeypatch.setattr(memory, "machine_memory", lambda: gib * 2.0**30)
     h = 0.0115
     est = resources.estimate(DomainSpec("disk", h, radius=0.5))
     assert est is not None and 2.0e4 < est.dofs < 3.5e4, est

@@ -19,14 +19,14 @@ import pytest
 
 from shellobstacle.cli.main import main
 from shellobstacle.compat import PTH_NAME, install_pth
-from shellobstacle.mesh import resources
+from shellobstacle.mesh import memory, resources
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial")
 
 ROOT = Path(__file__).parents[1]
 PAPER = str(ROOT / "examples" / "paper.toml")
 #: the documented machine's memory as the kernel reports it (MemTotal of 24 GiB of RAM)
-DOCUMENTED = 23.5 * resources.GIB
+DOCUMENTED = 23.5 * memory.GIB
 #: how far the estimates of resources.py may fall short
 ESTIMATE_ERROR = 1.5
 
@@ -43,7 +43,7 @@ def test_koiter_limit_on_the_paper_fits_the_documented_machine(monkeypatch, tmp_
     from shellobstacle.experiments.options import experiment_domains, experiment_options
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(resources, "machine_memory", lambda: DOCUMENTED)
+    monkeypatch.setattr(memory, "machine_memory", lambda: DOCUMENTED)
 
     def reached(*_args, **_kwargs):
         raise Reached
@@ -61,8 +61,8 @@ def test_koiter_limit_on_the_paper_fits_the_documented_machine(monkeypatch, tmp_
     assert domains
     for domain in domains:
         est = resources.estimate(domain, "koiter", 2)
-        need = est.bytes_solve + resources.BASE_BYTES
-        assert ESTIMATE_ERROR * need <= resources.MEMORY_SHARE * DOCUMENTED, need / resources.GIB
+        need = est.bytes_solve + memory.BASE_BYTES
+        assert ESTIMATE_ERROR * need <= memory.MEMORY_SHARE * DOCUMENTED, need / memory.GIB
 
 
 @pytest.mark.skipif(sys.prefix == sys.base_prefix, reason="not in a virtual environment")

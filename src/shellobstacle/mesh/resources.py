@@ -14,14 +14,14 @@ reach, not for planning a run to the last gigabyte (``--force`` proceeds anyway)
 (``solver.linear_solver = "multigrid"``, membrane P1) factorizes only gmsh's coarse mesh: 2.0–2.1
 kB per dof from 1.3 M to 7.7 M dofs (``docs/perf/multigrid/``), so a mesh refused for the direct
 solver may fit with it: ``solver.linear_solver = "auto"`` (the default) then takes multigrid
-(:func:`linear_solver_for`), and a refusal of ``"direct"`` asked for by name says so. Messages
-give memory in GiB (2³⁰ bytes), the unit ``free -g`` and the documentation use.
+(:func:`~shellobstacle.mesh.memory.linear_solver_for`), and a refusal of ``"direct"`` asked
+for by name says so. Messages give memory in GiB (2³⁰ bytes), the unit ``free -g`` and the
+documentation use.
 """
 
 from __future__ import annotations
 
 import math
-import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
@@ -30,31 +30,17 @@ from typing import Any
 from mpi4py import MPI
 
 from shellobstacle.config.loader import ConfigError
+from shellobstacle.mesh import memory
 from shellobstacle.mesh.domains import DomainSpec, estimated_vertices
+from shellobstacle.mesh.memory import (
+    BYTES_PER_VERTEX_MESH,
+    GIB,
+    MEMORY_SHARE,
+    bytes_per_dof,
+    linear_solver_for,
+)
 
-__all__ = [
-    "GIB",
-    "Estimate",
-    "ResourceError",
-    "estimate",
-    "linear_solver_for",
-    "linear_solver_of",
-    "machine_memory",
-    "require_fits",
-]
-
-#: Peak memory per dof of a solve with a factorization, bytes, by (model, degree).
-BYTES_PER_DOF = {("membrane", 1): 3.5e3, ("membrane", 2): 4.0e3, ("koiter", 2): 10.0e3}
-#: Peak memory per dof of a membrane P1 solve with multigrid, bytes.
-BYTES_PER_DOF_MULTIGRID = 2.2e3
-#: Memory per vertex of a mesh and the assumption checks (no solve), bytes.
-BYTES_PER_VERTEX_MESH = 1.0e3
-#: The interpreter with DOLFINx, PETSc and the compiled forms, bytes per process.
-BASE_BYTES = 0.3e9
-#: The share of this machine's memory an estimate may take.
-MEMORY_SHARE = 0.8
-#: Bytes in a GiB, the one unit of memory in messages.
-GIB = 2.0**30
+__all__ = ["Estimate", "ResourceError", "estimate", "linear_solver_of", "require_fits"]
 
 
 class ResourceError(ConfigError):
@@ -98,36 +84,6 @@ def linear_solver_of(method: str, options: Any) -> str:
     return getattr(options, "linear_solver", "auto") if method == "newton" else "direct"
 
 
-def linear_solver_for(
-    requested: str, dofs: float, model: str, degree: int, comm: MPI.Comm = MPI.COMM_WORLD
-) -> str:
-    """The linear solver of a request: ``"auto"`` is the direct path where its estimate fits
-    in :data:`MEMORY_SHARE` of this machine, and multigrid (membrane P1) where it does not;
-    any other request is itself. Collective: rank 0's machine decides for all."""
-    if requested != "auto":
-        return requested
-    if (model, degree) != ("membrane", 1):
-        return "direct"  # multigrid is the membrane P1's
-    need = _need(dofs * _bytes_per_dof(model, degree, "direct"), comm)
-    fits = need <= MEMORY_SHARE * machine_memory()
-    return comm.bcast("direct" if fits else "multigrid", root=0)
-
-
-def _need(bytes_all: float, comm: MPI.Comm) -> float:
-    """The memory this machine needs for its ranks' share of ``bytes_all`` (the run's whole
-    need, distributed evenly), with :data:`BASE_BYTES` per rank (collective)."""
-    local = comm.Split_type(MPI.COMM_TYPE_SHARED)
-    on_node = local.size
-    local.Free()
-    return bytes_all * on_node / comm.size + BASE_BYTES * on_node
-
-
-def _bytes_per_dof(model: str, degree: int, linear_solver: str) -> float:
-    if linear_solver == "multigrid" and (model, degree) == ("membrane", 1):
-        return BYTES_PER_DOF_MULTIGRID
-    return BYTES_PER_DOF.get((model, degree), BYTES_PER_DOF[("koiter", 2)])
-
-
 def estimate(
     spec: DomainSpec, model: str = "membrane", degree: int = 1, linear_solver: str = "direct"
 ) -> Estimate | None:
@@ -139,13 +95,8 @@ def estimate(
         return None
     nodes = vertices if degree == 1 else 4.0 * vertices
     dofs = 3.0 * nodes
-    per_dof = _bytes_per_dof(model, degree, linear_solver)
+    per_dof = bytes_per_dof(model, degree, linear_solver)
     return Estimate(vertices, dofs, vertices * BYTES_PER_VERTEX_MESH, dofs * per_dof)
-
-
-def machine_memory() -> float:
-    """Physical memory of this machine, bytes."""
-    return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
 
 
 def require_fits(
@@ -173,10 +124,10 @@ def require_fits(
     est = estimate(spec, model, degree, linear_solver)
 
     def need_with(bytes_solve: float) -> float:
-        return _need(bytes_solve if solve else est.bytes_mesh, comm)
+        return memory.need(bytes_solve if solve else est.bytes_mesh, comm)
 
     need = need_with(est.bytes_solve)
-    have = machine_memory()
+    have = memory.machine_memory()
     if not need <= MEMORY_SHARE * have:
         size = _describe(spec)
         task = "solving" if solve else "meshing"
@@ -185,7 +136,7 @@ def require_fits(
                 f"{what}: {size} gives more vertices than a float can count (over 1e308): "
                 "use a larger h"
             )
-        multigrid = need_with(est.dofs * _bytes_per_dof(model, degree, "multigrid"))
+        multigrid = need_with(est.dofs * bytes_per_dof(model, degree, "multigrid"))
         instead = (
             f', solver.linear_solver = "multigrid" (about {multigrid / GIB:.3g} GiB)'
             if solve and multigrid <= MEMORY_SHARE * have and linear_solver != "multigrid"

@@ -41,7 +41,7 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 
-from shellobstacle.mesh.resources import linear_solver_for
+from shellobstacle.mesh.memory import linear_solver_for
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import note
 from shellobstacle.solvers.base import ConvergenceError, UserOptions, with_user_options

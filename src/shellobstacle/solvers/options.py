@@ -90,7 +90,7 @@ class NewtonOptions:
             :mod:`~shellobstacle.solvers.linear.multigrid`); ``"auto"`` (the default):
             ``"direct"`` where its memory estimate fits this machine, ``"multigrid"`` for the
             membrane P1 where it does not
-            (:func:`~shellobstacle.mesh.resources.linear_solver_for`).
+            (:func:`~shellobstacle.mesh.memory.linear_solver_for`).
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ; the Jacobians are
             symmetric positive definite: half the memory of LU) or ``"lu"``.
         contact_zone: with the direct solver, condense every Newton step onto a contact zone

@@ -1,0 +1,77 @@
+"""Memory: this machine's, and a solve's need per dof by model, degree and linear solver.
+
+The figures per dof were measured on the paper's problem (peak resident memory,
+``docs/perf/koiter/``, ``docs/perf/multigrid/`` and the 1.93 M-dof runs of
+``docs/performance.md``) and rounded up: estimates within a factor of about 1.5. They decide
+what ``solver.linear_solver = "auto"`` stands for (:func:`linear_solver_for`) and what
+:func:`~shellobstacle.mesh.resources.require_fits` refuses.
+"""
+
+from __future__ import annotations
+
+import os
+
+from mpi4py import MPI
+
+__all__ = [
+    "BASE_BYTES",
+    "BYTES_PER_DOF",
+    "BYTES_PER_DOF_MULTIGRID",
+    "BYTES_PER_VERTEX_MESH",
+    "GIB",
+    "MEMORY_SHARE",
+    "bytes_per_dof",
+    "linear_solver_for",
+    "machine_memory",
+    "need",
+]
+
+#: Peak memory per dof of a solve with a factorization, bytes, by (model, degree).
+BYTES_PER_DOF = {("membrane", 1): 3.5e3, ("membrane", 2): 4.0e3, ("koiter", 2): 10.0e3}
+#: Peak memory per dof of a membrane P1 solve with multigrid, bytes.
+BYTES_PER_DOF_MULTIGRID = 2.2e3
+#: Memory per vertex of a mesh and the assumption checks (no solve), bytes.
+BYTES_PER_VERTEX_MESH = 1.0e3
+#: The interpreter with DOLFINx, PETSc and the compiled forms, bytes per process.
+BASE_BYTES = 0.3e9
+#: The share of this machine's memory an estimate may take.
+MEMORY_SHARE = 0.8
+#: Bytes in a GiB, the one unit of memory in messages.
+GIB = 2.0**30
+
+
+def machine_memory() -> float:
+    """Physical memory of this machine, bytes."""
+    return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
+
+
+def bytes_per_dof(model: str, degree: int, linear_solver: str) -> float:
+    """Peak bytes per dof of a solve of ``model`` with Lagrange ``degree`` by
+    ``linear_solver`` (multigrid's own figure for the membrane P1, a factorization's else)."""
+    if linear_solver == "multigrid" and (model, degree) == ("membrane", 1):
+        return BYTES_PER_DOF_MULTIGRID
+    return BYTES_PER_DOF.get((model, degree), BYTES_PER_DOF[("koiter", 2)])
+
+
+def need(bytes_all: float, comm: MPI.Comm) -> float:
+    """The memory this machine needs for its ranks' share of ``bytes_all`` (the run's whole
+    need, distributed evenly), with :data:`BASE_BYTES` per rank (collective)."""
+    local = comm.Split_type(MPI.COMM_TYPE_SHARED)
+    on_node = local.size
+    local.Free()
+    return bytes_all * on_node / comm.size + BASE_BYTES * on_node
+
+
+def linear_solver_for(
+    requested: str, dofs: float, model: str, degree: int, comm: MPI.Comm = MPI.COMM_WORLD
+) -> str:
+    """The linear solver of a request: ``"auto"`` is the direct path where its estimate fits
+    in :data:`MEMORY_SHARE` of this machine, and multigrid (membrane P1) where it does not;
+    any other request is itself. Collective: rank 0's machine decides for all."""
+    if requested != "auto":
+        return requested
+    if (model, degree) != ("membrane", 1):
+        return "direct"  # multigrid is the membrane P1's
+    needed = need(dofs * bytes_per_dof(model, degree, "direct"), comm)
+    fits = needed <= MEMORY_SHARE * machine_memory()
+    return comm.bcast("direct" if fits else "multigrid", root=0)
