@@ -176,3 +176,39 @@ def test_without_petscs_setter_petsc_estimates_the_bounds(monkeypatch) -> None:
     direct, problem, solver, _ = direct_and_multigrid(disk(1))
     assert solver.linear.levels == 2 and solver.linear.estimates == 0
     assert l2_norm(direct.zeta - problem.zeta) <= 1e-8 * l2_norm(direct.zeta)
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("transverse", ["clamped", "free"])
+def test_the_transfers_vanish_at_the_finer_levels_dirichlet_dofs(transverse: str) -> None:
+    """On gmsh's disk refined twice, the new boundary nodes moved onto the circle: each
+    transfer's rows at its finer level's Dirichlet dofs are zero (ζ_3's too only when
+    clamped), its other rows interpolate (their weights sum to 1), and the coarse operator
+    ``Pᵀ K P`` holds no part of ``K``'s unit Dirichlet diagonal: its ζ_3 diagonal off the
+    coarse boundary stays within 10× of its median (with the boundary rows kept, the moved
+    nodes' extrapolation weights put about 1,500× the median next to the boundary)."""
+    from shellobstacle.spec import Discretization
+
+    mesh = create_mesh(DomainSpec(kind="disk", radius=0.5, h=0.03, gmsh_max_vertices=150))
+    problem = PenalizedProblem(paper_shell(), mesh, Discretization(transverse=transverse))
+    solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
+    linear = solver.linear
+    assert linear.levels == 3
+    meshes = [*coarser_meshes(mesh), mesh]
+    V = problem.V
+    for P, fine in zip(linear._P, meshes[1:], strict=True):
+        Vf = V if fine is mesh else dolfinx.fem.functionspace(fine, V.ufl_element())
+        fixed = problem.dirichlet_rows(Vf)
+        assert fixed.size and set(fixed % 3) == set(problem.dirichlet_components)
+        sums = P.getRowSum().array_r
+        np.testing.assert_array_equal(sums[fixed], 0.0)
+        free = np.setdiff1d(np.arange(sums.size), fixed)
+        np.testing.assert_allclose(sums[free], 1.0, rtol=0, atol=1e-12)
+    K = problem.stiffness()
+    K_coarse = K.ptap(linear._P[-1])
+    Vc = dolfinx.fem.functionspace(meshes[-2], V.ufl_element())
+    interior = np.setdiff1d(np.arange(0, K_coarse.getLocalSize()[0], 3),
+                            problem.dirichlet_rows(Vc))  # fmt: skip
+    zeta3 = K_coarse.getDiagonal().array_r[interior + 2]
+    gathered = np.concatenate(MPI.COMM_WORLD.allgather(zeta3))
+    assert 0 < gathered.max() <= 10 * np.median(gathered)

@@ -253,15 +253,32 @@ class PenalizedProblem:
             self.G, [eta[i] for i in range(3)], [[grad[i, a] for a in range(2)] for i in range(3)]
         )
 
+    @property
+    def dirichlet_components(self) -> list[int]:
+        """The components of ζ fixed on γ: ζ_α, and ζ_3 if clamped."""
+        return [0, 1] + ([2] if self.disc.transverse == "clamped" else [])
+
+    def dirichlet_rows(self, V: dolfinx.fem.FunctionSpace) -> np.ndarray:
+        """The owned scalar dofs (``bs · node + component``, local) that the Dirichlet
+        conditions fix in ``V``, a space of ζ's element on this mesh or any other mesh of ω
+        (the levels of a refinement hierarchy)."""
+        mesh = V.mesh
+        tdim = mesh.topology.dim
+        mesh.topology.create_connectivity(tdim - 1, tdim)
+        facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+        nodes = dolfinx.fem.locate_dofs_topological(V, tdim - 1, facets)
+        nodes = nodes[nodes < V.dofmap.index_map.size_local]
+        bs = V.dofmap.index_map_bs
+        return (bs * nodes[:, None] + np.array(self.dirichlet_components)).ravel()
+
     def _boundary_conditions(self) -> list[dolfinx.fem.DirichletBC]:
         """Homogeneous Dirichlet conditions: ζ_α = 0 on γ, and ζ_3 = 0 if clamped."""
         mesh = self.mesh
         tdim = mesh.topology.dim
         mesh.topology.create_connectivity(tdim - 1, tdim)
         facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-        comps = [0, 1] + ([2] if self.disc.transverse == "clamped" else [])
         bcs = []
-        for i in comps:
+        for i in self.dirichlet_components:
             Vi = self.V.sub(i)
             dofs = dolfinx.fem.locate_dofs_topological(Vi, tdim - 1, facets)
             bcs.append(dolfinx.fem.dirichletbc(PETSc.ScalarType(0), dofs, Vi))

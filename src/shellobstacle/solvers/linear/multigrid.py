@@ -44,6 +44,7 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
+from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.quadrature import penalty_hessian
 from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.base import set_options, unique_prefix
@@ -118,7 +119,7 @@ class MultigridStrategy(IterativeStrategy):
         prefix = unique_prefix("newton")
         ksp.setOptionsPrefix(prefix)
         ksp.setType("cg")
-        transfers = self._transfers(system.problem.V)
+        transfers = self._transfers(system.problem)
         self.levels = len(transfers) + 1
         options = dict(_GEOMETRIC if transfers else _ALGEBRAIC)
         options["mg_levels_pc_type"] = self.smoother
@@ -142,14 +143,25 @@ class MultigridStrategy(IterativeStrategy):
         system.on_new_jacobian = self._new_jacobian
         timings["multigrid_setup"] = time.perf_counter() - t0
 
-    def _transfers(self, V: dolfinx.fem.FunctionSpace) -> list[PETSc.Mat]:
+    def _transfers(self, problem: PenalizedProblem) -> list[PETSc.Mat]:
         """The interpolations from each level to the next, coarsest first (empty without a
-        hierarchy)."""
+        hierarchy), with the rows of the finer level's Dirichlet dofs zeroed: a correction
+        vanishes there, and a boundary node moved onto a curved γ, extrapolated from interior
+        coarse nodes, would otherwise bring ``K``'s unit Dirichlet diagonal into ``Pᵀ K P``
+        (against ζ_3's diagonal of order ε h², docs/perf/multigrid.md)."""
+        V = problem.V
         meshes = [*coarser_meshes(V.mesh), V.mesh]
         if self.max_levels is not None:
             meshes = meshes[-self.max_levels :]
         spaces = [dolfinx.fem.functionspace(m, V.ufl_element()) for m in meshes[:-1]] + [V]
-        return [prolongation(c, f) for c, f in itertools.pairwise(spaces)]
+        transfers = []
+        for coarse, fine in itertools.pairwise(spaces):
+            P = prolongation(coarse, fine)
+            start = P.getOwnershipRange()[0]
+            rows = (start + problem.dirichlet_rows(fine)).astype(PETSc.IntType)
+            P.zeroRows(rows, diag=0.0)
+            transfers.append(P)
+        return transfers
 
     def _new_jacobian(self, A: PETSc.Mat) -> None:
         """The Jacobian (symmetric positive definite: the coarse Cholesky) to the KSP."""
