@@ -1,0 +1,487 @@
+"""FAS (nonlinear full approximation scheme multigrid) for the penalized membrane problem: a
+prototype outside the package, measured against Newton with CG and a V-cycle.
+
+The levels are those of ``solver.linear_solver = "multigrid"``: gmsh's mesh and its uniform
+refinements (:func:`~shellobstacle.mesh.hierarchy.coarser_meshes`), with the same transfers
+(:func:`~shellobstacle.mesh.hierarchy.prolongation`). On every level a
+:class:`~shellobstacle.models.problem.PenalizedProblem` at the **same** κ and its
+:class:`~shellobstacle.solvers.system.PenalizedSystem` give the nonlinear operator
+``R_l(ζ) = K_l ζ − f_l + (1/κ) M_lᵀ min(g_l, 0)`` (the level's own Gauss points).
+
+One FAS V-cycle on level ``l`` (coarsest ``0``):
+
+- ``pre`` smoothing steps: the Jacobian ``J_l = K_l + P_A`` at the iterate, ``δ`` from
+  ``cheb`` Chebyshev iterations preconditioned by its diagonal (interval ``[0.1, 1.1] λ_max``,
+  ``λ_max(D⁻¹J)`` estimated by the package's Lanczos at the first Jacobian of each κ), then
+  the exact line search on the level's energy (every step decreases it);
+- the coarse correction: ``ζ_c⁰`` the injection of ``ζ_l`` (coarse nodes are fine nodes),
+  the coarse right-hand side ``f_c ← K_c ζ_c⁰ + pen_c(ζ_c⁰) − Pᵀ r_l`` (the τ-correction:
+  the coarse problem is ``R_c(ζ_c) = R_c(ζ_c⁰) − Pᵀ r_l``, its Dirichlet rows 0), one cycle on
+  it (level 0: Newton with MUMPS' Cholesky until its residual fell by ``coarse_rtol``), then
+  ``ζ_l ← ζ_l + t P (ζ_c − ζ_c⁰)`` with ``t`` from the exact line search on level ``l``;
+- ``post`` smoothing steps.
+
+Two drivers:
+
+- ``continuation``: the κ ladder of the package (``h^0.5, h, h^1.5``), each κ by V-cycles on
+  the finest level from the previous κ's solution until ``‖R‖ ≤ 1e-10 ‖f‖`` or the round-off
+  floor (the package's rule);
+- ``fmg``: full multigrid at the final κ only: the coarsest level solved (Newton, direct)
+  from ``ζ = 0``, interpolated, ``fmg_cycles`` V-cycles on each finer level, then V-cycles on
+  the finest level until the same rule.
+
+Then the package's own solves on the same mesh (``linear_solver = "multigrid"`` and
+``"direct"``) and the differences: contact area, ``‖ζ − ζ_pkg‖ / ‖ζ_pkg‖``. One JSON line per
+run on stdout (counts, CPU seconds by ``time.process_time``), residual histories with
+``--verbose``.
+
+    export PYTHONPATH=$PWD/src SHELLOBSTACLE_TUNING=off
+    .venv/bin/python benchmarks/fas_trial.py --h 0.0058 --driver continuation
+    .venv/bin/python benchmarks/fas_trial.py --h 0.0029 --driver fmg --pre 2 --post 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import os
+import time
+from collections import Counter
+
+from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
+from petsc4py import PETSc
+
+import dolfinx
+import dolfinx.fem.petsc
+import numpy as np
+
+from shellobstacle.api import make_mesh, solve
+from shellobstacle.config.loader import load_config
+from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
+from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.kappa import kappa_on_mesh
+from shellobstacle.penalty.quadrature import rows_of
+from shellobstacle.post.contact import Postprocessor
+from shellobstacle.solvers import libpetsc
+from shellobstacle.solvers.linear.multigrid import CHEBYSHEV_INTERVAL, largest_eigenvalue
+from shellobstacle.solvers.system import PenalizedSystem
+
+PAPER = "examples/paper.toml"
+
+
+class Level:
+    """One mesh level: its penalized problem and system, the load, and its solvers."""
+
+    def __init__(self, cfg, mesh: dolfinx.mesh.Mesh, kappa: float, coarsest: bool, cheb: int):
+        self.problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappa)
+        self.system = PenalizedSystem(self.problem, incremental=True)
+        self.load_norm = self.system.load()
+        self.f_load = self.system.f.copy()
+        self.bc_dofs = np.concatenate([bc.dof_indices()[0] for bc in self.problem.bcs])
+        self.n = self.system.f.getLocalSize()
+        self.coarsest = coarsest
+        self.ksp = PETSc.KSP().create(MPI.COMM_SELF)
+        if coarsest:
+            self.ksp.setType("preonly")
+            pc = self.ksp.getPC()
+            pc.setType("cholesky")
+            pc.setFactorSolverType("mumps")
+        else:
+            self.ksp.setType("chebyshev")
+            self.ksp.getPC().setType("jacobi")
+            self.ksp.setNormType(PETSc.KSP.NormType.NONE)
+            self.ksp.setTolerances(max_it=cheb)
+            self.estimator = PETSc.KSP().create(MPI.COMM_SELF)
+            self.estimator.setType("cg")
+            self.estimator.getPC().setType("jacobi")
+            self.estimator.setComputeEigenvalues(True)
+            self.estimator.setTolerances(rtol=1e-12, atol=1e-300, max_it=10)
+        self.operator_set = False
+        self.gap_scale = float(np.max(np.abs(self.system.penalty.g0)))
+        self.bounds_kappa: float | None = None
+        self.counts: Counter = Counter()
+
+    @property
+    def zeta(self) -> np.ndarray:
+        """The iterate's array (serial: the PETSc vector's)."""
+        return self.problem.zeta.x.array
+
+    def set_kappa(self, kappa: float) -> None:
+        """A new κ on this level."""
+        self.problem.set_kappa(kappa)
+
+    def jacobian(self) -> PETSc.Mat:
+        """The Jacobian at the iterate, given to the level's solver (Chebyshev's bounds
+        estimated at the first Jacobian of each κ)."""
+        A = self.system.jacobian()
+        if not self.operator_set:
+            A.setOption(PETSc.Mat.Option.SPD, True)
+            self.ksp.setOperators(A)
+            self.operator_set = True
+        if not self.coarsest and self.bounds_kappa != self.system.kappa:
+            emax = largest_eigenvalue(self.estimator, A)
+            low, high = CHEBYSHEV_INTERVAL
+            error = libpetsc.function("KSPChebyshevSetEigenvalues")(
+                self.ksp.handle, high * emax, low * emax
+            )
+            assert not error
+            self.bounds_kappa = self.system.kappa
+            self.counts["estimates"] += 1
+        return A
+
+    def near_dofs(self, band: float) -> np.ndarray:
+        """The dofs of the cells that hold a point with ``g < band · max|g0|`` (``band`` 0:
+        the active points)."""
+        s = self.system
+        points = np.flatnonzero(s.g < band * self.gap_scale)
+        if points.size == 0:
+            return points
+        MA = rows_of(s.penalty.M, points)
+        _, indices, _ = MA.getValuesCSR()
+        MA.destroy()
+        self.counts["truncated"] += 1
+        return np.unique(indices)
+
+    def descend(self) -> float:
+        """Move along ``system.dz`` by the exact line search (``system.R`` holds ``R(ζ)`` on
+        entry and on exit); returns the step length (0: not a descent direction)."""
+        s = self.system
+        s.negate_residual()
+        slope0 = s.slope()
+        if not (slope0 < 0 and math.isfinite(slope0)):
+            s.negate_residual()
+            return 0.0
+        t, _ = s.line_search(slope0, 0.0)
+        s.move(t, False)
+        return t
+
+    def smooth(self) -> None:
+        """One nonlinear smoothing step: Chebyshev–Jacobi on the linearization, line search."""
+        s = self.system
+        self.jacobian()
+        s.negate_residual()
+        self.ksp.solve(s.R, s.dz)
+        s.negate_residual()
+        self.counts["smooth"] += 1
+        self.descend()
+
+    def newton(self, rtol: float, atol: float, max_steps: int) -> int:
+        """Newton with the direct solver until ``‖R‖ ≤ max(rtol ‖R_0‖, atol)``."""
+        s = self.system
+        r0 = s.residual_norm()
+        steps = 0
+        while steps < max_steps and s.residual_norm() > max(rtol * r0, atol):
+            self.jacobian()
+            s.negate_residual()
+            self.ksp.solve(s.R, s.dz)
+            s.negate_residual()
+            self.counts["factorizations"] += 1
+            if self.descend() == 0.0:
+                break
+            steps += 1
+        return steps
+
+
+def injection(P: PETSc.Mat) -> np.ndarray:
+    """For each coarse dof the fine dof at the same node (the rows of ``P`` that are one
+    entry 1)."""
+    indptr, indices, values = P.getValuesCSR()
+    single = np.flatnonzero(np.diff(indptr) == 1)
+    ones = single[np.abs(values[indptr[single]] - 1.0) < 1e-10]
+    inj = np.full(P.getSize()[1], -1, dtype=np.int64)
+    inj[indices[indptr[ones]]] = ones
+    assert (inj >= 0).all(), "a coarse node is no fine node"
+    return inj
+
+
+class FAS:
+    """The levels, the transfers and the FAS V-cycle (module docstring)."""
+
+    def __init__(self, cfg, mesh, kappa, args):
+        meshes = [*coarser_meshes(mesh), mesh]
+        self.levels = [
+            Level(cfg, m, kappa, coarsest=(i == 0), cheb=args.cheb) for i, m in enumerate(meshes)
+        ]
+        self.P = [None] + [
+            prolongation(c.problem.V, f.problem.V)
+            for c, f in zip(self.levels[:-1], self.levels[1:], strict=True)
+        ]
+        self.inj = [None] + [injection(P) for P in self.P[1:]]
+        if args.zero_bc_rows:  # no extrapolation onto the fine Dirichlet dofs
+            for lev, P in zip(self.levels[1:], self.P[1:], strict=True):
+                P.zeroRows(lev.bc_dofs.astype(PETSc.IntType), diag=0.0)
+        if args.coarse_state == "subspace" and args.coarse_points != "fine":
+            raise SystemExit("--coarse-state subspace needs --coarse-points fine")
+        if args.coarse_points == "fine":
+            self._fine_points()
+        if args.galerkin_k:
+            self._galerkin_stiffness()
+        self.args = args
+        self.cpu: Counter = Counter()
+        self.coarse_steps: list[int] = []
+        self.corrections: list[float] = []  # the finest level's correction step lengths
+
+    def _to_finest(self) -> list[PETSc.Mat]:
+        """For each coarser level the interpolation onto the finest (``P_L ⋯ P_{l+1}``)."""
+        maps, Pc = [], None
+        for l in range(len(self.levels) - 1, 0, -1):
+            Pc = self.P[l] if Pc is None else Pc.matMult(self.P[l])
+            maps.append(Pc)
+        return maps[::-1]
+
+    def _fine_points(self) -> None:
+        """Every coarser level's penalty at the finest level's points: ``M ← M_L P``,
+        ``D``, ``g0`` the finest level's (the fine penalty on the coarse subspace)."""
+        fine = self.levels[-1].system.penalty
+        for lev, Pc in zip(self.levels[:-1], self._to_finest(), strict=True):
+            pen = lev.system.penalty
+            pen.M = fine.M.matMult(Pc)
+            pen.D, pen.g0 = fine.D, fine.g0
+            pen._n = fine._n
+            pen._work_q, pen._work_v = pen.M.createVecLeft(), pen.M.createVecRight()
+            pen.Q = fine.Q
+            lev.gap_scale = self.levels[-1].gap_scale
+
+    def _galerkin_stiffness(self) -> None:
+        """Every coarser level's stiffness ``Pᵀ K_L P`` (Dirichlet rows kept identity)."""
+        K = self.levels[-1].system.K
+        for lev, Pc in zip(self.levels[:-1], self._to_finest(), strict=True):
+            Kc = K.ptap(Pc)
+            Kc.zeroRowsColumns(lev.bc_dofs.astype(PETSc.IntType), 1.0)
+            lev.system.K = Kc
+
+    def set_kappa(self, kappa: float) -> None:
+        for lev in self.levels:
+            lev.set_kappa(kappa)
+
+    def cycle(self, l: int) -> None:
+        """One FAS V-cycle on level ``l`` (its ``f`` may hold a τ-corrected right-hand side;
+        ``system.R`` holds its residual on entry and exit)."""
+        a, lev = self.args, self.levels[l]
+        if l == 0:
+            t = time.process_time()
+            self.coarse_steps.append(lev.newton(a.coarse_rtol, 0.0, a.coarse_max))
+            self.cpu["coarse"] += time.process_time() - t
+            return
+        t = time.process_time()
+        for _ in range(a.pre):
+            lev.smooth()
+        self.cpu["smooth"] += time.process_time() - t
+        t = time.process_time()
+        c, P, inj = self.levels[l - 1], self.P[l], self.inj[l]
+        zc0 = lev.zeta[inj].copy()
+        c.zeta[:] = zc0
+        if a.coarse_state == "subspace":  # the coarse gap: the fine one plus B P (ζ_c − ζ_c⁰)
+            pen = c.system.penalty
+            pen.g0 = lev.system.g - pen.apply_B(c.system.zeta)
+        # the τ-corrected coarse right-hand side: K_c ζ_c⁰ + pen_c(ζ_c⁰) − Pᵀ r_l
+        c.system.f.set(0.0)
+        c.system.residual()  # R_c(ζ_c⁰) with f = 0
+        rc = c.system.R.duplicate()
+        P.multTranspose(lev.system.R, rc)
+        f = c.system.f
+        c.system.R.copy(f)
+        f.axpy(-1.0, rc)
+        rc.destroy()
+        f.array[c.bc_dofs] = 0.0
+        c.system.residual()  # R_c(ζ_c⁰) − τ-corrected: = Pᵀ r_l
+        self.cpu["transfer"] += time.process_time() - t
+        self.cycle(l - 1)
+        t = time.process_time()
+        ec = c.system.zeta.duplicate()
+        ec.array[:] = c.zeta - zc0
+        P.mult(ec, lev.system.dz)
+        ec.destroy()
+        lev.system.dz.array[lev.bc_dofs] = 0.0
+        if a.truncate is not None:
+            lev.system.dz.array[lev.near_dofs(a.truncate)] = 0.0
+        step = lev.descend()
+        if l == len(self.levels) - 1:
+            self.corrections.append(step)
+        self.cpu["correction"] += time.process_time() - t
+        t = time.process_time()
+        for _ in range(a.post):
+            lev.smooth()
+        self.cpu["smooth"] += time.process_time() - t
+
+    def reset_rhs(self, l: int) -> None:
+        """Level ``l``'s own load as its right-hand side, and its residual."""
+        lev = self.levels[l]
+        self.f_restore(lev)
+        lev.system.residual()
+
+    @staticmethod
+    def f_restore(lev: Level) -> None:
+        lev.f_load.copy(lev.system.f)
+
+    def solve_finest(self, rtol: float, max_cycles: int, history: list[float]) -> int:
+        """V-cycles on the finest level until the package's stopping rule; returns them."""
+        fine = self.levels[-1]
+        s = fine.system
+        self.reset_rhs(len(self.levels) - 1)
+        scale = fine.load_norm
+        cycles = 0
+        while True:
+            r = s.residual_norm()
+            history.append(r / scale)
+            if r <= rtol * scale:
+                return cycles
+            t = time.process_time()
+            floor = s.floor(fine.load_norm)
+            self.cpu["floor"] += time.process_time() - t
+            if r <= floor:
+                return cycles
+            if cycles >= max_cycles:
+                return -cycles
+            self.cycle(len(self.levels) - 1)
+            cycles += 1
+
+
+def solve_fas(cfg, mesh, args) -> dict:
+    """The FAS solve (``args.driver``), its counts and CPU seconds."""
+    ladder = kappa_on_mesh(cfg.penalty, mesh).ladder
+    c0 = time.process_time()
+    fas = FAS(cfg, mesh, ladder[0], args)
+    setup = time.process_time() - c0
+    c1 = time.process_time()
+    per_kappa, histories, fmg = [], [], []
+    if args.driver == "continuation":
+        for kappa in ladder:
+            fas.set_kappa(kappa)
+            hist: list[float] = []
+            per_kappa.append(fas.solve_finest(args.rtol, args.max_cycles, hist))
+            histories.append(hist)
+    else:
+        kappa = ladder[-1]
+        fas.set_kappa(kappa)
+        lev0 = fas.levels[0]
+        fas.reset_rhs(0)
+        fmg.append(lev0.newton(1e-10, 0.0, 100))
+        for l in range(1, len(fas.levels)):
+            lev, c = fas.levels[l], fas.levels[l - 1]
+            zc = c.system.zeta.duplicate()
+            zc.array[:] = c.zeta
+            fas.P[l].mult(zc, lev.system.zeta)
+            zc.destroy()
+            lev.zeta[lev.bc_dofs] = 0.0
+            fas.reset_rhs(l)
+            if l < len(fas.levels) - 1:
+                for _ in range(args.fmg_cycles):
+                    fas.cycle(l)
+                fmg.append(args.fmg_cycles)
+        hist = []
+        per_kappa.append(fas.solve_finest(args.rtol, args.max_cycles, hist))
+        histories.append(hist)
+    cpu = time.process_time() - c1
+    fine = fas.levels[-1]
+    counts = {f"level{i}": dict(lev.counts) for i, lev in enumerate(fas.levels)}
+    return {
+        "fas": fas,
+        "cycles_per_kappa": per_kappa,
+        "cycles": sum(abs(c) for c in per_kappa),
+        "converged": all(c >= 0 for c in per_kappa),
+        "fmg_coarse": fmg,
+        "final_relative_residual": histories[-1][-1],
+        "rate_last_cycles": _rates(histories[-1]),
+        "coarse_newton_steps": fas.coarse_steps,
+        "correction_steps_t": [round(t, 3) for t in fas.corrections],
+        "counts": counts,
+        "setup_cpu_s": round(setup, 2),
+        "solve_cpu_s": round(cpu, 2),
+        "cpu_by_phase_s": {k: round(v, 2) for k, v in fas.cpu.items()},
+        "zeta": fine.zeta.copy(),
+        "problem": fine.problem,
+        "histories": histories,
+    }
+
+
+def _rates(history: list[float]) -> list[float]:
+    """Residual reduction factors per cycle, the last few."""
+    r = np.asarray(history)
+    return [round(float(x), 3) for x in (r[1:] / r[:-1])[-6:]]
+
+
+def solve_package(cfg, mesh, linear_solver: str) -> dict:
+    """The package's own continuation on ``mesh``."""
+    options = dataclasses.replace(cfg.solver, linear_solver=linear_solver)
+    c0 = time.process_time()
+    result = solve(cfg.shell, mesh, cfg.penalty, cfg.discretization, options, force=True)
+    cpu = time.process_time() - c0
+    newton = [s.iterations for s in result.steps]
+    krylov = [n for s in result.steps for n in s.record.linear_iterations]
+    return {
+        "newton_per_kappa": newton,
+        "newton": sum(newton),
+        "krylov_total": int(sum(krylov)),
+        "cpu_s": round(cpu, 2),
+        "solve_s_wall": round(result.timings.get("solve", float("nan")), 2),
+        "zeta": result.problem.zeta.x.array.copy(),
+        "problem": result.problem,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--h", type=float, default=0.0058, help="gmsh target size (domain.h)")
+    ap.add_argument("--driver", choices=("continuation", "fmg"), default="continuation")
+    ap.add_argument("--pre", type=int, default=2, help="smoothing steps before the correction")
+    ap.add_argument("--post", type=int, default=2, help="smoothing steps after it")
+    ap.add_argument("--cheb", type=int, default=2, help="Chebyshev iterations per step")
+    ap.add_argument("--coarse-rtol", type=float, default=1e-3)
+    ap.add_argument("--coarse-max", type=int, default=20, help="Newton steps on level 0")
+    ap.add_argument("--fmg-cycles", type=int, default=1, help="V-cycles per coarser level")
+    ap.add_argument(
+        "--truncate", type=float, default=None,
+        help="zero the coarse correction on the cells with g < this · max|g0| (0: active)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--coarse-points", choices=("own", "fine"), default="own",
+        help="the coarser levels' penalty at their own Gauss points or at the finest level's",
+    )  # fmt: skip
+    ap.add_argument(
+        "--coarse-state", choices=("restricted", "subspace"), default="restricted",
+        help="the coarse penalty at the restricted state (FAS) or at the fine state plus the "
+        "interpolated correction (with --coarse-points fine: the fine energy on the subspace)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--zero-bc-rows", action="store_true",
+        help="P's rows at the fine Dirichlet dofs zeroed (they extrapolate interior coarse dofs)",
+    )  # fmt: skip
+    ap.add_argument("--galerkin-k", action="store_true", help="coarse stiffness Pᵀ K P")
+    ap.add_argument("--rtol", type=float, default=1e-10)
+    ap.add_argument("--max-cycles", type=int, default=200)
+    ap.add_argument("--package", default="multigrid,direct", help="package solves to compare")
+    ap.add_argument("--verbose", action="store_true", help="print the residual histories")
+    args = ap.parse_args()
+    cfg = load_config(PAPER, [f"domain.h={args.h}"])
+    mesh = make_mesh(cfg.domain)
+    out = solve_fas(cfg, mesh, args)
+    area = Postprocessor(out["problem"]).contact()["contact_area"]
+    line = {k: v for k, v in out.items() if k not in ("fas", "zeta", "problem", "histories")}
+    line = {
+        "h": args.h,
+        "dofs": out["problem"].num_dofs,
+        "levels": len(out["fas"].levels),
+        **{k: getattr(args, k) for k in ("driver", "pre", "post", "cheb", "coarse_rtol")},
+        **line,
+        "contact_area": area,
+        "load": round(os.getloadavg()[0], 2),
+    }
+    if args.verbose:
+        for hist in out["histories"]:
+            print("# history", " ".join(f"{r:.1e}" for r in hist), flush=True)
+    for name in filter(None, args.package.split(",")):
+        pkg = solve_package(cfg, mesh, name)
+        ref = np.linalg.norm(pkg["zeta"])
+        line[name] = {
+            **{k: v for k, v in pkg.items() if k not in ("zeta", "problem")},
+            "contact_area": Postprocessor(pkg["problem"]).contact()["contact_area"],
+            "zeta_rel_diff_fas": float(np.linalg.norm(out["zeta"] - pkg["zeta"]) / ref),
+        }
+    print(json.dumps(line), flush=True)
+
+
+if __name__ == "__main__":
+    main()
