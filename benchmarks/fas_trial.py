@@ -74,7 +74,16 @@ PAPER = "examples/paper.toml"
 class Level:
     """One mesh level: its penalized problem and system, the load, and its solvers."""
 
-    def __init__(self, cfg, mesh: dolfinx.mesh.Mesh, kappa: float, coarsest: bool, cheb: int):
+    def __init__(
+        self,
+        cfg,
+        mesh: dolfinx.mesh.Mesh,
+        kappa: float,
+        coarsest: bool,
+        cheb: int,
+        reuse: bool,
+        coarse_krylov_rtol: float = 1e-2,
+    ):
         self.problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappa)
         self.system = PenalizedSystem(self.problem, incremental=True)
         self.load_norm = self.system.load()
@@ -83,8 +92,11 @@ class Level:
         self.n = self.system.f.getLocalSize()
         self.coarsest = coarsest
         self.ksp = PETSc.KSP().create(MPI.COMM_SELF)
+        self.reuse, self.factor_kappa = reuse, None
         if coarsest:
-            self.ksp.setType("preonly")
+            self.ksp.setType("cg" if reuse else "preonly")
+            self.ksp.setTolerances(rtol=coarse_krylov_rtol, max_it=30)
+            self.ksp.setErrorIfNotConverged(False)
             pc = self.ksp.getPC()
             pc.setType("cholesky")
             pc.setFactorSolverType("mumps")
@@ -175,13 +187,28 @@ class Level:
         while steps < max_steps and s.residual_norm() > max(rtol * r0, atol):
             self.jacobian()
             s.negate_residual()
-            self.ksp.solve(s.R, s.dz)
+            self._direction()
             s.negate_residual()
-            self.counts["factorizations"] += 1
             if self.descend() == 0.0:
                 break
             steps += 1
         return steps
+
+    def _direction(self) -> None:
+        """``dz ← J⁻¹ R``: a factorization, or (``reuse``) CG preconditioned by the κ's last
+        one, factorized anew when CG needs more than 30 iterations."""
+        s, ksp = self.system, self.ksp
+        fresh = not self.reuse or self.factor_kappa != s.kappa
+        ksp.getPC().setReusePreconditioner(not fresh)
+        ksp.solve(s.R, s.dz)
+        if not fresh and ksp.getConvergedReason() < 0:
+            ksp.getPC().setReusePreconditioner(False)
+            ksp.solve(s.R, s.dz)
+            fresh = True
+        if fresh:
+            self.counts["factorizations"] += 1
+            self.factor_kappa = s.kappa
+        self.counts["coarse_krylov"] += ksp.getIterationNumber()
 
 
 def injection(P: PETSc.Mat) -> np.ndarray:
@@ -202,7 +229,8 @@ class FAS:
     def __init__(self, cfg, mesh, kappa, args):
         meshes = [*coarser_meshes(mesh), mesh]
         self.levels = [
-            Level(cfg, m, kappa, coarsest=(i == 0), cheb=args.cheb) for i, m in enumerate(meshes)
+            Level(cfg, m, kappa, i == 0, args.cheb, args.coarse_reuse, args.coarse_krylov_rtol)
+            for i, m in enumerate(meshes)
         ]
         self.P = [None] + [
             prolongation(c.problem.V, f.problem.V)
@@ -252,6 +280,23 @@ class FAS:
             Kc.zeroRowsColumns(lev.bc_dofs.astype(PETSc.IntType), 1.0)
             lev.system.K = Kc
 
+    def _band_points(self, lev: Level, c: Level, P: PETSc.Mat) -> None:
+        """The coarse penalty at the points of level ``lev``'s penalty where its gap is below
+        ``band · max|g0|`` only (the subspace state; its other points left out)."""
+        fine, pen = lev.system.penalty, c.system.penalty
+        points = np.flatnonzero(lev.system.g < self.args.band * lev.gap_scale)
+        sub = rows_of(fine.M, points)
+        old = pen.M
+        pen.M = sub.matMult(P)
+        for obj in (sub, old, pen._work_q, pen._work_v):
+            obj.destroy()
+        pen.D = fine.D[points]
+        pen._n = points.size
+        pen._work_q, pen._work_v = pen.M.createVecLeft(), pen.M.createVecRight()
+        pen.g0 = lev.system.g[points] - pen.apply_B(c.system.zeta)
+        c.system._held = None  # new points: the Jacobian's penalty part summed anew
+        c.counts["band_points"] = points.size
+
     def set_kappa(self, kappa: float) -> None:
         for lev in self.levels:
             lev.set_kappa(kappa)
@@ -275,7 +320,10 @@ class FAS:
         c.zeta[:] = zc0
         if a.coarse_state == "subspace":  # the coarse gap: the fine one plus B P (ζ_c − ζ_c⁰)
             pen = c.system.penalty
-            pen.g0 = lev.system.g - pen.apply_B(c.system.zeta)
+            if a.band is None:
+                pen.g0 = lev.system.g - pen.apply_B(c.system.zeta)
+            else:
+                self._band_points(lev, c, P)
         # the τ-corrected coarse right-hand side: K_c ζ_c⁰ + pen_c(ζ_c⁰) − Pᵀ r_l
         c.system.f.set(0.0)
         c.system.residual()  # R_c(ζ_c⁰) with f = 0
@@ -454,6 +502,12 @@ def main() -> None:
     ap.add_argument("--cheb", type=int, default=2, help="Chebyshev iterations per step")
     ap.add_argument("--coarse-rtol", type=float, default=1e-3)
     ap.add_argument("--coarse-max", type=int, default=20, help="Newton steps on level 0")
+    ap.add_argument(
+        "--coarse-reuse", action="store_true",
+        help="level 0: CG preconditioned by the κ's last factorization (refactorized when CG "
+        "needs more than 30 iterations) instead of a factorization per Newton step",
+    )  # fmt: skip
+    ap.add_argument("--coarse-krylov-rtol", type=float, default=1e-2, help="with --coarse-reuse")
     ap.add_argument("--fmg-cycles", type=int, default=1, help="V-cycles per coarser level")
     ap.add_argument(
         "--truncate", type=float, default=None,
@@ -471,6 +525,11 @@ def main() -> None:
     ap.add_argument(
         "--zero-bc-rows", action="store_true",
         help="P's rows at the fine Dirichlet dofs zeroed (they extrapolate interior coarse dofs)",
+    )  # fmt: skip
+    ap.add_argument(
+        "--band", type=float, default=None,
+        help="with --coarse-state subspace: the coarse penalty at the finer level's points "
+        "with g < band · max|g0| only (default: all)",
     )  # fmt: skip
     ap.add_argument("--galerkin-k", action="store_true", help="coarse stiffness Pᵀ K P")
     ap.add_argument("--rtol", type=float, default=1e-10)
