@@ -227,7 +227,7 @@ class FAS:
     """The levels, the transfers and the FAS V-cycle (module docstring)."""
 
     def __init__(self, cfg, mesh, kappa, args):
-        meshes = [*coarser_meshes(mesh), mesh]
+        meshes = [*coarser_meshes(mesh), mesh][-args.levels if args.levels else 0 :]
         self.levels = [
             Level(cfg, m, kappa, i == 0, args.cheb, args.coarse_reuse, args.coarse_krylov_rtol)
             for i, m in enumerate(meshes)
@@ -445,6 +445,33 @@ def solve_fas(cfg, mesh, args) -> dict:
     }
 
 
+def restriction_gap(fas: FAS) -> dict:
+    """At the finest level's solution ``ζ``: its gap at the fine points against that of the
+    interpolated injection ``P ζ_c⁰`` (what FAS's coarse problem linearizes at): the active
+    points of each, and the size of the change against the deepest penetration."""
+    fine, P, inj = fas.levels[-1], fas.P[-1], fas.inj[-1]
+    pen = fine.system.penalty
+    g = pen.gap(fine.system.zeta)
+    zc = P.createVecRight()
+    zc.array[:] = fine.zeta[inj]
+    z = P.createVecLeft()
+    P.mult(zc, z)
+    z.array[fine.bc_dofs] = 0.0
+    gi = pen.gap(z)
+    active, active_i = g < 0, gi < 0
+    return {
+        "active_points": int(active.sum()),
+        "active_points_restricted_state": int(active_i.sum()),
+        "active_in_one_only": int((active ^ active_i).sum()),
+        "max_penetration": float(-g.min()),
+        "gap_change_at_active_max_p95_p50": [
+            float(np.percentile(np.abs(gi - g)[active | active_i], q)) for q in (100, 95, 50)
+        ],
+        "max_zeta3_change": float(np.abs(z.array - fine.zeta)[2::3].max()),
+        "max_abs_zeta3": float(np.abs(fine.zeta[2::3]).max()),
+    }
+
+
 def _rates(history: list[float]) -> list[float]:
     """Residual reduction factors per cycle, the last few."""
     r = np.asarray(history)
@@ -497,6 +524,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--h", type=float, default=0.0058, help="gmsh target size (domain.h)")
     ap.add_argument("--driver", choices=("continuation", "fmg"), default="continuation")
+    ap.add_argument("--levels", type=int, default=None, help="the finest levels only (default all)")
     ap.add_argument("--pre", type=int, default=2, help="smoothing steps before the correction")
     ap.add_argument("--post", type=int, default=2, help="smoothing steps after it")
     ap.add_argument("--cheb", type=int, default=2, help="Chebyshev iterations per step")
@@ -556,7 +584,13 @@ def main() -> None:
             **{k: getattr(args, k) for k in (*keys, "galerkin_k", "zero_bc_rows")},
             **{k: v for k, v in out.items() if k not in ("fas", "zeta", "problem", "histories")},
             "contact_area": Postprocessor(out["problem"]).contact()["contact_area"],
+            "truncate": args.truncate,
+            "band": args.band,
+            "levels_used": args.levels,
+            "coarse_reuse": args.coarse_reuse,
         }
+        if len(out["fas"].levels) > 1:
+            line["restriction_gap"] = restriction_gap(out["fas"])
         if args.verbose:
             for hist in out["histories"]:
                 print("# history", " ".join(f"{r:.1e}" for r in hist), flush=True)
