@@ -336,7 +336,8 @@ class FAS:
         f.array[c.bc_dofs] = 0.0
         c.system.residual()  # R_c(ζ_c⁰) − τ-corrected: = Pᵀ r_l
         self.cpu["transfer"] += time.process_time() - t
-        self.cycle(l - 1)
+        for _ in range(a.gamma if l > 1 else 1):  # V-cycle (1) or W-cycle (2)
+            self.cycle(l - 1)
         t = time.process_time()
         ec = c.system.zeta.duplicate()
         ec.array[:] = c.zeta - zc0
@@ -528,6 +529,7 @@ def main() -> None:
     ap.add_argument("--pre", type=int, default=2, help="smoothing steps before the correction")
     ap.add_argument("--post", type=int, default=2, help="smoothing steps after it")
     ap.add_argument("--cheb", type=int, default=2, help="Chebyshev iterations per step")
+    ap.add_argument("--gamma", type=int, default=1, help="cycle index: 1 V-cycle, 2 W-cycle")
     ap.add_argument("--coarse-rtol", type=float, default=1e-3)
     ap.add_argument("--coarse-max", type=int, default=20, help="Newton steps on level 0")
     ap.add_argument(
@@ -588,6 +590,7 @@ def main() -> None:
             "band": args.band,
             "levels_used": args.levels,
             "coarse_reuse": args.coarse_reuse,
+            "gamma": args.gamma,
         }
         if len(out["fas"].levels) > 1:
             line["restriction_gap"] = restriction_gap(out["fas"])
