@@ -30,14 +30,40 @@ Two drivers:
   from ``ζ = 0``, interpolated, ``fmg_cycles`` V-cycles on each finer level, then V-cycles on
   the finest level until the same rule.
 
+The coarse problem (the variants of docs/perf/multigrid.md, "FAS: a prototype"):
+
+- default: textbook FAS, the level's own stiffness and Gauss points at the injected state;
+- ``--coarse-points fine``: the coarser levels' penalty at the finest level's points
+  (``M ← M_L P``); ``--galerkin-k``: their stiffness ``Pᵀ K_L P``; ``--zero-bc-rows``: the
+  transfers' rows at the fine Dirichlet dofs zeroed (a fine boundary node moved onto the
+  circle is extrapolated from interior coarse dofs, and ``Pᵀ K P`` then picks up ``w²`` times
+  ``K``'s Dirichlet row, 1, against ζ_3's diagonal of about 1e-8);
+- ``--coarse-state subspace`` (with ``--coarse-points fine``): the coarse gap is the finer
+  level's gap plus ``B P (ζ_c − ζ_c⁰)``, not the injected state's: with ``--galerkin-k`` the
+  coarse problem is the fine energy on the coarse subspace (a nonlinear subspace correction,
+  not FAS); ``--band b``: only the finer level's points with ``g < b · max|g0|`` enter it;
+- ``--truncate b``: the correction zeroed on the cells with ``g < b · max|g0|``;
+- ``--gamma 2``: W-cycles; ``--levels n``: the finest ``n`` levels only; ``--coarse-reuse``:
+  level 0 by CG preconditioned by the κ's last factorization.
+
 Then the package's own solves on the same mesh (``linear_solver = "multigrid"`` and
-``"direct"``) and the differences: contact area, ``‖ζ − ζ_pkg‖ / ‖ζ_pkg‖``. One JSON line per
-run on stdout (counts, CPU seconds by ``time.process_time``), residual histories with
-``--verbose``.
+``"direct"``; ``--package-zero-bc-rows``: multigrid with its transfers' boundary rows zeroed,
+patched in this process; ``--no-fas``: these only) and the differences: contact area,
+``‖ζ − ζ_pkg‖ / ‖ζ_pkg‖``. One JSON line per run on stdout (counts, CPU seconds by
+``time.process_time``, and ``restriction_gap``: the fine solution's gap against the injected
+state's), residual histories with ``--verbose``. The records
+(docs/perf/multigrid/fas_trial.jsonl) came from, e.g.:
 
     export PYTHONPATH=$PWD/src SHELLOBSTACLE_TUNING=off
-    .venv/bin/python benchmarks/fas_trial.py --h 0.0058 --driver continuation
-    .venv/bin/python benchmarks/fas_trial.py --h 0.0029 --driver fmg --pre 2 --post 2
+    S="--pre 1 --post 1 --cheb 4"
+    E="$S --coarse-points fine --galerkin-k --coarse-state subspace --zero-bc-rows --band 0.01"
+    .venv/bin/python benchmarks/fas_trial.py --h 0.0058 $S --max-cycles 40 --package=
+    .venv/bin/python benchmarks/fas_trial.py --h 0.0058 $E
+    .venv/bin/python benchmarks/fas_trial.py --h 0.0029 $E
+    .venv/bin/python benchmarks/fas_trial.py --h 0.0029 $E --gamma 2 --package=
+    .venv/bin/python benchmarks/fas_trial.py --h 0.0029 $E --driver fmg --package=
+    .venv/bin/python benchmarks/fas_trial.py --h 0.0029 --no-fas --package multigrid \\
+        --package-zero-bc-rows
 """
 
 from __future__ import annotations
