@@ -121,7 +121,9 @@ def test_cg_iterations_per_newton_step_stay_bounded_as_h_halves() -> None:
         mesh = disk(refinements)
         problem = PenalizedProblem(paper_shell(), mesh)
         linear = MultigridStrategy(1e-8, forcing="fixed")
-        steps = continuation(problem, NewtonSolver(problem, linear=linear), ladder(mesh))
+        solver = NewtonSolver(problem, linear=linear)
+        assert solver.linear is linear and solver.linear_solver == "MultigridStrategy"
+        steps = continuation(problem, solver, ladder(mesh))
         assert linear.levels == refinements + 1
         iterations = [n for s in steps for n in s.newton.linear_iterations]
         means.append(float(np.mean(iterations)))
@@ -136,6 +138,7 @@ def test_the_levels_are_set_up_once_per_kappa() -> None:
     kappas = ladder(mesh)
     problem = PenalizedProblem(paper_shell(), mesh)
     solver = NewtonSolver(problem, NewtonOptions(linear_solver="multigrid"))
+    assert solver.linear_solver == "multigrid"
     steps = continuation(problem, solver, kappas)
     linear = solver.linear
     assert sum(len(s.newton.linear_iterations) for s in steps) > 2 * len(kappas)

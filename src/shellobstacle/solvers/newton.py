@@ -138,13 +138,17 @@ class NewtonSolver:
         self.options = opts = options or NewtonOptions()
         t0 = time.perf_counter()
         self.system = PenalizedSystem(problem, opts.floor_factor)
-        #: the linear solver ``options.linear_solver`` stands for (``"auto"`` resolved)
-        self.linear_solver = linear_solver_for(
-            opts.linear_solver, problem.num_dofs, problem.model, problem.disc.degree,
-            problem.mesh.comm,
-        )  # fmt: skip
-        chosen = dataclasses.replace(opts, linear_solver=self.linear_solver)
-        self.linear = linear or make_strategy(chosen, problem.mesh.comm)
+        #: the linear solver used: ``options.linear_solver`` (``"auto"`` resolved), or the
+        #: class name of a strategy built by hand
+        self.linear_solver = type(linear).__name__
+        if linear is None:
+            self.linear_solver = linear_solver_for(
+                opts.linear_solver, problem.num_dofs, problem.model, problem.disc.degree,
+                problem.mesh.comm,
+            )  # fmt: skip
+            chosen = dataclasses.replace(opts, linear_solver=self.linear_solver)
+            linear = make_strategy(chosen, problem.mesh.comm)
+        self.linear = linear
         self.timings: dict[str, float] = dict.fromkeys(
             ("assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton"),
             0.0,
