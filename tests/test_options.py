@@ -188,12 +188,12 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
 @pytest.mark.parametrize(("gib", "expected"), [(24.0, "direct"), (0.42, "multigrid")])
 def test_auto_takes_multigrid_where_only_it_fits(
-    gib: float, expected: str, tmp_path: Path, monkeypatch
+    gib: float, expected: str, tmp_path: Path, monkeypatch, capsys
 ) -> None:
     """``solver.linear_solver = "auto"`` (the default) solves the paper's problem at about 21k
     dofs by the direct path on a large machine and by multigrid on one where only multigrid's
     estimate fits (0.42 GiB: the direct path's 0.37 GB is more than 80 % of it, multigrid's
-    0.35 GB is not); summary.json says which."""
+    0.35 GB is not); summary.json says which, and the progress says when it is multigrid."""
     import json
 
     monkeypatch.chdir(tmp_path)
@@ -202,8 +202,11 @@ def test_auto_takes_multigrid_where_only_it_fits(
     est = resources.estimate(DomainSpec("disk", h, radius=0.5))
     assert est is not None and 2.0e4 < est.dofs < 3.5e4, est
     out = tmp_path / "out"
-    args = ["solve", PAPER, "-q", "-o", str(out), "--set", f"domain.h={h}"]
+    args = ["solve", PAPER, "-o", str(out), "--set", f"domain.h={h}"]
     args += ["--set", "output.paraview=false", "--set", "output.pictures=false"]
     assert main(args) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["converged"] and summary["linear_solver"] == expected
+    said = 'linear solver: multigrid ("auto": the direct path\'s memory estimate does not fit'
+    printed = capsys.readouterr()
+    assert (said in printed.out + printed.err) == (expected == "multigrid")

@@ -83,6 +83,11 @@ class NewtonContinuation(MethodBase):
                 self._kept[problem] = (options, solver)
         out.timings["setup"] = time.perf_counter() - t
         out.extra["linear_solver"] = solver.linear_solver
+        if getattr(options, "linear_solver", "auto") == "auto" and solver.linear_solver != "direct":
+            say(
+                f'linear solver: {solver.linear_solver} ("auto": the direct path\'s memory '
+                "estimate does not fit this machine)"
+            )
         try:
             out.steps = list(
                 continuation(problem, solver, list(kappas), say, newton_progress=newton_progress)
