@@ -77,6 +77,27 @@ def test_a_misspelled_option_is_reported(cfg: Any, mesh: Any) -> None:
         _newton(cfg, mesh, contact_zone=False, petsc_options={"ksp_tyep": "gmres"})
 
 
+def test_an_option_read_on_some_ranks_only_is_not_reported() -> None:
+    """PETSc's telescope gathers multigrid's coarse level onto fewer ranks (here one), and
+    its inner solver exists on those only: its options count as read on every rank (no
+    warning), and the solution is multigrid's without it."""
+    cfg = load_config(SMALL, [*COARSE, "domain.refinements=1"])
+    mesh = make_mesh(cfg.domain)
+    options = {
+        "mg_coarse_pc_type": "telescope",
+        "mg_coarse_pc_telescope_reduction_factor": MPI.COMM_WORLD.size,
+        "mg_coarse_telescope_pc_type": "cholesky",
+        "mg_coarse_telescope_pc_factor_mat_solver_type": "mumps",
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # every option is read somewhere
+        solver, zeta = _newton(cfg, mesh, linear_solver="multigrid", petsc_options=options)
+    assert solver.linear.levels == 2
+    assert solver.linear.ksp.getPC().getMGCoarseSolve().getPC().getType() == "telescope"
+    _, reference = _newton(cfg, mesh, linear_solver="multigrid")
+    assert np.allclose(zeta, reference, rtol=0, atol=1e-8 * np.abs(reference).max())
+
+
 def test_a_bad_value_is_a_config_error(cfg: Any, mesh: Any) -> None:
     with pytest.raises(ConfigError, match=r"solver.petsc_options: PETSc failed"):
         _newton(cfg, mesh, contact_zone=False, petsc_options={"ksp_type": "no_such_ksp"})

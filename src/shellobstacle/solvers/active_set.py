@@ -101,7 +101,9 @@ class ActiveSetSolver:
     def __init__(self, problem: PenalizedProblem, options: ActiveSetOptions | None = None) -> None:
         self.problem = problem
         self.options = options or ActiveSetOptions()
-        self.user_options = UserOptions(self.options.petsc_options, ("as",), "active-set")
+        self.user_options = UserOptions(
+            self.options.petsc_options, ("as",), "active-set", problem.mesh.comm
+        )
         self.timings: dict[str, float] = {"setup": 0.0, "assemble": 0.0, "solve": 0.0, "kkt": 0.0}
         t0 = time.perf_counter()
         self.qp = qp = NodalQP(problem, "ActiveSetSolver")

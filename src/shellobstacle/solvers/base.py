@@ -22,8 +22,10 @@ from collections.abc import Callable, Iterator, Mapping
 from contextlib import contextmanager
 from typing import Any
 
-from mpi4py import MPI  # noqa: F401  (before PETSc: the MPI runtime PETSc links to)
+from mpi4py import MPI  # (before PETSc: the MPI runtime PETSc links to)
 from petsc4py import PETSc
+
+import numpy as np
 
 from shellobstacle.solvers.result import ConvergenceError
 
@@ -71,10 +73,19 @@ class UserOptions:
         values: option name → value.
         kinds: the prefix kinds that take them (e.g. ``("newton", "zone")``).
         method: names the method in the warning about an option no object read.
+        comm: the solver's communicator: an option counts as read when any of its ranks
+            read it (PETSc's telescope, for one, makes its inner solver on some ranks only);
+            None: this process alone.
     """
 
-    def __init__(self, values: Mapping[str, Any], kinds: tuple[str, ...], method: str) -> None:
-        self.values, self.kinds, self.method = dict(values), kinds, method
+    def __init__(
+        self,
+        values: Mapping[str, Any],
+        kinds: tuple[str, ...],
+        method: str,
+        comm: MPI.Comm | None = None,
+    ) -> None:
+        self.values, self.kinds, self.method, self.comm = dict(values), kinds, method, comm
         self.prefixes: list[str] = []
         self._names: list[str] = []
         self._reported: set[str] = set()
@@ -111,11 +122,18 @@ class UserOptions:
             _APPLIED.remove(self)
 
     def report_unused(self) -> None:
-        """Warn once about each option that no object of the solver has read (misspelled,
-        or for an object the method does not make)."""
+        """Warn once about each option that no object of the solver has read, on any of its
+        ranks (misspelled, or for an object the method does not make); collective over
+        ``comm``."""
         options = PETSc.Options()
-        for key in self.values:
-            if key in self._reported or any(options.used(p + key) for p in self.prefixes):
+        keys = list(self.values)
+        used = np.array(
+            [any(options.used(p + key) for p in self.prefixes) for key in keys], dtype=np.int8
+        )
+        if self.comm is not None and self.comm.size > 1:
+            self.comm.Allreduce(MPI.IN_PLACE, used, op=MPI.MAX)
+        for key, read in zip(keys, used, strict=True):
+            if key in self._reported or read:
                 continue
             self._reported.add(key)
             warnings.warn(

@@ -105,7 +105,9 @@ class BrezisSibonySolver:
         self.h = float(h)
         self.options = opts = options or BrezisSibonyOptions()
         kinds = ("bs_mass", "bs_linearized")
-        self.user_options = UserOptions(opts.petsc_options, kinds, "brezis-sibony")
+        self.user_options = UserOptions(
+            opts.petsc_options, kinds, "brezis-sibony", problem.mesh.comm
+        )
         V, mesh = problem.V, problem.mesh
         self.comm = mesh.comm
         degree = problem.disc.degree

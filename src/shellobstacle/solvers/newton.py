@@ -154,7 +154,9 @@ class NewtonSolver:
             0.0,
         )
         # the Jacobian's solver and, by default, the zone's factorizations
-        self.user_options = UserOptions(opts.petsc_options, ("newton", "zone"), "newton")
+        self.user_options = UserOptions(
+            opts.petsc_options, ("newton", "zone"), "newton", problem.mesh.comm
+        )
         with self.user_options.applied():
             self.linear.attach(self.system, self.timings)
         self.timings["setup"] = time.perf_counter() - t0

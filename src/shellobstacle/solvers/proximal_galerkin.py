@@ -107,7 +107,9 @@ class ProximalGalerkinSolver:
     ) -> None:
         self.problem = problem
         self.options = opts = options or ProximalGalerkinOptions()
-        self.user_options = UserOptions(opts.petsc_options, ("pg",), "proximal-galerkin")
+        self.user_options = UserOptions(
+            opts.petsc_options, ("pg",), "proximal-galerkin", problem.mesh.comm
+        )
         t0 = time.perf_counter()
         self.qp = qp = NodalQP(problem, "ProximalGalerkinSolver")
         self.m = qp.nodal.node_masses()[qp.nodes]  # the latent variable's weights

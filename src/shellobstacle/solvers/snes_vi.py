@@ -96,7 +96,7 @@ class SnesVISolver:
     def __init__(self, problem: PenalizedProblem, options: SnesVIOptions | None = None) -> None:
         self.problem = problem
         self.options = opts = options or SnesVIOptions()
-        self.user_options = UserOptions(opts.petsc_options, ("vi",), "snes-vi")
+        self.user_options = UserOptions(opts.petsc_options, ("vi",), "snes-vi", problem.mesh.comm)
         t0 = time.perf_counter()
         self.qp = qp = NodalQP(problem, "SnesVISolver")
         self.timings: dict[str, float] = {"setup": 0.0}
