@@ -77,6 +77,16 @@ def test_a_misspelled_option_is_reported(cfg: Any, mesh: Any) -> None:
         _newton(cfg, mesh, contact_zone=False, petsc_options={"ksp_tyep": "gmres"})
 
 
+def test_a_misspelled_option_is_reported_when_newton_fails(cfg: Any, mesh: Any) -> None:
+    """The report follows a solve that raised ConvergenceError too (on every rank)."""
+    from shellobstacle.solvers.base import ConvergenceError
+
+    options = {"ksp_tyep": "gmres"}
+    unread = r"solver.petsc_options.ksp_tyep: no PETSc object"
+    with pytest.warns(RuntimeWarning, match=unread), pytest.raises(ConvergenceError):
+        _newton(cfg, mesh, contact_zone=False, max_iterations=1, petsc_options=options)
+
+
 def test_an_option_read_on_some_ranks_only_is_not_reported() -> None:
     """PETSc's telescope gathers multigrid's coarse level onto fewer ranks (here one), and
     its inner solver exists on those only: its options count as read on every rank (no

@@ -147,16 +147,20 @@ class UserOptions:
 
 def with_user_options(solve: Callable[..., Any]) -> Callable[..., Any]:
     """Decorate a solver's ``solve`` to run with ``self.user_options`` applied and report its
-    unused options afterwards."""
+    unused options afterwards: after a return or a :class:`ConvergenceError`, which every
+    rank raises together (the report is collective); any other error propagates at once."""
 
     @functools.wraps(solve)
     def wrapper(self: Any, *args: Any, **kwargs: Any) -> Any:
         user: UserOptions = self.user_options
         try:
             with user.applied():
-                return solve(self, *args, **kwargs)
-        finally:
+                result = solve(self, *args, **kwargs)
+        except ConvergenceError:
             user.report_unused()
+            raise
+        user.report_unused()
+        return result
 
     return wrapper
 
