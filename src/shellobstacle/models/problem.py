@@ -262,21 +262,16 @@ class PenalizedProblem:
         """The owned scalar dofs (``bs · node + component``, local) that the Dirichlet
         conditions fix in ``V``, a space of ζ's element on this mesh or any other mesh of ω
         (the levels of a refinement hierarchy)."""
-        mesh = V.mesh
-        tdim = mesh.topology.dim
-        mesh.topology.create_connectivity(tdim - 1, tdim)
-        facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
-        nodes = dolfinx.fem.locate_dofs_topological(V, tdim - 1, facets)
+        tdim = V.mesh.topology.dim
+        nodes = dolfinx.fem.locate_dofs_topological(V, tdim - 1, _boundary_facets(V.mesh))
         nodes = nodes[nodes < V.dofmap.index_map.size_local]
         bs = V.dofmap.index_map_bs
         return (bs * nodes[:, None] + np.array(self.dirichlet_components)).ravel()
 
     def _boundary_conditions(self) -> list[dolfinx.fem.DirichletBC]:
         """Homogeneous Dirichlet conditions: ζ_α = 0 on γ, and ζ_3 = 0 if clamped."""
-        mesh = self.mesh
-        tdim = mesh.topology.dim
-        mesh.topology.create_connectivity(tdim - 1, tdim)
-        facets = dolfinx.mesh.exterior_facet_indices(mesh.topology)
+        tdim = self.mesh.topology.dim
+        facets = _boundary_facets(self.mesh)
         bcs = []
         for i in self.dirichlet_components:
             Vi = self.V.sub(i)
@@ -341,9 +336,8 @@ class PenalizedProblem:
     def _multiplier_bcs(self) -> list[dolfinx.fem.DirichletBC]:
         """``t = 0`` on the boundary's facets (where no cell pair meets it)."""
         tdim = self.mesh.topology.dim
-        facets = dolfinx.mesh.exterior_facet_indices(self.mesh.topology)
         T = self.t.function_space
-        dofs = dolfinx.fem.locate_dofs_topological(T, tdim - 1, facets)
+        dofs = dolfinx.fem.locate_dofs_topological(T, tdim - 1, _boundary_facets(self.mesh))
         return [dolfinx.fem.dirichletbc(PETSc.ScalarType(0), dofs, T)]
 
     def update_multiplier(self) -> None:
@@ -400,3 +394,10 @@ def _require_koiter_discretization(disc: Discretization, mesh: dolfinx.mesh.Mesh
                 "Koiter's facet terms need ghost cells across process boundaries: build the "
                 "mesh with shellobstacle.mesh.meshing.create_mesh(..., ghosted=True)"
             )
+
+
+def _boundary_facets(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
+    """The facets of ``mesh`` on γ (its exterior facets)."""
+    tdim = mesh.topology.dim
+    mesh.topology.create_connectivity(tdim - 1, tdim)
+    return dolfinx.mesh.exterior_facet_indices(mesh.topology)

@@ -140,7 +140,7 @@ class NewtonSolver:
         self.system = PenalizedSystem(problem, opts.floor_factor)
         #: the linear solver used: ``options.linear_solver`` (``"auto"`` resolved), or the
         #: class name of a strategy built by hand
-        self.linear_solver = type(linear).__name__
+        self.linear_solver: str
         if linear is None:
             self.linear_solver = linear_solver_for(
                 opts.linear_solver, problem.num_dofs, problem.model, problem.disc.degree,
@@ -148,6 +148,8 @@ class NewtonSolver:
             )  # fmt: skip
             chosen = dataclasses.replace(opts, linear_solver=self.linear_solver)
             linear = make_strategy(chosen, problem.mesh.comm)
+        else:
+            self.linear_solver = type(linear).__name__
         self.linear = linear
         self.timings: dict[str, float] = dict.fromkeys(
             ("assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton"),

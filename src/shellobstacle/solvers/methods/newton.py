@@ -83,7 +83,7 @@ class NewtonContinuation(MethodBase):
                 self._kept[problem] = (options, solver)
         out.timings["setup"] = time.perf_counter() - t
         out.extra["linear_solver"] = solver.linear_solver
-        if getattr(options, "linear_solver", "auto") == "auto" and solver.linear_solver != "direct":
+        if solver.options.linear_solver == "auto" and solver.linear_solver != "direct":
             say(
                 f'linear solver: {solver.linear_solver} ("auto": the direct path\'s memory '
                 "estimate does not fit this machine)"
