@@ -1,9 +1,9 @@
 """The paper's problem (κ = h^1.5 continuation) by the direct path and by multigrid, as h halves.
 
-For each gmsh size and each linear solver: one solve from the config (examples/paper.toml with
-``domain.h`` and ``solver.linear_solver`` set), then one JSON line with the dofs, the mesh
-levels multigrid used, Newton steps (per κ and in all), Krylov iterations per Newton step
-(mean and max over the steps; the direct path's are the CG iterations with a kept
+For each gmsh size and each linear solver: one solve from the config (examples/paper.toml, or
+``--config``, with ``domain.h`` and ``solver.linear_solver`` set), then one JSON line with the
+dofs, the mesh levels multigrid used, Newton steps (per κ and in all), Krylov iterations per
+Newton step (mean and max over the steps; the direct path's are the CG iterations with a kept
 factorization or on the contact zone), the continuation's seconds and phases (``solve.*``:
 set-up, multigrid's part of it, assembly, linear solves, line searches, ...), the process' CPU
 seconds end to end (less sensitive than the wall clock to other jobs on the cores), the
@@ -16,6 +16,8 @@ each solver's own.
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058,0.0029,0.00145
     .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0006 --solvers multigrid
+    .venv/bin/python benchmarks/multigrid_scaling.py --config examples/ellipsoid.toml \
+        --sizes 0.00125 --solvers multigrid
 """
 
 from __future__ import annotations
@@ -39,11 +41,11 @@ from shellobstacle.solvers.options import LINEAR_SOLVERS
 PAPER = "examples/paper.toml"
 
 
-def run(h: float, linear_solver: str, force: bool = False) -> dict:
-    """One solve of the paper's problem at gmsh size ``h`` with ``linear_solver`` (``force``:
+def run(h: float, linear_solver: str, force: bool = False, config: str = PAPER) -> dict:
+    """One solve of ``config``'s problem at gmsh size ``h`` with ``linear_solver`` (``force``:
     without the check of the machine's memory, whose estimate is the direct path's)."""
     comm = MPI.COMM_WORLD
-    cfg = load_config(PAPER, [f"domain.h={h}", f'solver.linear_solver="{linear_solver}"'])
+    cfg = load_config(config, [f"domain.h={h}", f'solver.linear_solver="{linear_solver}"'])
     load = os.getloadavg()[0]
     t0, c0 = time.perf_counter(), time.process_time()
     result = solve_config(cfg, force=force)
@@ -52,6 +54,7 @@ def run(h: float, linear_solver: str, force: bool = False) -> dict:
     newton = [s.iterations for s in result.steps]
     krylov = [n for s in result.steps for n in s.record.linear_iterations]
     return {
+        "config": config,
         "h": h,
         "linear_solver": linear_solver,
         "ranks": comm.size,
@@ -77,6 +80,7 @@ def run(h: float, linear_solver: str, force: bool = False) -> dict:
 def main() -> None:
     """Run the sizes and solvers, print JSON lines and a table on rank 0."""
     ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--config", default=PAPER, help="the problem's config file")
     ap.add_argument("--sizes", default="0.0058,0.0029,0.00145", help="gmsh target sizes")
     ap.add_argument("--solvers", default="direct,multigrid", help=f"of {LINEAR_SOLVERS}")
     ap.add_argument(
@@ -89,7 +93,7 @@ def main() -> None:
     comm = MPI.COMM_WORLD
     rows = []
     for h in (float(s) for s in args.sizes.split(",")):
-        pair = [run(h, solver, args.force) for solver in args.solvers.split(",")]
+        pair = [run(h, solver, args.force, args.config) for solver in args.solvers.split(",")]
         direct = [r["contact_area"] for r in pair if r["linear_solver"] == "direct"]
         for row in pair:
             if direct:

@@ -132,8 +132,9 @@ def test_cg_iterations_per_newton_step_stay_bounded_as_h_halves() -> None:
 
 def test_the_levels_are_set_up_once_per_kappa() -> None:
     """The V-cycle's levels (the coarser operators, the coarse factorization, Chebyshev's
-    bounds) are set up at each κ's first Newton step and kept over its other steps; PETSc's
-    own eigenvalue estimator, which would run at every step, is off on every smoothed level."""
+    bounds) are set up at each κ's first Newton step; over its other steps Chebyshev's bounds
+    are kept, and PETSc's own eigenvalue estimator, which would run at every step, is off on
+    every smoothed level; the coarse level is factorized by MUMPS' Cholesky."""
     mesh = disk(2)
     kappas = ladder(mesh)
     problem = PenalizedProblem(paper_shell(), mesh)
@@ -141,9 +142,13 @@ def test_the_levels_are_set_up_once_per_kappa() -> None:
     assert solver.linear_solver == "multigrid"
     steps = continuation(problem, solver, kappas)
     linear = solver.linear
-    assert sum(len(s.newton.linear_iterations) for s in steps) > 2 * len(kappas)
+    directions = sum(len(s.newton.linear_iterations) for s in steps)
+    assert directions > 2 * len(kappas)
     assert linear.multigrid_builds == len(kappas)
     assert linear.estimates == len(kappas) * (linear.levels - 1)
+    assert 0 < linear.coarse_updates <= directions - len(kappas)  # where the active set moved
+    coarse = linear.ksp.getPC().getMGCoarseSolve().getPC()  # (PCMG's default: PETSc's LU)
+    assert (coarse.getType(), coarse.getFactorSolverType()) == ("cholesky", "mumps")
     estimator_of = libpetsc.function("KSPChebyshevEstEigGetKSP")
     for level in range(1, linear.levels):
         estimator = ctypes.c_void_p()
@@ -151,6 +156,49 @@ def test_the_levels_are_set_up_once_per_kappa() -> None:
         assert smoother.getType() == "chebyshev"
         assert estimator_of(smoother.handle, ctypes.byref(estimator)) == 0
         assert estimator.value is None
+
+
+@pytest.mark.mpi
+@pytest.mark.parametrize("share", [multigrid.COARSE_UPDATE_SHARE, 0.05])
+def test_the_coarser_operators_follow_the_jacobian(share: float, monkeypatch) -> None:
+    """At every direction, each coarser level's operator is ``Pᵀ J_c P`` (to round-off) with
+    ``J_c = K + H`` at the active points it was made for, and those differ from the current
+    Jacobian's in at most ``share`` of them, also at the steps of a κ after its first, where
+    the active points moved (``share = 0``, the default: the current Jacobian's own); the
+    answer is the direct path's."""
+    from shellobstacle.penalty.quadrature import penalty_hessian
+    from shellobstacle.solvers.linear import active_changes
+
+    monkeypatch.setattr(multigrid, "COARSE_UPDATE_SHARE", share)
+    gaps: list[float] = []
+    shares: list[float] = []
+    solve_once = MultigridStrategy._solve_once
+
+    def checked(self: MultigridStrategy, b) -> None:
+        system, then = self.system, self._coarse_active
+        comm = system.comm
+        shares.append(
+            active_changes(comm, then, system.held_active)
+            / max(1, comm.allreduce(int(np.count_nonzero(then))))
+        )
+        pen = system.penalty
+        galerkin = system.K.copy()
+        if comm.allreduce(int(np.count_nonzero(then))):
+            H = penalty_hessian(pen.M, pen.D, np.flatnonzero(then), system.kappa)
+            galerkin.axpy(1.0, H)
+        for level in reversed(range(self.levels - 1)):
+            galerkin = galerkin.ptap(self._P[level])
+            difference = galerkin.copy()
+            difference.axpy(-1.0, self._A[level])
+            gaps.append(difference.norm() / galerkin.norm())
+        solve_once(self, b)
+
+    monkeypatch.setattr(MultigridStrategy, "_solve_once", checked)
+    direct, problem, solver, steps = direct_and_multigrid(disk(2))
+    assert all(s.newton.converged for s in steps)
+    assert len(gaps) > 2 * len(steps) and max(gaps) <= 1e-12, max(gaps)
+    assert max(shares) <= share and solver.linear.coarse_updates > 0
+    assert l2_norm(direct.zeta - problem.zeta) <= 1e-8 * l2_norm(direct.zeta)
 
 
 def test_a_stagnating_cg_with_kept_levels_sets_them_up_again(monkeypatch) -> None:

@@ -39,6 +39,7 @@ __all__ = [
     "QuadraturePenalty",
     "add_penalty_hessian",
     "gap_scale",
+    "penalty_factor",
     "penalty_hessian",
     "penalty_rule",
     "quadrature_space",
@@ -252,14 +253,22 @@ def penalty_hessian(M: PETSc.Mat, D: np.ndarray, active: np.ndarray, kappa: floa
 
     ``M`` is a point matrix ``diag(D) B`` (parallel, or the sequential one of a contact zone).
     """
-    MA = rows_of(M, active)
-    scale = MA.createVecLeft()
+    S = penalty_factor(M, D, active, kappa)
+    H = S.transposeMatMult(S)
+    S.destroy()
+    return H
+
+
+def penalty_factor(M: PETSc.Mat, D: np.ndarray, active: np.ndarray, kappa: float) -> PETSc.Mat:
+    """``S = diag(1/√(κ D_A)) M_A``, the factor of the penalty Hessian ``Sᵀ S``
+    (:func:`penalty_hessian`), for the owned rows ``active`` of ``M``; ``S P`` gives the
+    Hessian's Galerkin product ``(S P)ᵀ (S P) = Pᵀ (Sᵀ S) P`` without the ``n × n`` matrix."""
+    S = rows_of(M, active)
+    scale = S.createVecLeft()
     scale.array[:] = 1.0 / np.sqrt(kappa * D[active])
-    MA.diagonalScale(L=scale)
-    P = MA.transposeMatMult(MA)
-    for obj in (MA, scale):
-        obj.destroy()
-    return P
+    S.diagonalScale(L=scale)
+    scale.destroy()
+    return S
 
 
 def add_penalty_hessian(

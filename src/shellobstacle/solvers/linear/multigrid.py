@@ -14,14 +14,19 @@ penalty-augmented mass matrix, well conditioned once scaled by its diagonal). Ch
 the V-cycle are symmetric, so the Krylov method is plain CG. Point-block Jacobi (each node's
 3×3 block inverted) needs several times more iterations at small κ (docs/perf/multigrid.md).
 
-The levels are set up once per solve (one κ), at its first Newton step, and kept over its
-other steps, where only the active points move (a few per cent of them): the coarser levels'
-operators, the coarse factorization, and Chebyshev's bound of the largest eigenvalue of
-``D⁻¹A`` on each smoothed level, which PETSc would estimate (Lanczos, ten steps) at every
-set-up with a new matrix; here it is estimated the same way (:func:`largest_eigenvalue`) and
-given to the smoothers with PETSc's interval, ``[0.1, 1.1]`` times the estimate. CG runs with
-the current Jacobian, the finest level's smoother too. A direction whose CG fails, or needs more
-than :data:`~shellobstacle.solvers.linear.iterative.KEPT_ITERATION_FACTOR` times the most
+The coarser levels' operators follow the Jacobian: at a Newton step where more than
+:data:`COARSE_UPDATE_SHARE` of their active points changed activity, the points that turned
+active are added to the penalty part's Galerkin products and those that turned inactive taken
+out, and the coarse level is factorized again. Kept over a κ, the operators cost the ellipsoid
+and the paraboloid three to five times the CG iterations at 0.5–1.9 M dofs: their first κ's
+active set moves over ten steps and more (docs/perf/multigrid.md). Chebyshev's bound of the
+largest eigenvalue of ``D⁻¹A`` on each smoothed level, which PETSc would estimate (Lanczos,
+ten steps) at every set-up with a new matrix, is estimated once per solve (one κ), at its
+first Newton step, the same way (:func:`largest_eigenvalue`), and given to the smoothers with
+PETSc's interval, ``[0.1, 1.1]`` times the estimate: estimated at every step, the bounds
+change nothing. CG runs with the current Jacobian, the finest level's smoother too. A
+direction whose CG fails, or needs more than
+:data:`~shellobstacle.solvers.linear.iterative.KEPT_ITERATION_FACTOR` times the most
 iterations since the set-up, is solved again with the levels set up anew.
 
 A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls back to
@@ -45,9 +50,10 @@ import numpy as np
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.quadrature import penalty_hessian
+from shellobstacle.penalty.quadrature import penalty_factor
 from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.base import set_options, unique_prefix
+from shellobstacle.solvers.linear import active_changes
 from shellobstacle.solvers.linear.iterative import (
     KEPT_ITERATION_FACTOR,
     KEPT_MIN_ITERATIONS,
@@ -55,7 +61,13 @@ from shellobstacle.solvers.linear.iterative import (
 )
 from shellobstacle.solvers.system import PenalizedSystem
 
-__all__ = ["CHEBYSHEV_INTERVAL", "SMOOTHERS", "MultigridStrategy", "largest_eigenvalue"]
+__all__ = [
+    "CHEBYSHEV_INTERVAL",
+    "COARSE_UPDATE_SHARE",
+    "SMOOTHERS",
+    "MultigridStrategy",
+    "largest_eigenvalue",
+]
 
 #: the level smoothers' preconditioners: point Jacobi or point-block (3×3 per node) Jacobi
 SMOOTHERS = ("jacobi", "pbjacobi")
@@ -69,6 +81,10 @@ _LEVELS = {
 }
 #: Chebyshev's interval as multiples of the estimated ``λ_max(D⁻¹A)`` (PETSc's default)
 CHEBYSHEV_INTERVAL = (0.1, 1.1)
+#: the coarser operators are made anew when more than this share of their active points
+#: changed activity (0: at any change; 5 % kept stale operators over the paraboloid's first
+#: κ at 1.94 M dofs for 75 % more CG iterations, docs/perf/multigrid.md)
+COARSE_UPDATE_SHARE = 0.0
 #: Lanczos steps of an estimate (PETSc's default)
 ESTIMATE_STEPS = 10
 _GEOMETRIC = {"pc_type": "mg", **_LEVELS}
@@ -109,6 +125,8 @@ class MultigridStrategy(IterativeStrategy):
         self._estimators: list[PETSc.KSP] = []  # per smoothed level (empty: PETSc's own)
         self._levels_current = False  # set up in this solve
         self._levels_most = 0  # the most CG iterations of a direction since the set-up
+        self._coarse_active: np.ndarray | None = None  # the active points of the coarse operators
+        self.coarse_updates = 0  # of the coarser operators within a solve (active points moved)
 
     def attach(self, system: PenalizedSystem, timings: dict[str, float]) -> None:
         """CG with PCMG on the mesh hierarchy (GAMG without one) under a prefix of its own."""
@@ -139,9 +157,14 @@ class MultigridStrategy(IterativeStrategy):
         ksp.setTolerances(rtol=self.rtol, atol=1e-50, max_it=2000)
         ksp.setFromOptions()
         if transfers:
+            # PCMG does not read its levels' options itself: the coarse level would be
+            # PETSc's own LU (four times MUMPS' Cholesky's time on gmsh's 21k dofs)
+            for level in range(self.levels):
+                pc.getMGSmoother(level).setFromOptions()
             self._estimators = self._make_estimators(prefix)
         system.on_new_jacobian = self._new_jacobian
         timings["multigrid_setup"] = time.perf_counter() - t0
+        timings["multigrid_levels"] = 0.0  # the levels' set-ups and updates (within "solve")
 
     def _transfers(self, problem: PenalizedProblem) -> list[PETSc.Mat]:
         """The interpolations from each level to the next, coarsest first (empty without a
@@ -176,28 +199,39 @@ class MultigridStrategy(IterativeStrategy):
             coarse.append(A)
         return coarse[::-1]
 
-    def _coarse_operators(self) -> None:
+    def _coarse_operators(self, update: bool = False) -> None:
         """The levels' operators ``Pᵀ J P`` for the current Jacobian ``J = K + H``: ``Pᵀ K P``
-        made once, plus the Galerkin product of the penalty part ``H``, whose rows are those
-        of the active points' cells (a few per cent: far cheaper than ``Pᵀ J P``)."""
+        made once, plus the penalty part's ``(S P)ᵀ (S P)`` with ``H = Sᵀ S``, ``S`` the rows
+        of the active points (a few per cent: far cheaper than ``Pᵀ J P``; carried down the
+        levels as ``S P``, no ``n × n`` product on the finer levels). With ``update`` (the
+        same κ) only the points that changed activity since the last call are added or taken
+        out, as the fine Jacobian is (:attr:`PenalizedSystem.incremental`)."""
         system = self.system
-        active = system.held_active
-        rows = np.flatnonzero(active) if active is not None else np.zeros(0, dtype=np.int64)
-        H = None
-        if system.comm.allreduce(rows.size):
-            H = penalty_hessian(system.penalty.M, system.penalty.D, rows, system.kappa)
-        smoothers = [self.ksp.getPC().getMGSmoother(level) for level in range(self.levels - 1)]
-        for level in reversed(range(self.levels - 1)):
-            A = self._A[level]
-            self._K[level].copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
-            if H is not None:
-                coarse = H.ptap(self._P[level])
+        active, then = system.held_active, self._coarse_active
+        self._coarse_active = None if active is None else active.copy()
+        if update and active is not None and then is not None:
+            terms = [(active & ~then, 1.0), (then & ~active, -1.0)]
+        else:
+            for K, A in zip(self._K, self._A, strict=True):
+                K.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
+            terms = [] if active is None else [(active, 1.0)]
+        for points, sign in terms:
+            rows = np.flatnonzero(points)
+            if not system.comm.allreduce(rows.size):
+                continue
+            S = penalty_factor(system.penalty.M, system.penalty.D, rows, system.kappa)
+            for level in reversed(range(self.levels - 1)):
+                coarse = S.matMult(self._P[level])
+                S.destroy()
+                H = coarse.transposeMatMult(coarse)
+                self._A[level].axpy(sign, H, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
                 H.destroy()
-                A.axpy(1.0, coarse, structure=PETSc.Mat.Structure.SUBSET_NONZERO_PATTERN)
-                H = coarse
-            smoothers[level].setOperators(A)
-        if H is not None:
-            H.destroy()
+                S = coarse
+            S.destroy()
+        pc = self.ksp.getPC()
+        for level, A in enumerate(self._A):
+            A.setOption(PETSc.Mat.Option.SPD, True)  # (the coarse level: MUMPS' LDLᵀ)
+            pc.getMGSmoother(level).setOperators(A)
 
     def begin(self) -> None:
         """A new solve (a new κ): new forcing terms, the levels set up at its first step."""
@@ -224,7 +258,6 @@ class MultigridStrategy(IterativeStrategy):
         estimators = []
         for level in range(1, self.levels):
             smoother = pc.getMGSmoother(level)
-            smoother.setFromOptions()
             if smoother.getType() != PETSc.KSP.Type.CHEBYSHEV:
                 return []
             estimator = PETSc.KSP().create(self.system.comm)
@@ -267,8 +300,13 @@ class MultigridStrategy(IterativeStrategy):
             self.multigrid_builds += 1
             return
         kept = self._levels_current
+        t0 = time.perf_counter()
         if not kept:
             self._set_up_levels()
+        elif self._active_moved():
+            self._coarse_operators(update=True)
+            self.coarse_updates += 1
+        self.timings["multigrid_levels"] += time.perf_counter() - t0
         max_it = self.ksp.getTolerances()[3]
         if kept:
             cap = max(KEPT_MIN_ITERATIONS, KEPT_ITERATION_FACTOR * self._levels_most)
@@ -280,6 +318,16 @@ class MultigridStrategy(IterativeStrategy):
             self._set_up_levels()
             self._solve_once(b)
         self._levels_most = max(self._levels_most, self.ksp.getIterationNumber())
+
+    def _active_moved(self) -> bool:
+        """Whether more than :data:`COARSE_UPDATE_SHARE` of the coarser operators' active
+        points changed activity in the Jacobian (collective)."""
+        now, then = self.system.held_active, self._coarse_active
+        if now is None or then is None:
+            return (now is None) != (then is None)
+        comm = self.system.comm
+        changed = active_changes(comm, then, now)
+        return changed > COARSE_UPDATE_SHARE * comm.allreduce(int(np.count_nonzero(then)))
 
     def _solve_once(self, b: PETSc.Vec) -> None:
         """One CG solve into ``system.dz``."""
