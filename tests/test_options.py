@@ -167,6 +167,9 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
     assert NewtonOptions().linear_solver == "auto"
     assert memory.linear_solver_for("auto", est.dofs, "membrane", 1) == "multigrid"
     assert memory.linear_solver_for("auto", 1e6, "membrane", 1) == "direct"
+    assert memory.linear_solver_for("auto", 1.6e6, "membrane", 1) == "multigrid"  # faster
+    assert memory.linear_solver_for("auto", 1.6e6, "membrane", 1, levels=False) == "direct"
+    assert memory.linear_solver_for("auto", 1.6e6, "koiter", 2) == "direct"
     assert memory.linear_solver_for("auto", est.dofs, "membrane", 2) == "direct"
     assert memory.linear_solver_for("iterative", est.dofs, "membrane", 1) == "iterative"
     chosen = resources.require_fits(big, linear_solver="auto")
@@ -186,27 +189,46 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
-@pytest.mark.parametrize(("gib", "expected"), [(24.0, "direct"), (0.42, "multigrid")])
-def test_auto_takes_multigrid_where_only_it_fits(
-    gib: float, expected: str, tmp_path: Path, monkeypatch, capsys
+@pytest.mark.parametrize(
+    ("gib", "from_dofs", "refinements", "expected", "reason"),
+    [
+        (24.0, 1.5e6, 0, "direct", ""),
+        (0.42, 1.5e6, 0, "multigrid", "the direct path's memory estimate does not fit"),
+        (24.0, 1e4, 1, "multigrid", "from 0.01 M dofs on a refined mesh it is the faster"),
+        (24.0, 1e4, 0, "direct", ""),
+    ],
+)
+def test_auto_takes_multigrid_where_it_is_faster_or_only_it_fits(
+    gib: float,
+    from_dofs: float,
+    refinements: int,
+    expected: str,
+    reason: str,
+    tmp_path: Path,
+    monkeypatch,
+    capsys,
 ) -> None:
     """``solver.linear_solver = "auto"`` (the default) solves the paper's problem at about 21k
     dofs by the direct path on a large machine and by multigrid on one where only multigrid's
     estimate fits (0.42 GiB: the direct path's 0.37 GB is more than 80 % of it, multigrid's
-    0.35 GB is not); summary.json says which, and the progress says when it is multigrid."""
+    0.35 GB is not), or from ``MULTIGRID_FROM_DOFS`` dofs (lowered here) on a mesh with
+    coarser levels (gmsh's mesh refined once), not on one without; summary.json says which,
+    and the progress says why when it is multigrid."""
     import json
 
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(memory, "machine_memory", lambda: gib * 2.0**30)
-    h = 0.0115
-    est = resources.estimate(DomainSpec("disk", h, radius=0.5))
+    monkeypatch.setattr(memory, "MULTIGRID_FROM_DOFS", from_dofs)
+    h = 0.0115 * 2**refinements
+    est = resources.estimate(DomainSpec("disk", h, radius=0.5, refinements=refinements))
     assert est is not None and 2.0e4 < est.dofs < 3.5e4, est
     out = tmp_path / "out"
     args = ["solve", PAPER, "-o", str(out), "--set", f"domain.h={h}"]
+    args += ["--set", f"domain.refinements={refinements}"]
     args += ["--set", "output.paraview=false", "--set", "output.pictures=false"]
     assert main(args) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["converged"] and summary["linear_solver"] == expected
-    said = 'linear solver: multigrid ("auto": the direct path\'s memory estimate does not fit'
     printed = capsys.readouterr()
+    said = f'linear solver: multigrid ("auto": {reason}'
     assert (said in printed.out + printed.err) == (expected == "multigrid")

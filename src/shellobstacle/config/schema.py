@@ -16,6 +16,7 @@ from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.config.keys import OPTIONAL, REQUIRED, ByValue, Key, bound, solver_key
 from shellobstacle.geometry.surface import SURFACE_KINDS
 from shellobstacle.mesh.domains import KINDS, DomainSpec
+from shellobstacle.mesh.memory import MULTIGRID_FROM_DOFS
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import (
     PETSC_OPTIONS_HELP,
@@ -211,7 +212,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
         "linear_solver": solver_key(
             "linear_solver",
             "str",
-            "direct where its memory estimate fits this machine, else multigrid (membrane P1); "
+            f"multigrid (membrane P1) from {MULTIGRID_FROM_DOFS / 1e6:g} M dofs on a refined "
+            "mesh and where only its memory estimate fits this machine, else direct; "
             "MUMPS; inexact Newton with flexible CG and a field split (GAMG on ζ_α): about 70 % "
             "of the memory; or inexact Newton with CG and geometric multigrid on the mesh's "
             "uniform refinements (GAMG on a mesh without them)",

@@ -1,9 +1,10 @@
-"""Memory: this machine's, and a solve's need per dof by model, degree and linear solver.
+"""Memory: this machine's, and a solve's need per dof by model, degree and linear solver;
+and what ``solver.linear_solver = "auto"`` stands for (:func:`linear_solver_for`).
 
 The figures per dof were measured on the paper's problem (peak resident memory,
 ``docs/perf/koiter/``, ``docs/perf/multigrid/`` and the 1.93 M-dof runs of
 ``docs/performance.md``) and rounded up: estimates within a factor of about 1.5. They decide
-what ``solver.linear_solver = "auto"`` stands for (:func:`linear_solver_for`) and what
+what "auto" stands for where the direct path does not fit, and what
 :func:`~shellobstacle.mesh.resources.require_fits` refuses.
 """
 
@@ -20,6 +21,8 @@ __all__ = [
     "BYTES_PER_VERTEX_MESH",
     "GIB",
     "MEMORY_SHARE",
+    "MULTIGRID_FROM_DOFS",
+    "auto_choice",
     "bytes_per_dof",
     "linear_solver_for",
     "machine_memory",
@@ -38,6 +41,10 @@ BASE_BYTES = 0.3e9
 MEMORY_SHARE = 0.8
 #: Bytes in a GiB, the one unit of memory in messages.
 GIB = 2.0**30
+#: From this many dofs "auto" takes multigrid for the membrane P1 on a mesh with coarser
+#: levels: serially and untuned it was faster than the direct path on the four examples
+#: measured at about 1.9 M dofs (1.1–2.2×) and about as fast at 1.3 M (docs/performance.md).
+MULTIGRID_FROM_DOFS = 1.5e6
 
 
 def machine_memory() -> float:
@@ -63,15 +70,34 @@ def need(bytes_all: float, comm: MPI.Comm) -> float:
 
 
 def linear_solver_for(
-    requested: str, dofs: float, model: str, degree: int, comm: MPI.Comm = MPI.COMM_WORLD
+    requested: str,
+    dofs: float,
+    model: str,
+    degree: int,
+    comm: MPI.Comm = MPI.COMM_WORLD,
+    levels: bool = True,
 ) -> str:
-    """The linear solver of a request: ``"auto"`` is the direct path where its estimate fits
-    in :data:`MEMORY_SHARE` of this machine, and multigrid (membrane P1) where it does not;
-    any other request is itself. Collective: rank 0's machine decides for all."""
+    """The linear solver of a request: ``"auto"`` is :func:`auto_choice`'s, any other request
+    is itself. Collective."""
     if requested != "auto":
         return requested
+    return auto_choice(dofs, model, degree, comm, levels)[0]
+
+
+def auto_choice(
+    dofs: float, model: str, degree: int, comm: MPI.Comm = MPI.COMM_WORLD, levels: bool = True
+) -> tuple[str, str]:
+    """What ``"auto"`` stands for, and why: for the membrane P1, multigrid from
+    :data:`MULTIGRID_FROM_DOFS` dofs on a mesh with coarser ``levels``, and wherever the
+    direct path's estimate does not fit in :data:`MEMORY_SHARE` of this machine; the direct
+    path else. Collective: rank 0's machine decides for all."""
     if (model, degree) != ("membrane", 1):
-        return "direct"  # multigrid is the membrane P1's
+        return "direct", "multigrid is the membrane P1's"
+    if levels and dofs >= MULTIGRID_FROM_DOFS:
+        size = f"{MULTIGRID_FROM_DOFS / 1e6:g} M"
+        return "multigrid", f"from {size} dofs on a refined mesh it is the faster"
     needed = need(dofs * bytes_per_dof(model, degree, "direct"), comm)
-    fits = needed <= MEMORY_SHARE * machine_memory()
-    return comm.bcast("direct" if fits else "multigrid", root=0)
+    fits = comm.bcast(bool(needed <= MEMORY_SHARE * machine_memory()), root=0)
+    if fits:
+        return "direct", "the direct path's memory estimate fits this machine"
+    return "multigrid", "the direct path's memory estimate does not fit this machine"

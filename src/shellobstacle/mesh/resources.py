@@ -31,7 +31,7 @@ from mpi4py import MPI
 
 from shellobstacle.config.loader import ConfigError
 from shellobstacle.mesh import memory
-from shellobstacle.mesh.domains import DomainSpec, estimated_vertices
+from shellobstacle.mesh.domains import DomainSpec, coarsening_steps, estimated_vertices
 from shellobstacle.mesh.memory import (
     BYTES_PER_VERTEX_MESH,
     GIB,
@@ -120,7 +120,8 @@ def require_fits(
     if est is None:
         return None
     if linear_solver == "auto" and math.isfinite(est.dofs):
-        linear_solver = linear_solver_for("auto", est.dofs, model, degree, comm)
+        levels = coarsening_steps(spec) + spec.refinements > 0
+        linear_solver = linear_solver_for("auto", est.dofs, model, degree, comm, levels)
     est = estimate(spec, model, degree, linear_solver)
 
     def need_with(bytes_solve: float) -> float:

@@ -41,7 +41,8 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 
-from shellobstacle.mesh.memory import linear_solver_for
+from shellobstacle.mesh.hierarchy import coarser_meshes
+from shellobstacle.mesh.memory import auto_choice
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import note
 from shellobstacle.solvers.base import ConvergenceError, UserOptions, with_user_options
@@ -139,13 +140,16 @@ class NewtonSolver:
         t0 = time.perf_counter()
         self.system = PenalizedSystem(problem, opts.floor_factor)
         #: the linear solver used: ``options.linear_solver`` (``"auto"`` resolved), or the
-        #: class name of a strategy built by hand
+        #: class name of a strategy built by hand; and why "auto" chose it ("" otherwise)
         self.linear_solver: str
+        self.auto_reason = ""
         if linear is None:
-            self.linear_solver = linear_solver_for(
-                opts.linear_solver, problem.num_dofs, problem.model, problem.disc.degree,
-                problem.mesh.comm,
-            )  # fmt: skip
+            self.linear_solver = opts.linear_solver
+            if opts.linear_solver == "auto":
+                self.linear_solver, self.auto_reason = auto_choice(
+                    problem.num_dofs, problem.model, problem.disc.degree, problem.mesh.comm,
+                    levels=bool(coarser_meshes(problem.mesh)),
+                )  # fmt: skip
             chosen = dataclasses.replace(opts, linear_solver=self.linear_solver)
             linear = make_strategy(chosen, problem.mesh.comm)
         else:

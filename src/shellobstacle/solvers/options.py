@@ -88,9 +88,10 @@ class NewtonOptions:
             :mod:`~shellobstacle.solvers.linear.iterative`) or ``"multigrid"`` (inexact Newton
             with CG and geometric multigrid on the mesh's refinement levels:
             :mod:`~shellobstacle.solvers.linear.multigrid`); ``"auto"`` (the default):
-            ``"direct"`` where its memory estimate fits this machine, ``"multigrid"`` for the
-            membrane P1 where it does not
-            (:func:`~shellobstacle.mesh.memory.linear_solver_for`).
+            ``"multigrid"`` for the membrane P1 from
+            :data:`~shellobstacle.mesh.memory.MULTIGRID_FROM_DOFS` dofs on a mesh with coarser
+            levels and wherever the direct path's memory estimate does not fit this machine,
+            ``"direct"`` else (:func:`~shellobstacle.mesh.memory.auto_choice`).
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ; the Jacobians are
             symmetric positive definite: half the memory of LU) or ``"lu"``.
         contact_zone: with the direct solver, condense every Newton step onto a contact zone

@@ -84,10 +84,7 @@ class NewtonContinuation(MethodBase):
         out.timings["setup"] = time.perf_counter() - t
         out.extra["linear_solver"] = solver.linear_solver
         if solver.options.linear_solver == "auto" and solver.linear_solver != "direct":
-            say(
-                f'linear solver: {solver.linear_solver} ("auto": the direct path\'s memory '
-                "estimate does not fit this machine)"
-            )
+            say(f'linear solver: {solver.linear_solver} ("auto": {solver.auto_reason})')
         try:
             out.steps = list(
                 continuation(problem, solver, list(kappas), say, newton_progress=newton_progress)
