@@ -100,6 +100,7 @@ class QuadraturePenalty:
         self.g0 = self._reference_gap()
         self._work_q = self.M.createVecLeft()
         self._work_v = self.M.createVecRight()
+        self._scaled = np.empty(n)  # (1/κ) times the values of add_residual
         self._MT: PETSc.Mat | None = None  # Mᵀ, if stored (:meth:`store_transpose`)
 
     def _reference_gap(self) -> np.ndarray:
@@ -133,14 +134,15 @@ class QuadraturePenalty:
         cells = Q.mesh.topology.index_map(Q.mesh.topology.dim).size_local
         return values[Q.dofmap.list[:cells]]
 
-    def apply_B(self, x: PETSc.Vec) -> np.ndarray:
-        """``B x`` at the owned points (``x`` a displacement vector)."""
+    def apply_B(self, x: PETSc.Vec, out: np.ndarray | None = None) -> np.ndarray:
+        """``B x`` at the owned points (``x`` a displacement vector), into ``out`` if given."""
         self.M.mult(x, self._work_q)
-        return self._work_q.array_r / self.D
+        return np.divide(self._work_q.array_r, self.D, out=out)
 
-    def gap(self, zeta: PETSc.Vec) -> np.ndarray:
-        """``g(ζ)`` at the owned points."""
-        return self.g0 + self.apply_B(zeta)
+    def gap(self, zeta: PETSc.Vec, out: np.ndarray | None = None) -> np.ndarray:
+        """``g(ζ)`` at the owned points, into ``out`` if given."""
+        Bz = self.apply_B(zeta, out)
+        return np.add(self.g0, Bz, out=Bz)
 
     def gap_scale(self, zeta: PETSc.Vec, points: np.ndarray) -> np.ndarray:
         """``|g(θ)| + Σ_j |ζ_j c_j|`` at the owned ``points`` (local positions; collective).
@@ -175,7 +177,7 @@ class QuadraturePenalty:
 
     def add_residual(self, values: np.ndarray, kappa: float, b: PETSc.Vec) -> None:
         """``b ← b + (1/κ) Mᵀ values`` (``values`` at the owned points, e.g. ``min(g, 0)``)."""
-        self._add_transpose(values / kappa, b)
+        self._add_transpose(np.divide(values, kappa, out=self._scaled), b)
 
     def add_kappa_derivative(self, g: np.ndarray, kappa: float, b: PETSc.Vec) -> None:
         """``b ← b − ∂R/∂κ = b + (1/κ²) Mᵀ min(g, 0)`` at the gap ``g`` (owned points): the

@@ -196,16 +196,17 @@ class NewtonSolver:
     @property
     def active_points(self) -> np.ndarray:
         """The owned penalty points where the last iterate penetrates, ``g_k < 0`` (the
-        active set ``A`` of docs/model.md §5), in the quadrature space's local order; empty before
+        active set ``A`` of docs/model.md §5), in the quadrature space's local order; none before
         the first solve."""
         return self.system.g < 0
 
     @property
     def penalty_gaps(self) -> np.ndarray:
-        """The gap ``g_k`` of the last iterate at the owned penalty points (read-only view)."""
-        view = self.system.g.view()
-        view.flags.writeable = False
-        return view
+        """The gap ``g_k`` of the last iterate at the owned penalty points (a read-only copy:
+        the system updates its own in place)."""
+        gaps = self.system.g.copy()
+        gaps.flags.writeable = False
+        return gaps
 
     def zone_indicator(self) -> dolfinx.fem.Function | None:
         """The contact zone as a 0/1 function (checkpoints), or None."""

@@ -34,7 +34,7 @@ def coarse_penetration(system: PenalizedSystem, timings: dict[str, float]) -> np
     r = system.R.copy()
     r.scale(-1.0)
     coarse.solve(r, system.dz)
-    hint = system.g + system.penalty.apply_B(system.dz) < 0
+    hint = system.penetrated_by_full_step()
     r.destroy()
     coarse.destroy()
     timings["coarse"] = timings.get("coarse", 0.0) + time.perf_counter() - t0

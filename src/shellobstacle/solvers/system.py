@@ -67,8 +67,10 @@ class PenalizedSystem:
         self.dz = dolfinx.fem.petsc.create_vector(problem.V)  # the Newton direction δ
         self.Kdz = self.K.createVecLeft()
         self.Kz = self.K.createVecLeft()  # Kζ of the current iterate (with R)
-        self.g = np.zeros(0)  # the gap at the owned points of the current iterate
-        self._Bd = np.zeros(0)  # Bδ of the last line search
+        # the gap at the owned points of the current iterate, Bδ of the last line search and
+        # a work array: one array each, over the penalty's points, reused at every step
+        n = self.penalty.D.size
+        self.g, self._Bd, self._work = np.zeros(n), np.zeros(n), np.zeros(n)
         self._held: tuple[float, np.ndarray] | None = None  # (κ, active points) of A
         self._row_sums: np.ndarray | None = None  # Σ_j |K_ij| at the owned rows (floor)
         #: called with the Jacobian when it is first made (a linear strategy sets the
@@ -109,7 +111,7 @@ class PenalizedSystem:
         ``ζ`` satisfies the homogeneous Dirichlet conditions, so the Dirichlet rows are 0.
         """
         self.K.mult(self.zeta, self.Kz)
-        self.g = self.penalty.gap(self.zeta)
+        self.penalty.gap(self.zeta, out=self.g)
         self._finish_residual()
 
     def _residual_after_step(self, t: float) -> None:
@@ -117,14 +119,14 @@ class PenalizedSystem:
         ``Kζ ← Kζ + tKδ`` and ``g ← g + tBδ`` (two products fewer; the same values up to
         round-off)."""
         self.Kz.axpy(t, self.Kdz)
-        self.g = self.g + t * self._Bd
+        self.g += np.multiply(t, self._Bd, out=self._work)
         self._finish_residual()
 
     def _finish_residual(self) -> None:
         """``R ← Kζ − f + (1/κ) Mᵀ min(g, 0)`` from ``Kζ`` and ``g``."""
         self.Kz.copy(self.R)
         self.R.axpy(-1.0, self.f)
-        self.penalty.add_residual(np.minimum(self.g, 0.0), self.kappa, self.R)
+        self.penalty.add_residual(np.minimum(self.g, 0.0, out=self._work), self.kappa, self.R)
 
     def residual_norm(self) -> float:
         """``‖R(ζ)‖``."""
@@ -199,7 +201,8 @@ class PenalizedSystem:
         at 639k dofs, where the residual stalls at a fifth of it).
         """
         active = np.flatnonzero(self.g < 0)
-        values = np.zeros_like(self.g)
+        values = self._work
+        values.fill(0.0)
         values[active] = self.penalty.gap_scale(self.zeta, active)
         S = self.R.duplicate()
         S.set(0.0)
@@ -219,6 +222,10 @@ class PenalizedSystem:
         return float(np.finfo(PETSc.ScalarType).eps) * math.sqrt(total)
 
     # -- the step -----------------------------------------------------------------------------
+    def penetrated_by_full_step(self) -> np.ndarray:
+        """The owned points where ``ζ + δ`` penetrates, ``g + Bδ < 0`` (a mask)."""
+        return np.add(self.g, self.penalty.apply_B(self.dz, out=self._work), out=self._work) < 0
+
     def slope(self) -> float:
         """``φ'(0) = R(ζ)·δ`` (:attr:`R` holds ``−R``)."""
         return -self.R.dot(self.dz)
@@ -241,11 +248,11 @@ class PenalizedSystem:
         ``[0, 1]``: the sums run over those (a few percent of the points).
         """
         pen = self.penalty
-        self._Bd = Bd = pen.apply_B(self.dz)  # (kept for the residual after the step)
+        Bd = pen.apply_B(self.dz, out=self._Bd)  # (kept for the residual after the step)
         self.K.mult(self.dz, self.Kdz)
         curvature = self.Kdz.dot(self.dz)
         g = self.g
-        near = np.flatnonzero((g < 0) | (g + Bd < 0))
+        near = np.flatnonzero((g < 0) | (np.add(g, Bd, out=self._work) < 0))
         Bd = Bd[near]
         return exact_step(
             g[near], pen.D[near] * Bd, Bd, curvature, slope0, noise, self.kappa,

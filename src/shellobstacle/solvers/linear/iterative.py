@@ -215,7 +215,7 @@ class IterativeStrategy:
         if eta >= self._eta:
             return 0
         active = system.g < 0
-        after = system.g + system.penalty.apply_B(system.dz) < 0
+        after = system.penetrated_by_full_step()
         if not system.comm.allreduce(bool(np.array_equal(active, after)), op=MPI.LAND):
             return 0
         iterations = self.ksp.getIterationNumber()

@@ -122,7 +122,7 @@ class ZoneStrategy:
         zone.newton_step(system.R, system.zeta, system.dz)
         system.dz.ghostUpdate(addv=PETSc.InsertMode.INSERT, mode=PETSc.ScatterMode.FORWARD)
         self.timings["solve"] += time.perf_counter() - ts
-        self.hint = (system.g + system.penalty.apply_B(system.dz)) < 0
+        self.hint = system.penetrated_by_full_step()
         return 1
 
     def reduced(self, floor_factor: float) -> ZoneModel | None:
