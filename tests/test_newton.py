@@ -553,3 +553,37 @@ def test_phase_timings_do_not_overlap() -> None:
     total = sum(s.newton.timings["total"] for s in steps)
     phases = sum(v for k, v in solver.timings.items() if k not in ("setup", "predict"))
     assert phases <= total
+
+
+@pytest.mark.mpi
+def test_moved_iterate_has_the_residual_and_gaps_computed_anew() -> None:
+    """After a line search and the move, the gaps and residual the system updated in place
+    (from ``Bδ`` and ``Kδ``) are those of the new iterate computed from scratch, and a
+    ``penalty_gaps`` taken earlier keeps its values (a copy)."""
+    problem = PenalizedProblem(paper_shell(), square(n=16), Discretization())
+    solver = NewtonSolver(problem)
+    continuation(problem, solver, [0.05])
+    before = solver.penalty_gaps
+    kept = before.copy()
+    system = solver.system
+    problem.set_kappa(0.01)
+    system.residual()
+    solver.linear.begin()
+    solver.linear.direction([system.residual_norm()], 0.0)
+    system.dz.scale(3.0)  # three times Newton's step: the line search cuts it
+    slope0 = system.slope()
+    t, _ = system.line_search(slope0, 0.0)
+    assert 0.1 < t < 0.9
+    mask = system.penetrated_by_full_step()
+    expected = system.g + system.penalty.apply_B(system.dz) < 0
+    assert np.array_equal(mask, expected)
+    system.move(t, small=False)
+    assert abs(system.R.dot(system.dz)) <= 1e-8 * abs(slope0)  # φ'(t) = 0: the exact step
+    g_updated, R_updated = system.g.copy(), system.R.copy()
+    system.residual()
+    scale = np.abs(system.g).max()
+    assert np.allclose(g_updated, system.g, rtol=0.0, atol=1e-13 * scale)
+    R_updated.axpy(-1.0, system.R)
+    assert R_updated.norm() <= 1e-10 * system.R.norm() + 1e-14 * system.f.norm()
+    assert np.array_equal(before, kept)
+    assert not before.flags.writeable
