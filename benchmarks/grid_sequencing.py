@@ -40,6 +40,7 @@ from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
+from shellobstacle.solvers.base import direct_solver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
 
@@ -86,11 +87,7 @@ def relax_tangential(solver: NewtonSolver) -> None:
     b = R.copy()
     system.R.restoreSubVector(tangential, R)
     b.scale(-1.0)
-    ksp = PETSc.KSP().create(A.getComm())
-    ksp.setOperators(block)
-    ksp.setType("preonly")
-    ksp.getPC().setType("cholesky")
-    ksp.getPC().setFactorSolverType("mumps")
+    ksp = direct_solver(block, "cholesky", "tangential")
     x = b.duplicate()
     ksp.solve(b, x)
     zeta = problem.zeta.x.petsc_vec
