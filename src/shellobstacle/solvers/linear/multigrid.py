@@ -55,7 +55,6 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.quadrature import penalty_factor
 from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.base import set_options, unique_prefix
-from shellobstacle.solvers.linear import active_changes
 from shellobstacle.solvers.linear.iterative import (
     KEPT_ITERATION_FACTOR,
     KEPT_MIN_ITERATIONS,
@@ -201,22 +200,30 @@ class MultigridStrategy(IterativeStrategy):
             coarse.append(A)
         return coarse[::-1]
 
-    def _coarse_operators(self, update: bool = False) -> None:
+    def _coarse_operators(self, update: bool = False) -> bool:
         """The levels' operators ``Pᵀ J P`` for the current Jacobian ``J = K + H``: ``Pᵀ K P``
         made once, plus the penalty part's ``(S P)ᵀ (S P)`` with ``H = Sᵀ S``, ``S`` the rows
         of the active points (a few per cent: far cheaper than ``Pᵀ J P``; carried down the
         levels as ``S P``, no ``n × n`` product on the finer levels). With ``update`` (the
         same κ) only the points that changed activity since the last call are added or taken
-        out, as the fine Jacobian is (:attr:`PenalizedSystem.incremental`)."""
+        out, as the fine Jacobian is (:attr:`PenalizedSystem.incremental`), and nothing is
+        done unless more than :data:`COARSE_UPDATE_SHARE` of the operators' active points
+        changed. Returns whether the operators were made or changed (collective)."""
         system = self.system
         active, then = system.held_active, self._coarse_active
-        self._coarse_active = None if active is None else active.copy()
         if update and active is not None and then is not None:
             terms = [(active & ~then, 1.0), (then & ~active, -1.0)]
+            comm = system.comm
+            changed = comm.allreduce(sum(int(np.count_nonzero(p)) for p, _ in terms))
+            if changed <= COARSE_UPDATE_SHARE * comm.allreduce(int(np.count_nonzero(then))):
+                return False
+        elif update and active is None and then is None:
+            return False
         else:
             for K, A in zip(self._K, self._A, strict=True):
                 K.copy(A, structure=PETSc.Mat.Structure.SAME_NONZERO_PATTERN)
             terms = [] if active is None else [(active, 1.0)]
+        self._coarse_active = None if active is None else active.copy()
         for points, sign in terms:
             rows = np.flatnonzero(points)
             if not system.comm.allreduce(rows.size):
@@ -234,6 +241,7 @@ class MultigridStrategy(IterativeStrategy):
         for level, A in enumerate(self._A):
             A.setOption(PETSc.Mat.Option.SPD, True)  # (the coarse level: MUMPS' LDLᵀ)
             pc.getMGSmoother(level).setOperators(A)
+        return True
 
     def begin(self) -> None:
         """A new solve (a new κ): new forcing terms, the levels set up at its first step."""
@@ -305,8 +313,7 @@ class MultigridStrategy(IterativeStrategy):
         t0 = time.perf_counter()
         if not kept:
             self._set_up_levels()
-        elif self._active_moved():
-            self._coarse_operators(update=True)
+        elif self._coarse_operators(update=True):
             self.coarse_updates += 1
         self.timings["multigrid_levels"] += time.perf_counter() - t0
         max_it = self.ksp.getTolerances()[3]
@@ -320,16 +327,6 @@ class MultigridStrategy(IterativeStrategy):
             self._set_up_levels()
             self._solve_once(b)
         self._levels_most = max(self._levels_most, self.ksp.getIterationNumber())
-
-    def _active_moved(self) -> bool:
-        """Whether more than :data:`COARSE_UPDATE_SHARE` of the coarser operators' active
-        points changed activity in the Jacobian (collective)."""
-        now, then = self.system.held_active, self._coarse_active
-        if now is None or then is None:
-            return (now is None) != (then is None)
-        comm = self.system.comm
-        changed = active_changes(comm, then, now)
-        return changed > COARSE_UPDATE_SHARE * comm.allreduce(int(np.count_nonzero(then)))
 
     def _solve_once(self, b: PETSc.Vec) -> None:
         """One CG solve into ``system.dz``."""
