@@ -36,12 +36,13 @@ import numpy as np
 
 from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import load_config
-from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
+from shellobstacle.mesh.hierarchy import coarser_meshes
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.solvers.base import direct_solver
 from shellobstacle.solvers.continuation import continuation
+from shellobstacle.solvers.nested import interpolate
 from shellobstacle.solvers.newton import NewtonSolver
 
 
@@ -108,12 +109,7 @@ def level(
     comm = mesh.comm
     problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappas[0])
     if coarse is not None:
-        P = prolongation(coarse.V, problem.V)
-        P.mult(coarse.zeta.x.petsc_vec, problem.zeta.x.petsc_vec)
-        P.destroy()
-        for bc in problem.bcs:
-            bc.set(problem.zeta.x.array, alpha=0.0)
-        problem.zeta.x.scatter_forward()
+        interpolate(coarse, problem)
     chosen = "direct" if problem.num_dofs < direct_below else linear_solver
     solver = NewtonSolver(problem, dataclasses.replace(cfg.solver, linear_solver=chosen))
     split = residual_split(solver)

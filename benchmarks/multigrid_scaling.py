@@ -9,12 +9,16 @@ set-up, multigrid's part of it, assembly, linear solves, line searches, ...), th
 seconds end to end (less sensitive than the wall clock to other jobs on the cores), the
 contact area and its relative difference to the direct path's, peak RSS of the process so far
 and the load average before and after (the machine may be shared: the times are as noisy as
-that). A table follows at the end. The peak RSS is the process' high-water mark: put the
+that). A table follows at the end. A solver named with ``+nested`` (``multigrid+nested``) sets
+``solver.nested_iteration``: its Newton steps are the finest level's, the coarser levels'
+in ``nested_levels``. The peak RSS is the process' high-water mark: put the
 solver that needs less memory first (``--solvers multigrid,direct``) for both figures to be
 each solver's own.
 
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058,0.0029,0.00145
     .venv/bin/mpiexec -n 2 .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0058
+    .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0012 \
+        --solvers multigrid+nested,multigrid,direct
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0006 --solvers multigrid
     .venv/bin/python benchmarks/multigrid_scaling.py --config examples/ellipsoid.toml \
         --sizes 0.00125 --solvers multigrid
@@ -45,7 +49,15 @@ def run(h: float, linear_solver: str, force: bool = False, config: str = PAPER) 
     """One solve of ``config``'s problem at gmsh size ``h`` with ``linear_solver`` (``force``:
     without the check of the machine's memory, whose estimate is the direct path's)."""
     comm = MPI.COMM_WORLD
-    cfg = load_config(config, [f"domain.h={h}", f'solver.linear_solver="{linear_solver}"'])
+    solver, nested = linear_solver.removesuffix("+nested"), linear_solver.endswith("+nested")
+    cfg = load_config(
+        config,
+        [
+            f"domain.h={h}",
+            f'solver.linear_solver="{solver}"',
+            f'solver.nested_iteration="{"on" if nested else "off"}"',
+        ],
+    )
     load = os.getloadavg()[0]
     t0, c0 = time.perf_counter(), time.process_time()
     result = solve_config(cfg, force=force)
@@ -71,6 +83,10 @@ def run(h: float, linear_solver: str, force: bool = False, config: str = PAPER) 
         "end_to_end_cpu_s": round(cpu, 2),
         "phases_s": {k: round(v, 2) for k, v in result.timings.items() if k.startswith("solve.")},
         "contact_area": area,
+        "nested_levels": [
+            {k: round(v, 2) if isinstance(v, float) else v for k, v in level.items()}
+            for level in result.extra.get("nested_iteration", {}).get("levels", [])
+        ],
         "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
         "load_before": round(load, 2),
         "load_after": round(os.getloadavg()[0], 2),
@@ -82,7 +98,11 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--config", default=PAPER, help="the problem's config file")
     ap.add_argument("--sizes", default="0.0058,0.0029,0.00145", help="gmsh target sizes")
-    ap.add_argument("--solvers", default="direct,multigrid", help=f"of {LINEAR_SOLVERS}")
+    ap.add_argument(
+        "--solvers",
+        default="direct,multigrid",
+        help=f"of {LINEAR_SOLVERS}, each with +nested for nested iteration (multigrid+nested)",
+    )
     ap.add_argument(
         "--force",
         action="store_true",
@@ -94,7 +114,7 @@ def main() -> None:
     rows = []
     for h in (float(s) for s in args.sizes.split(",")):
         pair = [run(h, solver, args.force, args.config) for solver in args.solvers.split(",")]
-        direct = [r["contact_area"] for r in pair if r["linear_solver"] == "direct"]
+        direct = [r["contact_area"] for r in pair if r["linear_solver"].startswith("direct")]
         for row in pair:
             if direct:
                 row["area_vs_direct"] = abs(row["contact_area"] - direct[0]) / direct[0]

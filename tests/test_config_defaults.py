@@ -37,7 +37,7 @@ MINIMAL: dict[str, Any] = {
 
 #: fields of the API's dataclasses that no config key sets (the config keeps their defaults)
 API_ONLY: dict[type, set[str]] = {
-    METHOD_OPTIONS["newton"]: {"atol", "floor_factor", "linear_rtol"},
+    METHOD_OPTIONS["newton"]: {"atol", "floor_factor", "linear_rtol", "normal_relaxation"},
     METHOD_OPTIONS["active-set"]: {
         "gamma_initial",
         "gamma_factor",

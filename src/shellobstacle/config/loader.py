@@ -369,6 +369,11 @@ def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
             f"solver.linear_solver = {sv['linear_solver']!r} preconditions ζ_3 as the "
             "membrane's L² unknown, not Koiter's bending: use linear_solver = 'direct'"
         )
+    if sv.get("nested_iteration") == "on":
+        raise ConfigError(
+            "solver.nested_iteration relaxes ζ_3 as the membrane's L² unknown, which Koiter's "
+            "bending differentiates: remove the key or set it to false"
+        )
     if disc.degree != 2:
         raise ConfigError(
             "model.kind = 'koiter' needs discretization.degree = 2 (ζ_3 ∈ H² by "

@@ -229,6 +229,13 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "direct solver: condense each Newton step onto the contact zone (K factorized once "
             "per zone, kept across κ); false: one factorization per κ reused by CG",
         ),
+        "nested_iteration": solver_key(
+            "nested_iteration",
+            "str",
+            "on: climb the κ ladder on the coarsest of the mesh's refinement levels, then solve "
+            "every finer level at the last κ only, from the coarser solution (membrane, plane "
+            "obstacle); auto: on with multigrid where the problem allows it",
+        ),
         "rtol": solver_key("rtol", "float", "relative residual tolerance"),
         "stol": solver_key("stol", "float", "relative Newton-correction tolerance"),
         "max_iterations": solver_key(

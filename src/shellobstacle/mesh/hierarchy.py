@@ -23,6 +23,8 @@ __all__ = ["coarser_meshes", "prolongation", "record"]
 
 #: fine mesh → the meshes it was refined from, coarsest first
 _LEVELS: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+#: fine mesh → coarse mesh → (points, their host cells, reference coordinates): :func:`_located`
+_LOCATED: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def record(fine: dolfinx.mesh.Mesh, coarse: dolfinx.mesh.Mesh) -> None:
@@ -53,8 +55,7 @@ def prolongation(Vc: dolfinx.fem.FunctionSpace, Vf: dolfinx.fem.FunctionSpace) -
     coarse, bs = Vc.mesh, Vf.dofmap.index_map_bs
     n_fine = Vf.dofmap.index_map.size_local
     x = Vf.tabulate_dof_coordinates()[:n_fine]
-    cells = _host_cells(coarse, x)
-    X = _reference(coarse, cells, x)
+    cells, X = _located(coarse, Vf.mesh, x)
     element = Vc.ufl_element().basix_element
     weights = element.tabulate(0, X)[0, :, :, 0]  # (fine nodes, coarse cell dofs)
     imap = Vc.dofmap.index_map
@@ -73,6 +74,22 @@ def prolongation(Vc: dolfinx.fem.FunctionSpace, Vf: dolfinx.fem.FunctionSpace) -
     P = PETSc.Mat().createAIJ(sizes, bsize=bs, csr=(indptr, indices, values), comm=coarse.comm)
     P.assemble()
     return P
+
+
+def _located(
+    coarse: dolfinx.mesh.Mesh, fine: dolfinx.mesh.Mesh, x: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The host cells in ``coarse`` of the fine mesh's points ``x`` and their reference
+    coordinates there, remembered while both meshes live: nested iteration and the multigrid
+    of each of its levels interpolate between the same meshes (the points are compared, so a
+    different set of points is located anew)."""
+    known = _LOCATED.setdefault(fine, weakref.WeakKeyDictionary()).get(coarse)
+    if known is not None and np.array_equal(known[0], x):
+        return known[1], known[2]
+    cells = _host_cells(coarse, x)
+    X = _reference(coarse, cells, x)
+    _LOCATED[fine][coarse] = (x, cells, X)
+    return cells, X
 
 
 def _host_cells(mesh: dolfinx.mesh.Mesh, x: np.ndarray) -> np.ndarray:

@@ -112,6 +112,8 @@ class PenalizedProblem:
         symbols |= {sp.Symbol(k, real=True): c for k, c in self.parameters.items()}
         # a component that is identically 0 stays a Constant so that UFL keeps the load forms
         zero = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0))
+        #: the load was given as UFL expressions (``p``), not the shell's own
+        self.custom_load = p is not None
         if p is None:
             self.p = [zero if e == 0 else to_ufl(e, symbols) for e in shell.load_expressions()]
         else:

@@ -43,6 +43,7 @@ class KappaStep(Step):
                 "line_search_evaluations": newton.line_search_evaluations,
                 "linear_iterations": newton.linear_iterations,
                 "step_lengths": newton.step_lengths,
+                "relaxed_steps": newton.relaxed_steps,
             },
             None,
             newton,

@@ -5,7 +5,9 @@ function ``φ(t) = J_κ(ζ + tδ)`` is convex and piecewise quadratic and ``φ'(
 is monotone and piecewise linear. The step length is the root of ``φ'``
 (:mod:`~shellobstacle.solvers.line_search`, exact once the active set along the segment is
 fixed), which makes every step decrease the energy and the iteration globally convergent from
-any start.
+any start. With ``normal_relaxation`` (the membrane model) a step cut below ``t = 0.5`` is
+replaced by the full step with ζ_3 relaxed when that lowers ``J_κ`` further
+(:mod:`~shellobstacle.solvers.normal_relaxation`).
 
 A step is taken on a *model*: the energy at its current iterate, with its residual, round-off
 floor, direction and line search. The whole problem
@@ -47,6 +49,7 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import note
 from shellobstacle.solvers.base import ConvergenceError, UserOptions, with_user_options
 from shellobstacle.solvers.linear import LinearSolveError, LinearStrategy, make_strategy
+from shellobstacle.solvers.normal_relaxation import RELAX_BELOW, NormalRelaxation, require_membrane
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.system import PenalizedSystem
 
@@ -58,6 +61,9 @@ ZERO_LOAD = "zero load: zeta = 0 solves the problem"
 BELOW_RTOL = "relative residual below rtol"
 
 Progress = Callable[[int, float], Any]
+#: the phases of a solve whose seconds :attr:`NewtonSolver.timings` adds up
+PHASES = ("assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton")
+PHASES += ("relax",)
 
 
 @dataclass
@@ -73,6 +79,7 @@ class NewtonResult:
     line_search_evaluations: int = 0
     factorizations: int = 0
     zone_steps: int = 0  # of the iterations: steps on the contact zone's problem
+    relaxed_steps: int = 0  # of the iterations: cut steps replaced by the relaxed full step
     timings: dict[str, float] = field(default_factory=dict)
     reference: float = 0.0  # ‖R(0)‖, the scale of the relative residual
 
@@ -137,6 +144,8 @@ class NewtonSolver:
     ) -> None:
         self.problem = problem
         self.options = opts = options or NewtonOptions()
+        if opts.normal_relaxation:
+            require_membrane(problem)
         t0 = time.perf_counter()
         self.system = PenalizedSystem(problem, opts.floor_factor)
         #: the linear solver used: ``options.linear_solver`` (``"auto"`` resolved), or the
@@ -155,10 +164,9 @@ class NewtonSolver:
         else:
             self.linear_solver = type(linear).__name__
         self.linear = linear
-        self.timings: dict[str, float] = dict.fromkeys(
-            ("assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton"),
-            0.0,
-        )
+        #: the relaxation of ζ_3 after cut steps (``options.normal_relaxation``), once used
+        self.relaxation: NormalRelaxation | None = None
+        self.timings: dict[str, float] = dict.fromkeys(PHASES, 0.0)
         # the Jacobian's solver and, by default, the zone's factorizations
         self.user_options = UserOptions(
             opts.petsc_options, ("newton", "zone"), "newton", problem.mesh.comm
@@ -361,6 +369,11 @@ class NewtonSolver:
             t, evaluations = model.line_search(slope0, noise)
         model.move(t, small)
         self.timings["line_search"] += time.perf_counter() - tl
+        if model is self.system and self.options.normal_relaxation and t < RELAX_BELOW:
+            tr = time.perf_counter()
+            self.relaxation = self.relaxation or NormalRelaxation(self.system)
+            result.relaxed_steps += self.relaxation.full_step(t)
+            self.timings["relax"] += time.perf_counter() - tr
         result.line_search_evaluations += evaluations
         result.step_lengths.append(t)
         result.iterations += 1

@@ -26,6 +26,7 @@ __all__ = [
 ]
 
 LINEAR_SOLVERS = ("auto", "direct", "iterative", "multigrid")
+NESTED = ("auto", "on", "off")
 FACTORIZATIONS = ("cholesky", "lu")
 MASSES = ("consistent", "lumped")
 STARTS = ("zero", "linearized", "current")
@@ -99,6 +100,15 @@ class NewtonOptions:
             factorization per κ, reused by conjugate gradients at its later steps.
         linear_rtol: the smallest relative tolerance of the Krylov solves (the iterative
             solver's forcing terms, and CG preconditioned by a kept factorization).
+        nested_iteration: ``"on"``: solve the κ ladder on the coarsest level of the mesh's
+            refinements, then every finer level at the last κ only, each from the coarser
+            level's solution (:mod:`~shellobstacle.solvers.nested`; the membrane model on a
+            refined mesh, a plane obstacle); the finest level's result is that of the last κ.
+            ``"auto"`` (the default): on wherever the linear solver is multigrid and the
+            problem allows it (:func:`~shellobstacle.solvers.nested.nested_wanted`).
+        normal_relaxation: after a Newton step that the line search cuts below ``t = 0.5``, try
+            the full step with ζ_3 relaxed (:mod:`~shellobstacle.solvers.normal_relaxation`;
+            the membrane model only). Nested iteration turns it on; not a config key.
         petsc_options: PETSc options for the method's solvers (:data:`PETSC_OPTIONS_HELP`).
     """
 
@@ -111,12 +121,16 @@ class NewtonOptions:
     factorization: str = field(default="cholesky", metadata={"choices": FACTORIZATIONS})
     contact_zone: bool = True
     linear_rtol: float = 1e-12
+    nested_iteration: str = field(default="auto", metadata={"choices": NESTED})
+    normal_relaxation: bool = False
     petsc_options: Mapping[str, Any] = petsc_options_field()
 
     def __post_init__(self) -> None:
         check_petsc_options(self.petsc_options)
         if self.linear_solver not in LINEAR_SOLVERS:
             raise ValueError(not_one_of("solver.linear_solver", self.linear_solver, LINEAR_SOLVERS))
+        if self.nested_iteration not in NESTED:
+            raise ValueError(not_one_of("solver.nested_iteration", self.nested_iteration, NESTED))
         if self.factorization not in FACTORIZATIONS:
             raise ValueError(not_one_of("solver.factorization", self.factorization, FACTORIZATIONS))
         if self.max_iterations < 1:

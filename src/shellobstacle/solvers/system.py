@@ -128,6 +128,13 @@ class PenalizedSystem:
         self.R.axpy(-1.0, self.f)
         self.penalty.add_residual(np.minimum(self.g, 0.0, out=self._work), self.kappa, self.R)
 
+    def energy(self) -> float:
+        """``J_κ(ζ) = ½ ζ·Kζ − f·ζ + (1/(2κ)) Σ D_k min(g_k, 0)²`` from the current ``Kζ``
+        and ``g``."""
+        zeta = self.zeta
+        elastic = 0.5 * zeta.dot(self.Kz) - self.f.dot(zeta)
+        return elastic + self.penalty.energy(self.g, self.kappa)
+
     def residual_norm(self) -> float:
         """``‖R(ζ)‖``."""
         return self.R.norm()

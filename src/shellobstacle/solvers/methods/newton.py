@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import math
 import time
 from collections.abc import Iterator, Mapping, Sequence
@@ -32,8 +33,8 @@ class NewtonContinuation(MethodBase):
     solver_fields: ClassVar[Mapping[str, str]] = {
         key: key
         for key in (
-            "linear_solver", "factorization", "contact_zone", "rtol", "stol", "max_iterations",
-            "petsc_options",
+            "linear_solver", "factorization", "contact_zone", "nested_iteration", "rtol",
+            "stol", "max_iterations", "petsc_options",
         )
     }  # fmt: skip
 
@@ -64,11 +65,30 @@ class NewtonContinuation(MethodBase):
         with the earlier κ's steps and the failed one's."""
         from shellobstacle.progress import phase
         from shellobstacle.solvers.continuation import KappaStep, continuation
+        from shellobstacle.solvers.nested import nested_start, nested_wanted
         from shellobstacle.solvers.newton import NewtonResult, NewtonSolver
 
-        say(f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ")
+        nested = options is not None and nested_wanted(problem, options)
+        say(
+            f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ"
+            + (" on the coarsest mesh, the last on the finer ones" if nested else "")
+        )
         out = MethodResult()
         t = time.perf_counter()
+        if nested:
+            try:
+                with phase("nested iteration on the coarser meshes"):
+                    levels = nested_start(problem, options, kappas, say)
+            except ConvergenceError as err:  # the continuation on the finest mesh instead
+                say(f"nested iteration failed ({err}); continuing on the finest mesh alone")
+                out.extra["nested_iteration"] = {"failed": str(err)}
+                problem.zeta.x.array[:] = 0.0
+            else:
+                out.extra["nested_iteration"] = {"levels": levels}
+                kappas = list(kappas)[-1:]  # the finest mesh solves the last κ only
+                options = dataclasses.replace(options, normal_relaxation=True)
+            out.timings["nested"] = time.perf_counter() - t
+            t = time.perf_counter()
         kept = self._kept.get(problem)
         before: dict[str, float] = {}  # the kept solver's seconds before this solve
         if kept is not None and kept[0] is options:
