@@ -177,13 +177,16 @@ def test_the_config_refuses_nested_iteration_for_koiter(tmp_path) -> None:
         load_config(EXAMPLES / "cylinder_koiter.toml", ['solver.nested_iteration="on"'])
 
 
-def test_auto_takes_nested_iteration_with_multigrid_only() -> None:
-    """``nested_iteration = "auto"`` (the default): on with multigrid on a refined mesh, off
-    with the direct path there and with multigrid on a mesh without levels (GAMG)."""
+@pytest.mark.mpi
+def test_auto_takes_nested_iteration_with_multigrid_on_one_rank_only() -> None:
+    """``nested_iteration = "auto"`` (the default): on with multigrid on a refined mesh on
+    one rank (off on several), off with the direct path there and with multigrid on a mesh
+    without levels (GAMG); ``"on"`` on any number of ranks."""
     refined = PenalizedProblem(paper_shell(), disk(1))
     flat = PenalizedProblem(paper_shell(), disk(0))
     assert NewtonOptions().nested_iteration == "auto"
-    assert nested_wanted(refined, MULTIGRID)
+    assert nested_wanted(refined, MULTIGRID) is (MPI.COMM_WORLD.size == 1)
+    assert nested_wanted(refined, dataclasses.replace(MULTIGRID, nested_iteration="on"))
     assert not nested_wanted(refined, NewtonOptions(linear_solver="direct"))
     assert not nested_wanted(refined, NewtonOptions())  # "auto" is direct at this size
     assert not nested_wanted(flat, MULTIGRID)

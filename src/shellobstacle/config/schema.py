@@ -234,7 +234,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "str",
             "on: climb the κ ladder on the coarsest of the mesh's refinement levels, then solve "
             "every finer level at the last κ only, from the coarser solution (membrane, plane "
-            "obstacle); auto: on with multigrid where the problem allows it",
+            "obstacle); auto: on with multigrid on one rank where the problem allows it",
         ),
         "rtol": solver_key("rtol", "float", "relative residual tolerance"),
         "stol": solver_key("stol", "float", "relative Newton-correction tolerance"),
