@@ -105,7 +105,8 @@ class NewtonOptions:
             level's solution (:mod:`~shellobstacle.solvers.nested`; the membrane model on a
             refined mesh, a plane obstacle); the finest level's result is that of the last κ.
             ``"auto"`` (the default): on one rank wherever the linear solver is multigrid and
-            the problem allows it (:func:`~shellobstacle.solvers.nested.nested_wanted`).
+            the problem allows it (:func:`~shellobstacle.solvers.nested.nested_wanted`); with
+            the direct path's contact zone, whose steps are not relaxed, it is slower.
         normal_relaxation: after a Newton step that the line search cuts below ``t = 0.5``, try
             the full step with ζ_3 relaxed (:mod:`~shellobstacle.solvers.normal_relaxation`;
             the membrane model only). Nested iteration turns it on; not a config key.
