@@ -39,7 +39,7 @@ def check_nested(problem: PenalizedProblem) -> None:
     """Raise ValueError, naming the fix, when nested iteration cannot solve ``problem``."""
     key = "solver.nested_iteration"
     if problem.model != "membrane":
-        raise ValueError(f"{key} is for the membrane model (set it to false for {problem.model})")
+        raise ValueError(f"{key} is for the membrane model (set it to 'off' for {problem.model})")
     if not coarser_meshes(problem.mesh):
         raise ValueError(
             f"{key} needs a mesh made by uniform refinement: set domain.refinements >= 1 "

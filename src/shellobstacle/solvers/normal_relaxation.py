@@ -21,8 +21,6 @@ the finer level takes 5–9 Newton steps with it, 20–47 without (82k–1.31 M 
 
 from __future__ import annotations
 
-import time
-
 from mpi4py import MPI  # noqa: F401  (MPI before PETSc)
 from petsc4py import PETSc
 
@@ -72,14 +70,10 @@ class NormalRelaxation:
         self.ksp.setType("cg")
         self.ksp.getPC().setType("jacobi")
         self.ksp.setTolerances(rtol=1e-8, max_it=1000)
-        self.steps = 0  # Newton steps on ζ_3 so far
-        self.iterations = 0  # CG iterations so far
-        self.seconds = 0.0
 
     def relax(self) -> int:
         """Newton steps on ζ_3 until ``‖R_3‖ ≤ rtol ‖R‖`` (at most ``max_steps``); the
         system's iterate and residual follow. Returns the steps taken."""
-        t0 = time.perf_counter()
         system, comm = self.system, self.system.comm
         taken = 0
         for _ in range(self.max_steps):
@@ -90,7 +84,6 @@ class NormalRelaxation:
             self._jacobian()
             self.b.array[:] = -R3
             self.ksp.solve(self.b, self.x)
-            self.iterations += self.ksp.getIterationNumber()
             if self.ksp.getConvergedReason() < 0:
                 break
             system.dz.set(0.0)
@@ -102,8 +95,6 @@ class NormalRelaxation:
             t, _ = system.line_search(slope0, 0.0)
             system.move(t, False)
             taken += 1
-        self.steps += taken
-        self.seconds += time.perf_counter() - t0
         return taken
 
     def full_step(self, t: float) -> bool:
