@@ -26,7 +26,7 @@ from typing import Any
 from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
-from shellobstacle.mesh.memory import auto_choice
+from shellobstacle.mesh.memory import linear_solver_for
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
@@ -58,7 +58,7 @@ def nested_wanted(problem: PenalizedProblem, options: NewtonOptions) -> bool:
     """Whether ``options.nested_iteration`` asks for nested iteration on ``problem``: ``"on"``
     always (:func:`check_nested` then refuses what it cannot solve), ``"auto"`` on one rank
     where the linear solver is multigrid (``"auto"`` resolved by
-    :func:`~shellobstacle.mesh.memory.auto_choice`) and :func:`check_nested` passes.
+    :func:`~shellobstacle.mesh.memory.linear_solver_for`) and :func:`check_nested` passes.
 
     Not on several ranks: the coarser levels' small solves gain nothing from them (on 2 ranks
     at 1.93 M dofs nested iteration took 56.1 s against the plain continuation's 49.5 s;
@@ -67,16 +67,14 @@ def nested_wanted(problem: PenalizedProblem, options: NewtonOptions) -> bool:
         return options.nested_iteration == "on"
     if problem.mesh.comm.size > 1:
         return False
-    linear = options.linear_solver
-    if linear == "auto":
-        levels = bool(coarser_meshes(problem.mesh))
-        linear, _ = auto_choice(
-            problem.num_dofs, problem.model, problem.disc.degree, problem.mesh.comm, levels
-        )
     try:
         check_nested(problem)
     except ValueError:
         return False
+    linear = linear_solver_for(
+        options.linear_solver, problem.num_dofs, problem.model, problem.disc.degree,
+        problem.mesh.comm, levels=True,  # (check_nested found them)
+    )  # fmt: skip
     return linear == "multigrid" and problem.disc.degree == 1
 
 

@@ -62,8 +62,9 @@ BELOW_RTOL = "relative residual below rtol"
 
 Progress = Callable[[int, float], Any]
 #: the phases of a solve whose seconds :attr:`NewtonSolver.timings` adds up
-PHASES = ("assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton")
-PHASES += ("relax",)
+PHASES = (
+    "assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton", "relax",
+)  # fmt: skip
 
 
 @dataclass

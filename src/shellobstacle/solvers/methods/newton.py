@@ -68,7 +68,8 @@ class NewtonContinuation(MethodBase):
         from shellobstacle.solvers.nested import nested_start, nested_wanted
         from shellobstacle.solvers.newton import NewtonResult, NewtonSolver
 
-        nested = options is not None and nested_wanted(problem, options)
+        asked = options or NewtonOptions()  # (None: the defaults, whose "auto" may nest)
+        nested = nested_wanted(problem, asked)
         say(
             f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ"
             + (" on the coarsest mesh, the last on the finer ones" if nested else "")
@@ -78,7 +79,7 @@ class NewtonContinuation(MethodBase):
         if nested:
             try:
                 with phase("nested iteration on the coarser meshes"):
-                    levels = nested_start(problem, options, kappas, say)
+                    levels = nested_start(problem, asked, kappas, say)
             except ConvergenceError as err:  # the continuation on the finest mesh instead
                 say(f"nested iteration failed ({err}); continuing on the finest mesh alone")
                 out.extra["nested_iteration"] = {"failed": str(err)}
@@ -86,7 +87,7 @@ class NewtonContinuation(MethodBase):
             else:
                 out.extra["nested_iteration"] = {"levels": levels}
                 kappas = list(kappas)[-1:]  # the finest mesh solves the last κ only
-                options = dataclasses.replace(options, normal_relaxation=True)
+                options = dataclasses.replace(asked, normal_relaxation=True)
             out.timings["nested"] = time.perf_counter() - t
             t = time.perf_counter()
         kept = self._kept.get(problem)
