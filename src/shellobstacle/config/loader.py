@@ -372,7 +372,7 @@ def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
     if sv.get("nested_iteration") == "on":
         raise ConfigError(
             "solver.nested_iteration relaxes ζ_3 as the membrane's L² unknown, which Koiter's "
-            "bending differentiates: remove the key or set it to false"
+            "bending differentiates: remove the key or set it to 'off'"
         )
     if disc.degree != 2:
         raise ConfigError(

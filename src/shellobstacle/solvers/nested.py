@@ -30,6 +30,7 @@ from shellobstacle.mesh.memory import linear_solver_for
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.normal_relaxation import require_membrane
 from shellobstacle.solvers.options import NewtonOptions
 
 __all__ = ["check_nested", "interpolate", "nested_start", "nested_wanted"]
@@ -38,8 +39,7 @@ __all__ = ["check_nested", "interpolate", "nested_start", "nested_wanted"]
 def check_nested(problem: PenalizedProblem) -> None:
     """Raise ValueError, naming the fix, when nested iteration cannot solve ``problem``."""
     key = "solver.nested_iteration"
-    if problem.model != "membrane":
-        raise ValueError(f"{key} is for the membrane model (set it to 'off' for {problem.model})")
+    require_membrane(problem, key)
     if not coarser_meshes(problem.mesh):
         raise ValueError(
             f"{key} needs a mesh made by uniform refinement: set domain.refinements >= 1 "

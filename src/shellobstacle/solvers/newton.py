@@ -33,7 +33,6 @@ import functools
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from enum import Enum
 from typing import Any, Protocol
 
@@ -51,58 +50,16 @@ from shellobstacle.solvers.base import ConvergenceError, UserOptions, with_user_
 from shellobstacle.solvers.linear import LinearSolveError, LinearStrategy, make_strategy
 from shellobstacle.solvers.normal_relaxation import RELAX_BELOW, NormalRelaxation, require_membrane
 from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.solvers.result import BELOW_RTOL, ZERO_LOAD, NewtonResult
 from shellobstacle.solvers.system import PenalizedSystem
 
 __all__ = ["ZERO_LOAD", "ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
-
-#: the reason of a solve whose load vector and start residual are zero: ``ζ = 0`` solves it
-ZERO_LOAD = "zero load: zeta = 0 solves the problem"
-#: the reason of a convergence to the tolerance (any other is limited by round-off)
-BELOW_RTOL = "relative residual below rtol"
 
 Progress = Callable[[int, float], Any]
 #: the phases of a solve whose seconds :attr:`NewtonSolver.timings` adds up
 PHASES = (
     "assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton", "relax",
 )  # fmt: skip
-
-
-@dataclass
-class NewtonResult:
-    """What a Newton solve did: iterations, residual history, step lengths, times."""
-
-    converged: bool
-    iterations: int
-    reason: str
-    residual_norms: list[float] = field(default_factory=list)
-    step_lengths: list[float] = field(default_factory=list)
-    linear_iterations: list[int] = field(default_factory=list)
-    line_search_evaluations: int = 0
-    factorizations: int = 0
-    zone_steps: int = 0  # of the iterations: steps on the contact zone's problem
-    relaxed_steps: int = 0  # of the iterations: cut steps replaced by the relaxed full step
-    timings: dict[str, float] = field(default_factory=dict)
-    reference: float = 0.0  # ‖R(0)‖, the scale of the relative residual
-
-    @property
-    def round_off_limited(self) -> bool:
-        """Stopped because round-off, not the tolerance, bounds what can be resolved.
-
-        For tiny κ the gap is known only to machine precision and the penalty multiplies that
-        error by ``ε/κ``: the residual then cannot reach ``rtol`` and the iterate is the
-        solution to working precision only.
-        """
-        return self.converged and self.reason not in (BELOW_RTOL, ZERO_LOAD)
-
-    @property
-    def relative_residual(self) -> float:
-        """Final ``‖R(ζ)‖ / ‖R(0)‖`` (``R(0)`` = minus the load vector; 0 for a zero load)."""
-        if not self.residual_norms:
-            return math.nan
-        last = self.residual_norms[-1]
-        if self.reference > 0:
-            return last / self.reference
-        return 0.0 if last == 0 else math.inf
 
 
 class Model(Protocol):

@@ -36,13 +36,14 @@ __all__ = ["RELAX_BELOW", "NormalRelaxation", "require_membrane"]
 RELAX_BELOW = 0.5
 
 
-def require_membrane(problem: PenalizedProblem) -> None:
-    """Raise ValueError unless ``problem`` is the membrane model (whose ζ_3 has no
-    derivatives in the energy)."""
+def require_membrane(problem: PenalizedProblem, key: str = "normal_relaxation") -> None:
+    """Raise ValueError unless ``problem`` is the membrane model, whose energy has no
+    derivatives of ζ_3 (the relaxation's premise); the message names ``key``, the option
+    that asked for it (the Newton option, or ``solver.nested_iteration``, which relaxes)."""
     if problem.model != "membrane":
         raise ValueError(
-            "the relaxation of zeta_3 (solver.nested_iteration) is for the membrane model, "
-            f"whose energy has no derivatives of zeta_3; not {problem.model}"
+            f"{key} relaxes zeta_3 alone, which needs the membrane model (its energy has no "
+            f"derivatives of zeta_3), not {problem.model}: switch {key} off"
         )
 
 

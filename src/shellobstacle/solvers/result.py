@@ -1,5 +1,6 @@
-"""What a solve returns and how it fails: one step record, one method result, one solve
-result and one error, shared by every method of :mod:`~shellobstacle.solvers.registry`.
+"""What a solve returns and how it fails: one Newton solve's record, one step record, one
+method result, one solve result and one error, shared by every method of
+:mod:`~shellobstacle.solvers.registry`.
 
 Plain data, importable without DOLFINx or PETSc (the registry and the configuration import
 it).
@@ -7,6 +8,7 @@ it).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
@@ -15,7 +17,54 @@ if TYPE_CHECKING:
     from shellobstacle.geometry.assumptions import Check
     from shellobstacle.models.problem import PenalizedProblem
 
-__all__ = ["ConvergenceError", "MethodResult", "SolveResult", "Step"]
+__all__ = [
+    "BELOW_RTOL", "ZERO_LOAD", "ConvergenceError", "MethodResult", "NewtonResult", "SolveResult",
+    "Step",
+]  # fmt: skip
+
+
+#: the reason of a solve whose load vector and start residual are zero: ``ζ = 0`` solves it
+ZERO_LOAD = "zero load: zeta = 0 solves the problem"
+#: the reason of a convergence to the tolerance (any other is limited by round-off)
+BELOW_RTOL = "relative residual below rtol"
+
+
+@dataclass
+class NewtonResult:
+    """What a Newton solve did: iterations, residual history, step lengths, times."""
+
+    converged: bool
+    iterations: int
+    reason: str
+    residual_norms: list[float] = field(default_factory=list)
+    step_lengths: list[float] = field(default_factory=list)
+    linear_iterations: list[int] = field(default_factory=list)
+    line_search_evaluations: int = 0
+    factorizations: int = 0
+    zone_steps: int = 0  # of the iterations: steps on the contact zone's problem
+    relaxed_steps: int = 0  # of the iterations: cut steps replaced by the relaxed full step
+    timings: dict[str, float] = field(default_factory=dict)
+    reference: float = 0.0  # ‖R(0)‖, the scale of the relative residual
+
+    @property
+    def round_off_limited(self) -> bool:
+        """Stopped because round-off, not the tolerance, bounds what can be resolved.
+
+        For tiny κ the gap is known only to machine precision and the penalty multiplies that
+        error by ``ε/κ``: the residual then cannot reach ``rtol`` and the iterate is the
+        solution to working precision only.
+        """
+        return self.converged and self.reason not in (BELOW_RTOL, ZERO_LOAD)
+
+    @property
+    def relative_residual(self) -> float:
+        """Final ``‖R(ζ)‖ / ‖R(0)‖`` (``R(0)`` = minus the load vector; 0 for a zero load)."""
+        if not self.residual_norms:
+            return math.nan
+        last = self.residual_norms[-1]
+        if self.reference > 0:
+            return last / self.reference
+        return 0.0 if last == 0 else math.inf
 
 
 @dataclass
