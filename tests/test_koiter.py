@@ -384,7 +384,7 @@ def test_config_refuses_what_koiter_cannot_use() -> None:
             _config(model=koiter, solver={"linear_solver": linear_solver})
     # nested iteration relaxes ζ_3 as the membrane's L² unknown; the fix the message names
     # ('off') is accepted, as is "auto" (which never nests Koiter's model)
-    with pytest.raises(ConfigError, match="nested_iteration.*set it to 'off'"):
+    with pytest.raises(ConfigError, match=r"nested_iteration.*set it to 'off'"):
         _config(model=koiter, solver={"nested_iteration": "on"})
     for value in ("off", "auto"):
         assert _config(model=koiter, solver={"nested_iteration": value}).shell.model == "koiter"

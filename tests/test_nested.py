@@ -233,3 +233,48 @@ def test_the_finest_levels_newton_steps_stay_flat_as_h_halves() -> None:
             counts.append(sum(s.iterations for s in out.steps))
     assert max(nested) - min(nested) <= 1, nested
     assert all(n < p for n, p in zip(nested, plain, strict=True)), (nested, plain)
+
+
+@pytest.mark.mpi
+def test_nested_iteration_settles_a_curved_obstacles_gap_on_every_level(monkeypatch) -> None:
+    """A ball (its gap linearized, the passes of solvers/linearization.py): every coarser
+    level settles its own linearization, the finest mesh's passes start from the interpolated
+    answer and solve the last κ only, nested iteration runs on the first pass alone, and ζ is
+    the plain continuation's (solver tolerance), serially and on 2 ranks."""
+    from test_obstacle_kinds import ball
+
+    from shellobstacle.solvers import nested as nested_module
+    from shellobstacle.solvers.linearization import RTOL, STALL, solve_with
+
+    calls: list[int] = []
+    original = nested_module.nested_start
+
+    def counted(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(nested_module, "nested_start", counted)
+    mesh = disk(2)
+    shell = dataclasses.replace(paper_shell(), obstacle=ball(2.0))
+    zeta, outs = {}, {}
+    for nested in ("on", "off"):
+        problem = PenalizedProblem(shell, mesh)
+        assert problem.linearized
+        options = dataclasses.replace(MULTIGRID, nested_iteration=nested)
+        method = NewtonContinuation()
+        outs[nested] = solve_with(method, problem, 0.0, ladder(mesh), options, lambda _: None)
+        assert outs[nested].converged
+        assert outs[nested].extra["linearization_change"][-1] <= STALL
+        zeta[nested] = problem.zeta
+    out = outs["on"]
+    assert len(calls) == 1  # the later passes go on from the finest mesh's answer
+    levels = out.extra["nested_iteration"]["levels"]
+    assert len(levels) == 2
+    for level in levels:
+        changes = level["linearization_change"]
+        assert changes[-1] <= RTOL or (len(changes) > 1 and changes[-1] <= STALL)
+        assert len(level["kappas"]) == len(level["newton"])
+    assert out.extra["linearizations"] >= 1 and len(out.steps) == out.extra["linearizations"]
+    assert {step.kappa for step in out.steps} == {ladder(mesh)[-1]}
+    diff = l2_norm(zeta["on"] - zeta["off"], mesh=mesh)
+    assert diff <= 1e-7 * l2_norm(zeta["off"], mesh=mesh)

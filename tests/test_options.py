@@ -166,10 +166,10 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
     assert est is not None and 7.0e6 < est.dofs < 8.5e6
     assert NewtonOptions().linear_solver == "auto"
     assert memory.linear_solver_for("auto", est.dofs, "membrane", 1) == "multigrid"
-    assert memory.linear_solver_for("auto", 1e6, "membrane", 1) == "direct"
-    assert memory.linear_solver_for("auto", 1.6e6, "membrane", 1) == "multigrid"  # faster
-    assert memory.linear_solver_for("auto", 1.6e6, "membrane", 1, levels=False) == "direct"
-    assert memory.linear_solver_for("auto", 1.6e6, "koiter", 2) == "direct"
+    assert memory.linear_solver_for("auto", 0.9e6, "membrane", 1) == "direct"
+    assert memory.linear_solver_for("auto", 1.1e6, "membrane", 1) == "multigrid"  # faster
+    assert memory.linear_solver_for("auto", 1.1e6, "membrane", 1, levels=False) == "direct"
+    assert memory.linear_solver_for("auto", 1.1e6, "koiter", 2) == "direct"
     assert memory.linear_solver_for("auto", est.dofs, "membrane", 2) == "direct"
     assert memory.linear_solver_for("iterative", est.dofs, "membrane", 1) == "iterative"
     chosen = resources.require_fits(big, linear_solver="auto")

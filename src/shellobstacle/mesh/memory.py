@@ -42,9 +42,11 @@ MEMORY_SHARE = 0.8
 #: Bytes in a GiB, the one unit of memory in messages.
 GIB = 2.0**30
 #: From this many dofs "auto" takes multigrid for the membrane P1 on a mesh with coarser
-#: levels: serially and untuned it was faster than the direct path on the four examples
-#: measured at about 1.9 M dofs (1.1–2.2×) and about as fast at 1.3 M (docs/performance.md).
-MULTIGRID_FROM_DOFS = 1.5e6
+#: levels. On the paper's problem, untuned, it was faster than the direct path from about
+#: 0.95 M dofs: serially with nested iteration 1.3–1.5× (0.95 M and 1.31 M), on 2 ranks
+#: 1.2× (1.31 M); on the four examples at about 0.95 M plain multigrid was on par or faster.
+#: At 0.33–0.66 M the two were on par (docs/performance.md).
+MULTIGRID_FROM_DOFS = 1.0e6
 
 
 def machine_memory() -> float:

@@ -5,7 +5,10 @@ A mesh made by uniform refinement remembers the meshes it came from
 coarse to fine: the coarsest climbs the whole κ ladder by continuation (a few Newton steps per
 κ on a mesh 4^L times smaller), every finer level solves the last κ once, from the coarser
 level's solution interpolated, and the finest level's start is the last coarse solution
-interpolated. Only the last κ is then solved on the finest mesh.
+interpolated. Only the last κ is then solved on the finest mesh. A curved obstacle's
+linearized gap is settled on every level by its own passes
+(:func:`~shellobstacle.solvers.linearization.settle`); the finest mesh's passes start from the
+interpolated answer, linearized there.
 
 The interpolated start misses the contact zone's outer ring, where a plain Newton step pushes
 ζ_3 deep into the obstacle and the line search crawls; every level therefore relaxes ζ_3 after
@@ -28,10 +31,12 @@ from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.mesh.memory import linear_solver_for
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.solvers.continuation import continuation
+from shellobstacle.solvers.continuation import KappaStep, continuation
+from shellobstacle.solvers.linearization import settle
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.normal_relaxation import require_membrane
 from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.solvers.result import ConvergenceError, MethodResult
 
 __all__ = ["check_nested", "interpolate", "nested_start", "nested_wanted"]
 
@@ -50,8 +55,6 @@ def check_nested(problem: PenalizedProblem) -> None:
             f"{key} rebuilds the shell on the coarser meshes from its config: a problem with "
             "a load or penalty scale given as functions on its mesh cannot use it"
         )
-    if problem.linearized:
-        raise ValueError(f"{key} is for a plane obstacle; a curved one is solved without it")
 
 
 def nested_wanted(problem: PenalizedProblem, options: NewtonOptions) -> bool:
@@ -117,21 +120,21 @@ def nested_start(
             petsc_options={},
         )
         solver = NewtonSolver(level, chosen)
-        if previous is None:
-            results = [step.newton for step in continuation(level, solver, list(kappas))]
-        else:
+        if previous is not None:
             interpolate(previous, level)
-            level.set_kappa(kappas[-1])
-            results = [solver.solve()]
+        ladder = list(kappas) if previous is None else [kappas[-1]]
+        steps, changes = _solve_level(level, solver, ladder, k)
+        results = [step.newton for step in steps]
         records.append(
             {
                 "dofs": level.num_dofs,
-                "kappas": list(kappas) if previous is None else [kappas[-1]],
+                "kappas": [step.kappa for step in steps],
                 "newton": [r.iterations for r in results],
                 "linear_iterations": [sum(r.linear_iterations) for r in results],
                 "relaxed_steps": sum(r.relaxed_steps for r in results),
                 "seconds": time.perf_counter() - t0,
             }
+            | ({"linearization_change": changes} if level.linearized else {})
         )
         say(
             f"nested iteration, level {k + 1}/{len(levels)}: {level.num_dofs} dofs, "
@@ -142,3 +145,24 @@ def nested_start(
         gc.collect()  # the solver and its strategy refer to each other: free the level now
     interpolate(previous, problem)
     return records
+
+
+def _solve_level(
+    level: PenalizedProblem, solver: NewtonSolver, ladder: list[float], k: int
+) -> tuple[list[KappaStep], list[float]]:
+    """The steps of one level's κ values (the ladder, or the last κ) from its current ζ, and
+    for a curved obstacle the linearization's change after each of its passes (a pass
+    solves the last κ again, :func:`~shellobstacle.solvers.linearization.settle`, the solver
+    refreshed for each new linearized gap). Raises ConvergenceError if a pass fails or the
+    gap does not settle."""
+    if not level.linearized:
+        return continuation(level, solver, ladder), []
+
+    def one_pass(kappas: list[float]) -> MethodResult:
+        solver.refresh()  # (settle linearized the gap at ζ before each pass)
+        return MethodResult(steps=list(continuation(level, solver, kappas)))
+
+    done = settle(level, ladder, one_pass, lambda _msg: None)
+    if not done.converged:
+        raise ConvergenceError(f"nested iteration, level {k + 1}: {done.error}", done)
+    return list(done.steps), done.extra["linearization_change"]  # (continuation's KappaSteps)

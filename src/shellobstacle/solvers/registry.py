@@ -12,12 +12,10 @@ they solve.
 
 from __future__ import annotations
 
-import contextlib
 from collections.abc import Callable, Mapping, Sequence
-from contextlib import AbstractContextManager
 from typing import Any, Protocol, runtime_checkable
 
-from shellobstacle.solvers.methods.base import build_options
+from shellobstacle.solvers.methods.base import build_options, keeping
 from shellobstacle.solvers.result import MethodResult
 
 __all__ = [
@@ -161,13 +159,6 @@ def options_from(method: Method, values: Mapping[str, Any]) -> Any:
     """
     own = getattr(method, "options_from", None)
     return own(values) if own is not None else build_options(method, values)
-
-
-def keeping(method: Method, problem: Any) -> AbstractContextManager[Any]:
-    """``method.keeping(problem)`` when the method has it, else a context that keeps nothing:
-    the solves of ``problem`` inside it may reuse what the method built for it."""
-    own = getattr(method, "keeping", None)
-    return own(problem) if own is not None else contextlib.nullcontext()
 
 
 def method_table() -> str:

@@ -8,7 +8,7 @@ from collections.abc import Mapping
 from contextlib import AbstractContextManager
 from typing import Any, ClassVar
 
-__all__ = ["MethodBase", "build_options"]
+__all__ = ["MethodBase", "build_options", "keeping"]
 
 
 def build_options(method: Any, values: Mapping[str, Any]) -> Any:
@@ -20,6 +20,13 @@ def build_options(method: Any, values: Mapping[str, Any]) -> Any:
         return None
     fields: Mapping[str, str] = getattr(method, "solver_fields", {})
     return kind(**{field: values[key] for key, field in fields.items() if key in values})
+
+
+def keeping(method: Any, problem: Any) -> AbstractContextManager[Any]:
+    """``method.keeping(problem)`` when the method has it, else a context that keeps nothing:
+    the solves of ``problem`` inside it may reuse what the method built for it."""
+    own = getattr(method, "keeping", None)
+    return own(problem) if own is not None else contextlib.nullcontext()
 
 
 class MethodBase:
@@ -35,5 +42,5 @@ class MethodBase:
 
     def keeping(self, problem: Any) -> AbstractContextManager[Any]:
         """Inside it, :meth:`solve` may keep what it builds for ``problem`` for its next solve
-        (:func:`~shellobstacle.solvers.registry.keeping`); by default nothing is kept."""
+        (:func:`keeping`); by default nothing is kept."""
         return contextlib.nullcontext()

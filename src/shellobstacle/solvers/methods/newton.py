@@ -23,6 +23,8 @@ class NewtonContinuation(MethodBase):
     Inside :meth:`keeping` its solver of a problem is kept from one solve to the next and
     refreshed for the problem's new linearized gap
     (:meth:`~shellobstacle.solvers.newton.NewtonSolver.refresh`) instead of built again.
+    Nested iteration (:mod:`~shellobstacle.solvers.nested`), where asked for, runs on the
+    first solve only: a curved obstacle's later passes go on from the finest mesh's answer.
     """
 
     name = "newton"
@@ -69,7 +71,9 @@ class NewtonContinuation(MethodBase):
         from shellobstacle.solvers.newton import NewtonResult, NewtonSolver
 
         asked = options or NewtonOptions()  # (None: the defaults, whose "auto" may nest)
-        nested = nested_wanted(problem, asked)
+        kept = self._kept.get(problem)  # a later pass inside keeping(): its solver, no nesting
+        nested = kept is None and nested_wanted(problem, asked)
+        solve_options = asked
         say(
             f"h = {h:.4g}, {problem.num_dofs} dofs; solving for {len(kappas)} value(s) of κ"
             + (" on the coarsest mesh, the last on the finer ones" if nested else "")
@@ -87,10 +91,10 @@ class NewtonContinuation(MethodBase):
             else:
                 out.extra["nested_iteration"] = {"levels": levels}
                 kappas = list(kappas)[-1:]  # the finest mesh solves the last κ only
-                options = dataclasses.replace(asked, normal_relaxation=True)
+                solve_options = dataclasses.replace(asked, normal_relaxation=True)
+                problem.linearize()  # a curved obstacle's gap at the start interpolated
             out.timings["nested"] = time.perf_counter() - t
             t = time.perf_counter()
-        kept = self._kept.get(problem)
         before: dict[str, float] = {}  # the kept solver's seconds before this solve
         if kept is not None and kept[0] is options:
             solver = kept[1]
@@ -99,8 +103,8 @@ class NewtonContinuation(MethodBase):
                 solver.refresh()
         else:
             with phase("setting up Newton's solver"):
-                solver = NewtonSolver(problem, options)
-            if problem in self._kept:
+                solver = NewtonSolver(problem, solve_options)
+            if problem in self._kept:  # (kept under the options asked for, as they came)
                 self._kept[problem] = (options, solver)
         out.timings["setup"] = time.perf_counter() - t
         out.extra["linear_solver"] = solver.linear_solver
