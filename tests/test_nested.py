@@ -236,15 +236,15 @@ def test_the_finest_levels_newton_steps_stay_flat_as_h_halves() -> None:
 
 
 @pytest.mark.mpi
-def test_nested_iteration_settles_a_curved_obstacles_gap_on_every_level(monkeypatch) -> None:
-    """A ball (its gap linearized, the passes of solvers/linearization.py): every coarser
-    level settles its own linearization, the finest mesh's passes start from the interpolated
-    answer and solve the last κ only, nested iteration runs on the first pass alone, and ζ is
-    the plain continuation's (solver tolerance), serially and on 2 ranks."""
+def test_nested_iteration_on_a_curved_obstacle_ends_at_the_plain_answer(monkeypatch) -> None:
+    """A ball (its gap linearized, the passes of solvers/linearization.py): each coarser level
+    is linearized at its start, the finest mesh's passes solve the last κ only and settle the
+    gap, nested iteration runs on the first pass alone, and ζ is the plain continuation's
+    (solver tolerance), serially and on 2 ranks."""
     from test_obstacle_kinds import ball
 
     from shellobstacle.solvers import nested as nested_module
-    from shellobstacle.solvers.linearization import RTOL, STALL, solve_with
+    from shellobstacle.solvers.linearization import STALL, solve_with
 
     calls: list[int] = []
     original = nested_module.nested_start
@@ -269,11 +269,7 @@ def test_nested_iteration_settles_a_curved_obstacles_gap_on_every_level(monkeypa
     out = outs["on"]
     assert len(calls) == 1  # the later passes go on from the finest mesh's answer
     levels = out.extra["nested_iteration"]["levels"]
-    assert len(levels) == 2
-    for level in levels:
-        changes = level["linearization_change"]
-        assert changes[-1] <= RTOL or (len(changes) > 1 and changes[-1] <= STALL)
-        assert len(level["kappas"]) == len(level["newton"])
+    assert [level["kappas"] for level in levels] == [ladder(mesh), ladder(mesh)[-1:]]
     assert out.extra["linearizations"] >= 1 and len(out.steps) == out.extra["linearizations"]
     assert {step.kappa for step in out.steps} == {ladder(mesh)[-1]}
     diff = l2_norm(zeta["on"] - zeta["off"], mesh=mesh)

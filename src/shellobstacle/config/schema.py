@@ -234,8 +234,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "str",
             "on: climb the κ ladder on the coarsest of the mesh's refinement levels, then solve "
             "every finer level at the last κ only, from the coarser solution (membrane; a "
-            "curved obstacle's gap settled on every level); auto: on with multigrid on one "
-            "rank where the problem allows it",
+            "curved obstacle's gap linearized at each level's start); auto: on with multigrid "
+            "on one rank where the problem allows it",
         ),
         "rtol": solver_key("rtol", "float", "relative residual tolerance"),
         "stol": solver_key("stol", "float", "relative Newton-correction tolerance"),

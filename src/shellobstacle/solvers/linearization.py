@@ -19,7 +19,7 @@ operators assembled again in place).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -27,7 +27,7 @@ import numpy as np
 from shellobstacle.solvers.methods.base import keeping
 from shellobstacle.solvers.result import MethodResult
 
-__all__ = ["MAX_LINEARIZATIONS", "RTOL", "STALL", "settle", "solve_with"]
+__all__ = ["MAX_LINEARIZATIONS", "RTOL", "STALL", "solve_with"]
 
 RTOL = 1e-12
 """Stop when the linearization's error at the answer, ``max |g(ζ) − g_ζ̄(ζ)|`` over the
@@ -62,56 +62,39 @@ def solve_with(
     """
     if not problem.linearized:
         return method.solve(problem, h, kappas, options, say, newton_progress)
-    with keeping(method, problem):  # a method may keep its solver from pass to pass
-        return settle(
-            problem,
-            kappas,
-            lambda ladder: method.solve(problem, h, ladder, options, say, newton_progress),
-            say,
-        )
-
-
-def settle(
-    problem: Any,
-    kappas: Sequence[float],
-    solve_pass: Callable[[list[float]], MethodResult],
-    say: Any,
-) -> MethodResult:
-    """The passes of :func:`solve_with` for a curved obstacle: linearize at the current ζ,
-    ``solve_pass(ladder)`` (the whole ``kappas`` first, the last κ after), until the
-    linearization settles; the result as :func:`solve_with`'s."""
     total = MethodResult()
     changes: list[float] = []
     ladder = list(kappas)
     problem.linearize()
     error = LinearizationError(problem)
-    for k in range(1, MAX_LINEARIZATIONS + 1):
-        done = solve_pass(ladder)
-        for step in done.steps:
-            step.details["linearization"] = k
-        total.steps.extend(done.steps)
-        total.extra.update(done.extra)
-        for key, seconds in done.timings.items():
-            total.timings[key] = total.timings.get(key, 0.0) + seconds
-        if not done.converged:
-            total.converged, total.error = False, done.error
-            break
-        changes.append(error())
-        say(f"linearization {k}: max |g(ζ) − g_ζ̄(ζ)| / max |g(ζ)| = {changes[-1]:.1e}")
-        if changes[-1] <= RTOL:
-            break
-        if len(changes) > 1 and STALL >= changes[-1] > changes[-2] / 2:
-            say(f"linearization {k}: settled at the round-off of evaluating g")
-            break
-        problem.linearize()
-        ladder = list(kappas[-1:])
-    else:
-        total.converged = False
-        total.error = (
-            f"the curved obstacle's linearization did not settle in {MAX_LINEARIZATIONS} "
-            f"passes (last change {changes[-1]:.1e}: above {RTOL:g}, and still falling or "
-            f"above {STALL:g})"
-        )
+    with keeping(method, problem):  # a method may keep its solver from pass to pass
+        for k in range(1, MAX_LINEARIZATIONS + 1):
+            done = method.solve(problem, h, ladder, options, say, newton_progress)
+            for step in done.steps:
+                step.details["linearization"] = k
+            total.steps.extend(done.steps)
+            total.extra.update(done.extra)
+            for key, seconds in done.timings.items():
+                total.timings[key] = total.timings.get(key, 0.0) + seconds
+            if not done.converged:
+                total.converged, total.error = False, done.error
+                break
+            changes.append(error())
+            say(f"linearization {k}: max |g(ζ) − g_ζ̄(ζ)| / max |g(ζ)| = {changes[-1]:.1e}")
+            if changes[-1] <= RTOL:
+                break
+            if len(changes) > 1 and STALL >= changes[-1] > changes[-2] / 2:
+                say(f"linearization {k}: settled at the round-off of evaluating g")
+                break
+            problem.linearize()
+            ladder = list(kappas[-1:])
+        else:
+            total.converged = False
+            total.error = (
+                f"the curved obstacle's linearization did not settle in {MAX_LINEARIZATIONS} "
+                f"passes (last change {changes[-1]:.1e}: above {RTOL:g}, and still falling or "
+                f"above {STALL:g})"
+            )
     total.extra["linearizations"] = len(changes)
     total.extra["linearization_change"] = changes
     return total

@@ -103,7 +103,7 @@ class NewtonOptions:
         nested_iteration: ``"on"``: solve the κ ladder on the coarsest level of the mesh's
             refinements, then every finer level at the last κ only, each from the coarser
             level's solution (:mod:`~shellobstacle.solvers.nested`; the membrane model on a
-            refined mesh; a curved obstacle's linearized gap is settled on every level); the
+            refined mesh; a curved obstacle's gap is linearized at each level's start); the
             finest level's result is that of the last κ.
             ``"auto"`` (the default): on one rank wherever the linear solver is multigrid and
             the problem allows it (:func:`~shellobstacle.solvers.nested.nested_wanted`); with
