@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.mesh.hierarchy import coarser_meshes
 from shellobstacle.mesh.measures import (
     boundary_facets,
     domain_area,
@@ -70,6 +71,10 @@ def test_disk_area_mesh_size_and_nested_refinement():
     assert _num_boundary_facets_global(fine) == 2 * _num_boundary_facets_global(mesh)
     # midpoints of boundary chords stay on the chords: nested meshes, same polygon
     assert domain_area(fine) == pytest.approx(area, rel=1e-12)
+    # every uniform refinement remembers its coarser meshes (multigrid's levels), the
+    # experiments' nested meshes too, not only create_mesh's
+    assert coarser_meshes(refine_uniformly(fine)) == [mesh, fine]
+    assert coarser_meshes(mesh) == []
 
     twice = create_mesh(DomainSpec("disk", h, radius=r, center=(0.2, -0.1), refinements=2))
     assert num_cells_global(twice) == 16 * num_cells_global(mesh)

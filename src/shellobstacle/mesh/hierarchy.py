@@ -1,6 +1,7 @@
 """The coarser meshes a mesh was refined from, and the interpolation between their spaces.
 
-A mesh made by uniform refinement (:func:`~shellobstacle.mesh.meshing.create_mesh`) remembers
+A mesh made by uniform refinement (:func:`~shellobstacle.mesh.refinement.red_refinement`, under
+:func:`~shellobstacle.mesh.meshing.create_mesh` and the experiments' nested meshes) remembers
 the meshes it came from, coarsest first, while it lives: :func:`record` stores them and
 :func:`coarser_meshes` gives them back (a weak map from the fine mesh; nothing is copied). Their
 Lagrange spaces are nested up to the boundary nodes moved onto a curve, and

@@ -23,7 +23,6 @@ import dolfinx.mesh
 import numpy as np
 
 from shellobstacle.mesh.domains import DomainSpec, coarsening_steps, validate
-from shellobstacle.mesh.hierarchy import record
 from shellobstacle.mesh.refinement import prepare, red_refinement, refine_uniformly
 from shellobstacle.progress import phase
 
@@ -251,19 +250,8 @@ def _gmsh_mesh(
             mesh = dolfinx.io.gmsh.model_to_mesh(model, comm, 0, 2, _partitioner()).mesh
     for k in range(steps):
         with phase(f"refining {k + 1}/{steps}"):
-            mesh = _remembered(red_refinement(mesh, spec, ghosted), mesh, ghosted)
+            mesh = red_refinement(mesh, spec, ghosted)  # (it remembers mesh)
     return mesh
-
-
-def _remembered(
-    fine: dolfinx.mesh.Mesh, coarse: dolfinx.mesh.Mesh, ghosted: bool
-) -> dolfinx.mesh.Mesh:
-    """``fine``, remembering that it was refined from ``coarse`` (the levels of geometric
-    multigrid, :mod:`~shellobstacle.mesh.hierarchy`) while the children stay on their parent's
-    rank (not after a ghosted refinement in parallel, which repartitions)."""
-    if not (ghosted and fine.comm.size > 1):
-        record(fine, coarse)
-    return fine
 
 
 def create_mesh(
@@ -297,6 +285,6 @@ def create_mesh(
         mesh = _gmsh_mesh(spec, comm, coarsening_steps(spec), ghosted)
     for k in range(spec.refinements):
         with phase(f"uniform refinement {k + 1}/{spec.refinements}"):
-            mesh = _remembered(refine_uniformly(mesh, ghosted), mesh, ghosted)
+            mesh = refine_uniformly(mesh, ghosted)  # (it remembers mesh)
     prepare(mesh)
     return mesh

@@ -12,6 +12,7 @@ import dolfinx.mesh
 import numpy as np
 import ufl
 
+from shellobstacle.mesh.hierarchy import record
 from shellobstacle.mesh.measures import boundary_facets
 
 if TYPE_CHECKING:
@@ -43,7 +44,8 @@ def refine_uniformly(mesh: dolfinx.mesh.Mesh, ghosted: bool = False) -> dolfinx.
             ghost cells (interior-facet integrals across ranks need them).
 
     Returns:
-        The refined mesh, with edges and facet-cell connectivity created.
+        The refined mesh, with edges and facet-cell connectivity created; it remembers
+        ``mesh`` (:func:`red_refinement`).
     """
     fine = red_refinement(mesh, ghosted=ghosted)
     prepare(fine)
@@ -77,6 +79,11 @@ def red_refinement(
     boundary the new boundary nodes are moved onto (radially from its centre); ``ghosted``:
     repartition in parallel with facet-sharing ghost cells.
 
+    The refined mesh remembers ``mesh`` and its coarser meshes (the levels of geometric
+    multigrid and nested iteration, :mod:`~shellobstacle.mesh.hierarchy`) while the children
+    stay on their parent's rank: not after a ghosted refinement in parallel, which
+    repartitions.
+
     DOLFINx 0.11's ``uniform_refine`` returns a geometry with three coordinates per node: the
     refined topology gets a new 2D geometry on the same nodes (no ``create_mesh``, whose cell
     cell reordering alone is a large part of a refinement's time).
@@ -94,10 +101,13 @@ def red_refinement(
         geometry.index_map(), geometry.dofmaps[0], geometry._cpp_object.cmaps[0], x,
         geometry.input_global_indices,
     )  # fmt: skip
-    return dolfinx.mesh.Mesh(
+    refined = dolfinx.mesh.Mesh(
         dolfinx.cpp.mesh.Mesh_float64(mesh.comm, fine.topology._cpp_object, planar),
         ufl.Mesh(mesh.ufl_domain().ufl_coordinate_element()),
     )
+    if partitioner is None:
+        record(refined, mesh)
+    return refined
 
 
 def onto_curve(mesh: dolfinx.mesh.Mesh, x: np.ndarray, spec: DomainSpec) -> None:
