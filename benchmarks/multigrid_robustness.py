@@ -28,7 +28,7 @@ from record import PAPER, emit, timed_mesh
 from shellobstacle.config.loader import load_config
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.linear.multigrid import MultigridStrategy
+from shellobstacle.solvers.linear.multigrid import SMOOTHERS, MultigridStrategy
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.options import NewtonOptions
 
@@ -43,6 +43,9 @@ def main() -> None:
         help="the ladder, as ε/κ (decreasing κ)",
     )
     ap.add_argument("--rtol", type=float, default=1e-8, help="CG's relative tolerance")
+    ap.add_argument(
+        "--smoother", default="jacobi", choices=SMOOTHERS, help="Chebyshev's preconditioner"
+    )
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
     rows = []
@@ -50,10 +53,14 @@ def main() -> None:
         cfg = load_config(str(PAPER), [f"domain.h={size}"])
         eps = cfg.shell.material.epsilon
         kappas = [eps / float(r) for r in args.eps_over_kappa.split(",")]
-        base: dict = {"gmsh_h": size, "ranks": comm.size, "rtol": args.rtol}
+        base: dict = {
+            "gmsh_h": size, "ranks": comm.size, "rtol": args.rtol, "smoother": args.smoother
+        }  # fmt: skip
         mesh, h = timed_mesh(cfg, base)
         problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappas[0])
-        strategy = MultigridStrategy(args.rtol, forcing="fixed", finish=False)
+        strategy = MultigridStrategy(
+            args.rtol, forcing="fixed", smoother=args.smoother, finish=False
+        )
         options = NewtonOptions(linear_solver="multigrid", nested_iteration="off")
         solver = NewtonSolver(problem, options, linear=strategy)
         active = ActivePoints(solver, comm)
