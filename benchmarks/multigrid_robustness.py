@@ -5,7 +5,7 @@ every level, PᵀAP coarser operators that follow the Jacobian, MUMPS on the coa
 not degrade as the mesh is refined nor as the penalty stiffens: the Jacobian
 ``K + (1/κ) M_Aᵀ D_A⁻¹ M_A`` adds a mass-like term of weight ``ε/κ`` on the active points.
 For each gmsh size the shell is solved by continuation down a ladder of κ spanning ε/κ from
-10⁻² to 10⁴ (past the paper's κ = h^1.5: ε/κ = 1.4–33 from 82k to 5.2 M dofs), every Newton
+10⁻² to 10⁴ (past the paper's κ = h^1.5: ε/κ = 1.4–31 from 82k to 5.2 M dofs), every Newton
 direction solved to the same relative tolerance (``--rtol``, fixed forcing: no inexact Newton),
 so that the CG iterations per direction measure the V-cycle alone. One JSON line per (size, κ):
 dofs, levels, ε/κ, active points, Newton steps, CG iterations per direction (each, mean,

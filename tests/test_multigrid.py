@@ -133,7 +133,7 @@ def test_cg_iterations_per_newton_step_stay_bounded_as_h_halves() -> None:
 def test_cg_iterations_per_newton_step_stay_bounded_as_the_penalty_stiffens() -> None:
     """Each direction solved to a fixed 1e-8 on three mesh levels, κ from 100 ε down to
     ε/1000 (the penalty's weight ε/κ over five decades; the paper's κ = h^1.5 is ε/κ = 1.4 to
-    33): the CG iterations per Newton step, averaged over each κ, vary by at most 1.25×.
+    31): the CG iterations per Newton step, averaged over each κ, vary by at most 1.25×.
     The coarser operators carry the penalty part ``Pᵀ H P`` of every Jacobian, so the
     V-cycle corrects the stiff active points on every level; with ``Pᵀ K P`` alone they grow
     from 22 to 75 per step over the same κ. (At ε/κ = 10⁴ this mesh takes 1.5× more, 15.4
