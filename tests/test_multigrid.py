@@ -137,7 +137,8 @@ def test_cg_iterations_per_newton_step_stay_bounded_as_the_penalty_stiffens() ->
     The coarser operators carry the penalty part ``Pᵀ H P`` of every Jacobian, so the
     V-cycle corrects the stiff active points on every level; with ``Pᵀ K P`` alone they grow
     from 22 to 75 per step over the same κ. (At ε/κ = 10⁴ this mesh takes 1.5× more, 15.4
-    per step; from 82k dofs on, no more: benchmarks/multigrid_robustness.py,
+    per step: its coarsest level, gmsh's mesh at h = 0.1, does not resolve the contact zone;
+    the paper's meshes from 82k dofs on show no rise: benchmarks/multigrid_robustness.py,
     docs/perf/multigrid.md.)"""
     mesh = disk(2)
     eps = paper_shell().material.epsilon
