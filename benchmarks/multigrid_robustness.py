@@ -30,7 +30,6 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear.multigrid import SMOOTHERS, MultigridStrategy
 from shellobstacle.solvers.newton import NewtonSolver
-from shellobstacle.solvers.options import NewtonOptions
 
 
 def main() -> None:
@@ -61,8 +60,7 @@ def main() -> None:
         strategy = MultigridStrategy(
             args.rtol, forcing="fixed", smoother=args.smoother, finish=False
         )
-        options = NewtonOptions(linear_solver="multigrid", nested_iteration="off")
-        solver = NewtonSolver(problem, options, linear=strategy)
+        solver = NewtonSolver(problem, linear=strategy)  # (continuation: no nested iteration)
         active = ActivePoints(solver, comm)
         t0 = time.perf_counter()
         steps = continuation(problem, solver, kappas, newton_progress=active)
