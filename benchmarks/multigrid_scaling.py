@@ -22,6 +22,8 @@ each solver's own.
     .venv/bin/python benchmarks/multigrid_scaling.py --sizes 0.0006 --solvers multigrid
     .venv/bin/python benchmarks/multigrid_scaling.py --config examples/ellipsoid.toml \
         --sizes 0.00125 --solvers multigrid
+    .venv/bin/python benchmarks/multigrid_scaling.py --config examples/cylinder_koiter.toml \
+        --sizes 0.02 --refinements 1,2,3 --solvers multigrid,direct
 """
 
 from __future__ import annotations
@@ -45,17 +47,26 @@ from shellobstacle.solvers.options import LINEAR_SOLVERS
 PAPER = "examples/paper.toml"
 
 
-def run(h: float, linear_solver: str, force: bool = False, config: str = PAPER) -> dict:
+def run(
+    h: float,
+    linear_solver: str,
+    force: bool = False,
+    config: str = PAPER,
+    refinements: int | None = None,
+) -> dict:
     """One solve of ``config``'s problem at gmsh size ``h`` with ``linear_solver`` (``force``:
-    without the check of the machine's memory, whose estimate is the direct path's)."""
+    without the check of the machine's memory, whose estimate is the direct path's;
+    ``refinements``: uniform refinements of that mesh, else the config's)."""
     comm = MPI.COMM_WORLD
     solver, nested = linear_solver.removesuffix("+nested"), linear_solver.endswith("+nested")
+    refine = [] if refinements is None else [f"domain.refinements={refinements}"]
     cfg = load_config(
         config,
         [
             f"domain.h={h}",
             f'solver.linear_solver="{solver}"',
             f'solver.nested_iteration="{"on" if nested else "off"}"',
+            *refine,
         ],
     )
     load = os.getloadavg()[0]
@@ -99,6 +110,12 @@ def main() -> None:
     ap.add_argument("--config", default=PAPER, help="the problem's config file")
     ap.add_argument("--sizes", default="0.0058,0.0029,0.00145", help="gmsh target sizes")
     ap.add_argument(
+        "--refinements",
+        default=None,
+        help="uniform refinements of each size's mesh, comma-separated (a rectangle's levels; "
+        "default: the config's)",
+    )
+    ap.add_argument(
         "--solvers",
         default="direct,multigrid",
         help=f"of {LINEAR_SOLVERS}, each with +nested for nested iteration (multigrid+nested)",
@@ -112,8 +129,14 @@ def main() -> None:
     args = ap.parse_args()
     comm = MPI.COMM_WORLD
     rows = []
-    for h in (float(s) for s in args.sizes.split(",")):
-        pair = [run(h, solver, args.force, args.config) for solver in args.solvers.split(",")]
+    refinements = [None] if args.refinements is None else args.refinements.split(",")
+    sizes = [
+        (float(h), None if r is None else int(r))
+        for h in args.sizes.split(",")
+        for r in refinements
+    ]
+    for h, r in sizes:
+        pair = [run(h, solver, args.force, args.config, r) for solver in args.solvers.split(",")]
         direct = [r["contact_area"] for r in pair if r["linear_solver"].startswith("direct")]
         for row in pair:
             if direct:

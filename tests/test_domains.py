@@ -10,6 +10,9 @@ import re
 # isort: split
 from mpi4py import MPI
 
+import dolfinx
+import dolfinx.geometry
+import dolfinx.mesh
 import gmsh
 import numpy as np
 import pytest
@@ -79,6 +82,41 @@ def test_disk_area_mesh_size_and_nested_refinement():
     twice = create_mesh(DomainSpec("disk", h, radius=r, center=(0.2, -0.1), refinements=2))
     assert num_cells_global(twice) == 16 * num_cells_global(mesh)
     assert mesh_size(twice) == pytest.approx(H / 4, rel=1e-12)
+
+
+@pytest.mark.mpi
+def test_a_ghosted_refinement_keeps_children_on_their_parents_rank():
+    """Koiter's meshes: the refined mesh has facet-sharing ghost cells and remembers the
+    coarse mesh, whose owned cells hold every owned fine cell (multigrid's levels
+    interpolate rank by rank), and the ghosts are exactly the neighbours across ranks."""
+    spec = DomainSpec("disk", 0.1, radius=0.5, refinements=2)
+    fine = create_mesh(spec, ghosted=True)
+    levels = coarser_meshes(fine)
+    assert len(levels) == 2
+    tdim = 2
+    for coarse, child in ((levels[0], levels[1]), (levels[1], fine)):
+        assert num_cells_global(child) == 4 * num_cells_global(coarse)
+        owned = child.topology.index_map(tdim).size_local
+        mid = dolfinx.mesh.compute_midpoints(child, tdim, np.arange(owned, dtype=np.int32))
+        parents = coarse.topology.index_map(tdim).size_local
+        tree = dolfinx.geometry.bb_tree(coarse, tdim, entities=np.arange(parents, dtype=np.int32))
+        hits = dolfinx.geometry.compute_colliding_cells(
+            coarse, dolfinx.geometry.compute_collisions_points(tree, mid), mid
+        )
+        assert np.all(np.diff(hits.offsets) > 0)  # each owned child in an owned parent
+        if COMM.size > 1:
+            # every facet of an owned cell has both its cells here but on ∂ω: the ghosts
+            child.topology.create_connectivity(tdim, tdim - 1)
+            child.topology.create_connectivity(tdim - 1, tdim)
+            c2f, f2c = (
+                child.topology.connectivity(tdim, tdim - 1),
+                child.topology.connectivity(tdim - 1, tdim),
+            )
+            facets = np.unique(c2f.array.reshape(-1, 3)[:owned])
+            interior = np.setdiff1d(facets, boundary_facets(child))
+            assert np.all(np.diff(f2c.offsets)[interior] == 2)
+            ghosts = child.topology.index_map(tdim).num_ghosts
+            assert COMM.allreduce(ghosts) > 0
 
 
 def test_disk_area_converges_quadratically():

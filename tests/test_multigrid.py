@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ctypes
+import dataclasses
+from pathlib import Path
 
 from mpi4py import MPI
 
@@ -11,10 +13,13 @@ import numpy as np
 import pytest
 from conftest import make_paper_shell as paper_shell
 
+from shellobstacle.api import make_mesh, solve
+from shellobstacle.config.loader import load_config
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.mesh.meshing import create_mesh
+from shellobstacle.messages import ConfigError
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
@@ -23,6 +28,8 @@ from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear import multigrid
 from shellobstacle.solvers.linear.multigrid import MultigridStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+
+KOITER = Path(__file__).parents[1] / "examples" / "cylinder_koiter.toml"
 
 
 def disk(refinements: int) -> dolfinx.mesh.Mesh:
@@ -78,6 +85,45 @@ def test_multigrid_gives_the_direct_solution() -> None:
     assert l2_norm(direct.zeta - multigrid.zeta) <= 1e-8 * l2_norm(direct.zeta)
     areas = [Postprocessor(p).contact()["contact_area"] for p in (direct, multigrid)]
     assert areas[0] > 0 and abs(areas[1] - areas[0]) <= 1e-10 * areas[0]
+
+
+@pytest.mark.mpi
+def test_multigrid_gives_the_direct_solution_of_koiters_model() -> None:
+    """Koiter's model (P2, the hybrid bending form's condensed stiffness, facet terms across
+    ranks): the continuation by CG with the V-cycle on the ghosted mesh's two levels (geometric
+    on 2 ranks too: the ghosted refinement keeps the children on their parent's rank) ends at
+    the direct path's ζ and contact area, within one Newton step per κ."""
+    cfg = load_config(KOITER, ["domain.h=0.05", "domain.refinements=1"])
+    mesh = make_mesh(cfg.domain, ghosted=True)
+    runs = []
+    for linear_solver in ("direct", "multigrid"):
+        options = dataclasses.replace(cfg.solver, linear_solver=linear_solver)
+        result = solve(cfg.shell, mesh, cfg.penalty, cfg.discretization, options)
+        assert result.converged
+        runs.append(result)
+    direct, geometric = runs
+    linear = geometric.extra["linear_solver"]
+    assert linear == "multigrid"
+    # within one Newton step per κ (inexact directions; the direct path's contact zone)
+    pairs = zip(geometric.steps, direct.steps, strict=True)
+    assert all(abs(g.iterations - d.iterations) <= 1 for g, d in pairs)
+    zeta = [r.problem.zeta for r in runs]
+    assert l2_norm(zeta[0] - zeta[1]) <= 1e-8 * l2_norm(zeta[0])
+    areas = [Postprocessor(r.problem).contact()["contact_area"] for r in runs]
+    assert areas[0] > 0 and abs(areas[1] - areas[0]) <= 1e-10 * areas[0]
+    iterations = [n for s in geometric.steps for n in s.record.linear_iterations]
+    assert 1 < max(iterations) <= 40, iterations  # GAMG on 2 ranks took 100-900
+
+
+def test_koiters_model_without_levels_is_refused() -> None:
+    """Algebraic multigrid took 100-900 CG iterations per Newton step on Koiter's model: the
+    strategy refuses a mesh without coarser levels and names the fix."""
+    cfg = load_config(KOITER, ["domain.h=0.1"])
+    mesh = make_mesh(cfg.domain, ghosted=True)
+    assert coarser_meshes(mesh) == []
+    options = dataclasses.replace(cfg.solver, linear_solver="multigrid")
+    with pytest.raises(ConfigError, match=r"domain\.refinements >= 1"):
+        solve(cfg.shell, mesh, cfg.penalty, cfg.discretization, options)
 
 
 def test_without_a_hierarchy_it_is_algebraic_multigrid() -> None:

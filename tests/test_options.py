@@ -170,6 +170,9 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
     assert memory.linear_solver_for("auto", 1.1e6, "membrane", 1) == "multigrid"  # faster
     assert memory.linear_solver_for("auto", 1.1e6, "membrane", 1, levels=False) == "direct"
     assert memory.linear_solver_for("auto", 1.1e6, "koiter", 2) == "direct"
+    # Koiter's multigrid (not O(N): taken where only it fits, on a refined mesh)
+    assert memory.linear_solver_for("auto", 3e6, "koiter", 2) == "multigrid"
+    assert memory.linear_solver_for("auto", 3e6, "koiter", 2, levels=False) == "direct"
     assert memory.linear_solver_for("auto", est.dofs, "membrane", 2) == "direct"
     assert memory.linear_solver_for("iterative", est.dofs, "membrane", 1) == "iterative"
     chosen = resources.require_fits(big, linear_solver="auto")

@@ -213,7 +213,8 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "linear_solver",
             "str",
             f"multigrid (membrane P1) from {MULTIGRID_FROM_DOFS / 1e6:g} M dofs on a refined "
-            "mesh and where only its memory estimate fits this machine, else direct; "
+            "mesh and (membrane P1, Koiter on a refined mesh) where only its memory estimate "
+            "fits this machine, else direct; "
             "MUMPS; inexact Newton with flexible CG and a field split (GAMG on ζ_α): about 70 % "
             "of the memory; or inexact Newton with CG and geometric multigrid on the mesh's "
             "uniform refinements (GAMG on a mesh without them)",

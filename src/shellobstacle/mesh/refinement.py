@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from mpi4py import MPI  # noqa: F401  (loads MPI before dolfinx)
+from mpi4py import MPI  # (loads MPI before dolfinx)
 
 import dolfinx
+import dolfinx.graph
 import dolfinx.mesh
 import numpy as np
 import ufl
@@ -18,7 +19,7 @@ from shellobstacle.mesh.measures import boundary_facets
 if TYPE_CHECKING:
     from shellobstacle.mesh.domains import DomainSpec
 
-__all__ = ["prepare", "red_refinement", "refine_marked", "refine_uniformly"]
+__all__ = ["keep_ranks", "prepare", "red_refinement", "refine_marked", "refine_uniformly"]
 
 
 def prepare(mesh: dolfinx.mesh.Mesh) -> None:
@@ -35,13 +36,13 @@ def refine_uniformly(mesh: dolfinx.mesh.Mesh, ghosted: bool = False) -> dolfinx.
     meshes are nested: the P1 space of ``mesh`` is a subspace of the refined one. (Plaza
     refinement, ``dolfinx.mesh.refine``, also bisects every edge but cuts along a median,
     so its children are not similar and h does not halve.) The children stay on their
-    parent's rank, without ghost cells (nothing is repartitioned); the refined mesh is a 2D
-    mesh (``geometry.dim == 2``).
+    parent's rank (nothing is repartitioned); the refined mesh is a 2D mesh
+    (``geometry.dim == 2``).
 
     Args:
         mesh: Triangle mesh.
-        ghosted: in parallel, repartition the refined mesh with one layer of facet-sharing
-            ghost cells (interior-facet integrals across ranks need them).
+        ghosted: in parallel, give the refined mesh one layer of facet-sharing ghost cells
+            (interior-facet integrals across ranks need them).
 
     Returns:
         The refined mesh, with edges and facet-cell connectivity created; it remembers
@@ -77,12 +78,12 @@ def red_refinement(
 ) -> dolfinx.mesh.Mesh:
     """DOLFINx's uniform refinement with a 2D geometry; ``curve``: a disk or ellipse whose
     boundary the new boundary nodes are moved onto (radially from its centre); ``ghosted``:
-    repartition in parallel with facet-sharing ghost cells.
+    in parallel, with facet-sharing ghost cells (:func:`keep_ranks`).
 
-    The refined mesh remembers ``mesh`` and its coarser meshes (the levels of geometric
-    multigrid and nested iteration, :mod:`~shellobstacle.mesh.hierarchy`) while the children
-    stay on their parent's rank: not after a ghosted refinement in parallel, which
-    repartitions.
+    The children stay on their parent's rank, so the refined mesh remembers ``mesh`` and its
+    coarser meshes (the levels of geometric multigrid and nested iteration,
+    :mod:`~shellobstacle.mesh.hierarchy`, whose interpolation finds each fine node in a
+    coarse cell of its own rank).
 
     DOLFINx 0.11's ``uniform_refine`` returns a geometry with three coordinates per node: the
     refined topology gets a new 2D geometry on the same nodes (no ``create_mesh``, whose cell
@@ -91,7 +92,9 @@ def red_refinement(
     mesh.topology.create_entities(1)
     partitioner = None
     if ghosted and mesh.comm.size > 1:
-        partitioner = dolfinx.mesh.create_cell_partitioner(dolfinx.mesh.GhostMode.shared_facet, 2)
+        partitioner = dolfinx.mesh.create_cell_partitioner(
+            keep_ranks, dolfinx.mesh.GhostMode.shared_facet, 2
+        )
     fine = dolfinx.mesh.uniform_refine(mesh, partitioner)
     geometry = fine.geometry
     x = np.ascontiguousarray(geometry.x[:, :2])
@@ -105,9 +108,37 @@ def red_refinement(
         dolfinx.cpp.mesh.Mesh_float64(mesh.comm, fine.topology._cpp_object, planar),
         ufl.Mesh(mesh.ufl_domain().ufl_coordinate_element()),
     )
-    if partitioner is None:
-        record(refined, mesh)
+    record(refined, mesh)
     return refined
+
+
+def keep_ranks(
+    comm: MPI.Comm, nparts: int, graph: dolfinx.cpp.graph.AdjacencyList_int64, ghosting: bool
+) -> dolfinx.cpp.graph.AdjacencyList_int32:
+    """A graph partitioner (``dolfinx.mesh.create_cell_partitioner``) that leaves every cell
+    on its rank and, with ``ghosting``, ghosts it on the ranks of its neighbours in ``graph``
+    (the cells' facet-dual graph: a layer of facet-sharing ghost cells).
+
+    DOLFINx's partitioners balance a graph anew: after a refinement the children would leave
+    their parent's rank and the levels could not be interpolated rank by rank. The graph's
+    nodes are this rank's cells, numbered globally in rank order; a cell's destinations are its
+    rank, then its ghosts' ranks.
+    """
+    n = graph.num_nodes
+    offsets, links = np.asarray(graph.offsets), np.asarray(graph.array)
+    starts = np.cumsum(comm.allgather(n)) - n  # each rank's first global cell
+    node = np.repeat(np.arange(n), np.diff(offsets))
+    owner = np.searchsorted(starts, links, side="right") - 1
+    other = owner != comm.rank
+    if not ghosting:
+        other[:] = False
+    pairs = np.unique(np.stack([node[other], owner[other]], axis=1), axis=0).reshape(-1, 2)
+    counts = 1 + np.bincount(pairs[:, 0], minlength=n)
+    dest_offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)
+    dest = np.full(dest_offsets[-1], comm.rank, dtype=np.int32)
+    first = np.searchsorted(pairs[:, 0], pairs[:, 0])  # each pair's rank among its node's
+    dest[dest_offsets[pairs[:, 0]] + 1 + np.arange(len(pairs)) - first] = pairs[:, 1]
+    return dolfinx.graph.adjacencylist(dest, dest_offsets)._cpp_object
 
 
 def onto_curve(mesh: dolfinx.mesh.Mesh, x: np.ndarray, spec: DomainSpec) -> None:
@@ -117,7 +148,8 @@ def onto_curve(mesh: dolfinx.mesh.Mesh, x: np.ndarray, spec: DomainSpec) -> None
 
     Each rank moves the nodes of its own boundary facets: a new boundary node is the midpoint
     of a boundary edge, and all the cells through it are children of the one cell that had
-    that edge, on one rank (``uniform_refine`` keeps children on their parent's rank).
+    that edge, on that cell's rank (``uniform_refine`` keeps children on their parent's
+    rank); a rank that holds such cells as ghosts moves its copies of the node alike.
     """
     facets = boundary_facets(mesh)
     nodes = np.unique(dolfinx.mesh.entities_to_geometry(mesh, mesh.topology.dim - 1, facets))

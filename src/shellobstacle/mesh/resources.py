@@ -8,15 +8,16 @@ line with the estimate, what cannot fit in this machine's memory.
 The memory per dof was measured on the paper's problem with the direct solver (peak resident
 memory, ``docs/perf/koiter/`` and the 1.93 M-dof runs of ``docs/performance.md``): 3.0–3.4 kB
 per dof for the membrane model with P1, 3.4 kB with P2, 9.1 kB for Koiter's model with P2
-(whose factor fills more); a mesh alone costs 0.6–0.7 kB per vertex. The figures below round
-them up; they are estimates within a factor of about 1.5, good for refusing what is far out of
-reach, not for planning a run to the last gigabyte (``--force`` proceeds anyway). Multigrid
-(``solver.linear_solver = "multigrid"``, membrane P1) factorizes only gmsh's coarse mesh: 2.0–2.1
-kB per dof from 1.3 M to 7.7 M dofs (``docs/perf/multigrid/``), so a mesh refused for the direct
-solver may fit with it: ``solver.linear_solver = "auto"`` (the default) then takes multigrid
-(:func:`~shellobstacle.mesh.memory.linear_solver_for`), and a refusal of ``"direct"`` asked
-for by name says so. Messages give memory in GiB (2³⁰ bytes), the unit ``free -g`` and the
-documentation use.
+(whose factor fills more; 12.4 kB on the cylindrical panel at 0.92 M dofs); a mesh alone costs
+0.6–0.7 kB per vertex. The figures below round them up; they are estimates within a factor of
+about 1.5, good for refusing what is far out of reach, not for planning a run to the last
+gigabyte (``--force`` proceeds anyway). Multigrid (``solver.linear_solver = "multigrid"``)
+factorizes only the coarsest mesh: 2.0–2.1 kB per dof for the membrane P1 from 1.3 M to 7.7 M
+dofs, 3.9–4.7 kB for Koiter's model at 0.23–0.92 M (``docs/perf/multigrid/``), so a mesh
+refused for the direct solver may fit with it: ``solver.linear_solver = "auto"`` (the
+default) then takes multigrid (:func:`~shellobstacle.mesh.memory.linear_solver_for`), and a
+refusal of ``"direct"`` asked for by name says so. Messages give memory in GiB (2³⁰ bytes),
+the unit ``free -g`` and the documentation use.
 """
 
 from __future__ import annotations

@@ -91,8 +91,9 @@ class NewtonOptions:
             :mod:`~shellobstacle.solvers.linear.multigrid`); ``"auto"`` (the default):
             ``"multigrid"`` for the membrane P1 from
             :data:`~shellobstacle.mesh.memory.MULTIGRID_FROM_DOFS` dofs on a mesh with coarser
-            levels and wherever the direct path's memory estimate does not fit this machine,
-            ``"direct"`` else (:func:`~shellobstacle.mesh.memory.auto_choice`).
+            levels, and for the membrane P1 and Koiter's model (on a mesh with coarser levels)
+            wherever the direct path's memory estimate does not fit this machine, ``"direct"``
+            else (:func:`~shellobstacle.mesh.memory.auto_choice`).
         factorization: of the direct solver: ``"cholesky"`` (MUMPS' LDLᵀ; the Jacobians are
             symmetric positive definite: half the memory of LU) or ``"lu"``.
         contact_zone: with the direct solver, condense every Newton step onto a contact zone

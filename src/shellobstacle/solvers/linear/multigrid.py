@@ -29,6 +29,15 @@ direction whose CG fails, or needs more than
 :data:`~shellobstacle.solvers.linear.iterative.KEPT_ITERATION_FACTOR` times the most
 iterations since the set-up, is solved again with the levels set up anew.
 
+Koiter's model (P2; the hybrid bending form's stiffness condensed onto ζ, with the couplings
+of the two cells of each facet) takes the same V-cycle on its ghosted meshes, whose
+refinements keep the children on their parent's rank
+(:func:`~shellobstacle.mesh.refinement.keep_ranks`). Its answers are the direct path's, in
+about half the memory, but the bending part is of fourth order and the point smoother's
+V-cycle does not hold its contraction as h halves: the CG iterations per Newton step grow
+about 1.6× per halving (docs/perf/multigrid.md). Without the levels it is refused (GAMG took
+100–900 CG iterations per Newton step).
+
 A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls back to
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
 component as its near-nullspace: set up at every Newton step, it is 1.5–1.9× slower than the
@@ -51,6 +60,7 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
+from shellobstacle.messages import ConfigError
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.quadrature import penalty_factor
 from shellobstacle.solvers import libpetsc
@@ -139,6 +149,12 @@ class MultigridStrategy(IterativeStrategy):
         ksp.setOptionsPrefix(prefix)
         ksp.setType("cg")
         transfers = self._transfers(system.problem)
+        if not transfers and system.problem.model == "koiter":
+            raise ConfigError(
+                "solver.linear_solver = 'multigrid' for Koiter's model needs the mesh's coarser "
+                "levels (algebraic multigrid took 100-900 CG iterations per Newton step): set "
+                "domain.refinements >= 1, or use linear_solver = 'direct'"
+            )
         self.levels = len(transfers) + 1
         options = dict(_GEOMETRIC if transfers else _ALGEBRAIC)
         options["mg_levels_pc_type"] = self.smoother
