@@ -158,7 +158,8 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
     """The paper's h = 0.0006 (7.7 M dofs) on a 24 GiB machine: refused for the direct solver
     (3.5 kB per dof), with multigrid named as fitting (2.2 kB per dof, measured 2.0–2.1); with
     multigrid the estimate passes, ``"auto"`` (the default) stands for multigrid there, and a
-    method that factorizes is estimated as direct."""
+    method that factorizes is estimated as direct. Koiter's model likewise (13 and 5 kB per
+    dof), its multigrid named with the refinement it needs."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(memory, "machine_memory", lambda: 24 * 2.0**30)
     big = DomainSpec("disk", 0.0006)
@@ -189,6 +190,14 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
     assert resources.linear_solver_of("brezis-sibony", options) == "direct"
     with pytest.raises(resources.ResourceError, match="multigrid"):
         resources.require_fits(big, linear_solver=resources.linear_solver_of("active-set", None))
+    # Koiter's model: multigrid fits in its 5 kB per dof, on a refined mesh only (named)
+    panel = DomainSpec("rectangle", 1 / 450, corners=((0.0, 0.0), (1.0, 1.0)))
+    with pytest.raises(resources.ResourceError, match=r"with domain\.refinements >= 1 \(about"):
+        resources.require_fits(panel, "koiter", 2)
+    refined = DomainSpec("rectangle", 1 / 225, corners=((0.0, 0.0), (1.0, 1.0)), refinements=1)
+    with pytest.raises(resources.ResourceError, match=r'"multigrid" \(about'):
+        resources.require_fits(refined, "koiter", 2)
+    assert resources.require_fits(refined, "koiter", 2, linear_solver="auto") is not None
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")

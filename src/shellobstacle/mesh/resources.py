@@ -120,8 +120,8 @@ def require_fits(
     est = estimate(spec, model, degree, "direct")
     if est is None:
         return None
+    levels = coarsening_steps(spec) + spec.refinements > 0
     if linear_solver == "auto" and math.isfinite(est.dofs):
-        levels = coarsening_steps(spec) + spec.refinements > 0
         linear_solver = linear_solver_for("auto", est.dofs, model, degree, comm, levels)
     est = estimate(spec, model, degree, linear_solver)
 
@@ -139,8 +139,9 @@ def require_fits(
                 "use a larger h"
             )
         multigrid = need_with(est.dofs * bytes_per_dof(model, degree, "multigrid"))
+        refine = " with domain.refinements >= 1" if model == "koiter" and not levels else ""
         instead = (
-            f', solver.linear_solver = "multigrid" (about {multigrid / GIB:.3g} GiB)'
+            f', solver.linear_solver = "multigrid"{refine} (about {multigrid / GIB:.3g} GiB)'
             if solve and multigrid <= MEMORY_SHARE * have and linear_solver != "multigrid"
             else ""
         )
