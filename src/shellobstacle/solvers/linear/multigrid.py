@@ -32,11 +32,11 @@ iterations since the set-up, is solved again with the levels set up anew.
 Koiter's model (P2; the hybrid bending form's stiffness condensed onto ζ, with the couplings
 of the two cells of each facet) takes the same V-cycle on its ghosted meshes, whose
 refinements keep the children on their parent's rank
-(:func:`~shellobstacle.mesh.refinement.keep_ranks`). Its answers are the direct path's, in
-about half the memory, but the bending part is of fourth order and the point smoother's
-V-cycle does not hold its contraction as h halves: the CG iterations per Newton step grow
-about 1.6× per halving (docs/perf/multigrid.md). Without the levels it is refused (GAMG took
-100–900 CG iterations per Newton step).
+(:func:`~shellobstacle.mesh.refinement.keep_ranks`), in W-cycles: the bending part is of
+fourth order, and with V-cycles the CG iterations per Newton step grew 1.65× and 1.36× as h
+halved on the cylindrical panel (9.0, 14.9, 20.3 at 58k–925k dofs), with W-cycles 9.0, 11.5,
+11.9 (docs/perf/multigrid.md). Its answers are the direct path's, in a third to a half of the
+memory. Without the levels it is refused (GAMG took 100–900 CG iterations per Newton step).
 
 A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls back to
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
@@ -158,6 +158,8 @@ class MultigridStrategy(IterativeStrategy):
         self.levels = len(transfers) + 1
         options = dict(_GEOMETRIC if transfers else _ALGEBRAIC)
         options["mg_levels_pc_type"] = self.smoother
+        if system.problem.model == "koiter":  # fourth-order bending: W-cycles (docstring)
+            options["pc_mg_cycle_type"] = "w"
         database = PETSc.Options()  # (the user's petsc_options, already there, win)
         mine = {k: v for k, v in options.items() if not database.hasName(prefix + k)}
         set_options(self, prefix, mine)
