@@ -131,12 +131,13 @@ def main() -> None:
     rows = []
     refinements = [None] if args.refinements is None else args.refinements.split(",")
     sizes = [
-        (float(h), None if r is None else int(r))
+        (float(h), None if n is None else int(n))
         for h in args.sizes.split(",")
-        for r in refinements
+        for n in refinements
     ]
-    for h, r in sizes:
-        pair = [run(h, solver, args.force, args.config, r) for solver in args.solvers.split(",")]
+    for h, refine in sizes:
+        solvers = args.solvers.split(",")
+        pair = [run(h, solver, args.force, args.config, refine) for solver in solvers]
         direct = [r["contact_area"] for r in pair if r["linear_solver"].startswith("direct")]
         for row in pair:
             if direct:

@@ -3,8 +3,8 @@ and what ``solver.linear_solver = "auto"`` stands for (:func:`linear_solver_for`
 
 The figures per dof were measured on the paper's problem, Koiter's on the cylindrical panel
 (peak resident memory, ``docs/perf/koiter/``, ``docs/perf/multigrid/`` and the 1.93 M-dof
-runs of ``docs/performance.md``) and rounded up: estimates within a factor of about 1.5. They decide
-what "auto" stands for where the direct path does not fit, and what
+runs of ``docs/performance.md``) and rounded up: estimates within a factor of about 1.5. They
+decide what "auto" stands for where the direct path does not fit, and what
 :func:`~shellobstacle.mesh.resources.require_fits` refuses.
 """
 
@@ -26,13 +26,14 @@ __all__ = [
     "bytes_per_dof",
     "linear_solver_for",
     "machine_memory",
+    "multigrid_needs_levels",
     "need",
 ]
 
 #: Peak memory per dof of a solve with a factorization, bytes, by (model, degree).
 BYTES_PER_DOF = {("membrane", 1): 3.5e3, ("membrane", 2): 4.0e3, ("koiter", 2): 13.0e3}
 #: Peak memory per dof of a solve with multigrid, bytes, by (model, degree): the models whose
-#: V-cycle was measured (docs/perf/multigrid.md).
+#: multigrid was measured (docs/perf/multigrid.md).
 BYTES_PER_DOF_MULTIGRID = {("membrane", 1): 2.2e3, ("koiter", 2): 5.0e3}
 #: Memory per vertex of a mesh and the assumption checks (no solve), bytes.
 BYTES_PER_VERTEX_MESH = 1.0e3
@@ -50,6 +51,12 @@ GIB = 2.0**30
 MULTIGRID_FROM_DOFS = 1.0e6
 
 
+def multigrid_needs_levels(model: str) -> bool:
+    """Whether ``model``'s multigrid needs the mesh's coarser levels (Koiter's: algebraic
+    multigrid, the fallback without them, took 100–900 CG iterations per Newton step)."""
+    return model == "koiter"
+
+
 def machine_memory() -> float:
     """Physical memory of this machine, bytes."""
     return float(os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES"))
@@ -57,7 +64,7 @@ def machine_memory() -> float:
 
 def bytes_per_dof(model: str, degree: int, linear_solver: str) -> float:
     """Peak bytes per dof of a solve of ``model`` with Lagrange ``degree`` by
-    ``linear_solver`` (multigrid's own figure for the membrane P1, a factorization's else)."""
+    ``linear_solver`` (multigrid's own figure where it was measured, a factorization's else)."""
     if linear_solver == "multigrid" and (model, degree) in BYTES_PER_DOF_MULTIGRID:
         return BYTES_PER_DOF_MULTIGRID[(model, degree)]
     return BYTES_PER_DOF.get((model, degree), BYTES_PER_DOF[("koiter", 2)])
@@ -104,6 +111,6 @@ def auto_choice(
     fits = comm.bcast(bool(needed <= MEMORY_SHARE * machine_memory()), root=0)
     if fits:
         return "direct", "the direct path's memory estimate fits this machine"
-    if model == "koiter" and not levels:
+    if multigrid_needs_levels(model) and not levels:
         return "direct", "Koiter's multigrid needs a refined mesh"
     return "multigrid", "the direct path's memory estimate does not fit this machine"

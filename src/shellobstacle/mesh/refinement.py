@@ -129,9 +129,7 @@ def keep_ranks(
     starts = np.cumsum(comm.allgather(n)) - n  # each rank's first global cell
     node = np.repeat(np.arange(n), np.diff(offsets))
     owner = np.searchsorted(starts, links, side="right") - 1
-    other = owner != comm.rank
-    if not ghosting:
-        other[:] = False
+    other = (owner != comm.rank) & ghosting  # (no ghosts: only the owner)
     pairs = np.unique(np.stack([node[other], owner[other]], axis=1), axis=0).reshape(-1, 2)
     counts = 1 + np.bincount(pairs[:, 0], minlength=n)
     dest_offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int32)

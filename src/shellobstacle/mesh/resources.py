@@ -139,7 +139,8 @@ def require_fits(
                 "use a larger h"
             )
         multigrid = need_with(est.dofs * bytes_per_dof(model, degree, "multigrid"))
-        refine = " with domain.refinements >= 1" if model == "koiter" and not levels else ""
+        needs = memory.multigrid_needs_levels(model) and not levels
+        refine = " with domain.refinements >= 1" if needs else ""
         instead = (
             f', solver.linear_solver = "multigrid"{refine} (about {multigrid / GIB:.3g} GiB)'
             if solve and multigrid <= MEMORY_SHARE * have and linear_solver != "multigrid"

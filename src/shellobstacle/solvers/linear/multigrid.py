@@ -30,7 +30,7 @@ direction whose CG fails, or needs more than
 iterations since the set-up, is solved again with the levels set up anew.
 
 Koiter's model (P2; the hybrid bending form's stiffness condensed onto ζ, with the couplings
-of the two cells of each facet) takes the same V-cycle on its ghosted meshes, whose
+of the two cells of each facet) takes the same multigrid on its ghosted meshes, whose
 refinements keep the children on their parent's rank
 (:func:`~shellobstacle.mesh.refinement.keep_ranks`), in W-cycles: the bending part is of
 fourth order, and with V-cycles the CG iterations per Newton step grew 1.65× and 1.36× as h
@@ -60,6 +60,7 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
+from shellobstacle.mesh.memory import multigrid_needs_levels
 from shellobstacle.messages import ConfigError
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.quadrature import penalty_factor
@@ -149,7 +150,7 @@ class MultigridStrategy(IterativeStrategy):
         ksp.setOptionsPrefix(prefix)
         ksp.setType("cg")
         transfers = self._transfers(system.problem)
-        if not transfers and system.problem.model == "koiter":
+        if not transfers and multigrid_needs_levels(system.problem.model):
             raise ConfigError(
                 "solver.linear_solver = 'multigrid' for Koiter's model needs the mesh's coarser "
                 "levels (algebraic multigrid took 100-900 CG iterations per Newton step): set "
