@@ -373,3 +373,41 @@ def test_a_failed_factorization_raises_a_clear_error() -> None:
     ):
         factorize(ksp, "the test matrix")
     ksp.destroy()
+
+
+@pytest.mark.mpi
+def test_a_zone_too_large_is_built_again_once_the_contact_shrinks(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """The cylindrical panel's first step penetrates 45 % of its dofs' points, its contact at
+    the first κ holds a third of that: the whole Jacobian is factorized only until a zone
+    built from the active points fits, then the steps are the zone's, with the answer of the
+    path without a zone."""
+    from pathlib import Path
+
+    from shellobstacle.api import solve_config
+    from shellobstacle.config.loader import load_config
+    from shellobstacle.post.contact import Postprocessor
+    from shellobstacle.solvers.zone.contact_zone import ContactZone
+
+    states: list[bool] = []
+    set_zone = ContactZone.set_zone
+
+    def spy(self: ContactZone, Z: np.ndarray, pattern: object = None) -> None:
+        set_zone(self, Z, pattern)
+        states.append(self.whole)
+
+    monkeypatch.setattr(ContactZone, "set_zone", spy)
+    config = str(Path(__file__).parents[1] / "examples" / "cylinder_koiter.toml")
+    runs = []
+    for zone in ("true", "false"):
+        cfg = load_config(config, ["domain.h=0.05", f"solver.contact_zone={zone}"])
+        result = solve_config(cfg)
+        assert result.converged
+        area = Postprocessor(result.problem).contact()["contact_area"]
+        runs.append((result.problem.zeta.x.petsc_vec.copy(), area))
+    assert states == [True, False]  # whole at the seed, then one zone for the continuation
+    (zeta, area), (reference, area_reference) = runs
+    assert area == pytest.approx(area_reference, rel=1e-12)
+    zeta.axpy(-1.0, reference)
+    assert zeta.norm() <= 1e-9 * reference.norm()

@@ -4,9 +4,11 @@ The zone holds every active point. When an active point leaves it, the zone is r
 around the active points, the penetration of the last full Newton step and the old zone,
 then dilated by rings of the stiffness graph until its dofs have doubled (room for the
 contact region to move). A zone above ``max_fraction`` of the dofs is not worth condensing:
-the whole Jacobian is then factorized instead. The zone depends on the mesh, not on κ: it is
-kept across the continuation, and saved with a sweep's records so that a resumed run
-repeats the uninterrupted one.
+the whole Jacobian is then factorized instead, until the active points and the last full
+step's penetration have shrunk enough for a zone built from them alone to fit (the first
+steps of a weak penalty press a wide region that the later κ give back). The zone depends on
+the mesh, not on κ: it is kept across the continuation, and saved with a sweep's records so
+that a resumed run repeats the uninterrupted one.
 """
 
 from __future__ import annotations
@@ -26,7 +28,10 @@ from shellobstacle.solvers.zone.graph import csr, dilate, dofs_of, inside, union
 from shellobstacle.solvers.zone.multipliers import HybridBlocks
 from shellobstacle.solvers.zone.reduced import ZoneProblem
 
-__all__ = ["ContactZone"]
+__all__ = ["DILATION", "ContactZone"]
+
+#: a zone's dofs are those of its points, dilated by rings of ``K``'s graph to this multiple
+DILATION = 2
 
 
 class ContactZone:
@@ -58,6 +63,7 @@ class ContactZone:
         self.points: np.ndarray | None = None  # owned points inside the zone (None: no zone)
         self.Z: np.ndarray | None = None  # the zone's dofs (global, sorted, on all ranks)
         self.whole = False  # the zone is too large: factorize the whole Jacobian
+        self.held = 0  # points inside the zone (all ranks')
         self.builds = 0  # zones built (each a factorization of K_II)
         self.cond: Condensation | None = None
         self.problem: ZoneProblem | None = None
@@ -87,23 +93,45 @@ class ContactZone:
         """Make the zone hold the active points; returns True if a zone was built.
 
         ``hint``: more points the zone should hold (the penetration of the last full step).
+        A zone too large is built again from the active points and ``hint`` alone once the
+        zone they predict fits (a zone's dofs taken as proportional to the points it holds;
+        a zone that fits is kept while it holds the active points: building one costs more
+        than the smaller zone saves, measured on Koiter's panel at 58k dofs).
         """
-        if self.covers(active):
+        base = active if hint is None else active | hint
+        if self.whole:
+            count = self._held(base)
+            predicted = DILATION * count * self.Z.size / max(self.held, 1)
+            if count == 0 or predicted > self.max_fraction * self.n:
+                return False
+        elif self.covers(active):
             return False
         t0, factorize0 = time.perf_counter(), self.timings["factorize"]
-        base = active.copy()
-        if hint is not None:
-            base |= hint
         if self.points is not None:
-            base |= self.points
+            base = base | self.points
         pattern = csr(self.penalty.M)
         Z = dofs_of(self.comm, base, pattern)
         if Z.size:
-            Z = dilate(self.K, Z, 2 * Z.size)
-        self.set_zone(Z, pattern)
-        spent = time.perf_counter() - t0 - (self.timings["factorize"] - factorize0)
-        self.timings["zone"] += spent
-        return True
+            Z = dilate(self.K, Z, DILATION * Z.size)
+        built = not (self.whole and self._too_large(Z))
+        if built:
+            self.set_zone(Z, pattern)
+        else:  # still too large: the whole Jacobian's factorization (its analysis) is kept
+            self._set_whole(Z, pattern)
+        self.timings["zone"] += time.perf_counter() - t0 - (self.timings["factorize"] - factorize0)
+        return built
+
+    def _too_large(self, Z: np.ndarray) -> bool:
+        return Z.size > self.max_fraction * self.n
+
+    def _held(self, points: np.ndarray) -> int:
+        """How many points (a mask of owned points) on all ranks."""
+        return self.comm.allreduce(int(np.count_nonzero(points)), op=MPI.SUM)
+
+    def _set_whole(self, Z: np.ndarray, pattern: tuple[np.ndarray, np.ndarray]) -> None:
+        """``Z`` is too large: factorize the whole Jacobian (``Z`` kept to be tried again)."""
+        self.whole, self.Z, self.points = True, Z, None
+        self.held = self._held(inside(self.n, Z, pattern))
 
     def set_zone(self, Z: np.ndarray, pattern: tuple[np.ndarray, np.ndarray] | None = None) -> None:
         """Make ``Z`` (sorted global dofs, the same on all ranks) the zone (collective).
@@ -113,12 +141,13 @@ class ContactZone:
         caller has it.
         """
         self.destroy()
-        self.whole = Z.size > self.max_fraction * self.n
-        self.Z = Z
-        if self.whole:
-            self.points = None
+        pattern = pattern or csr(self.penalty.M)
+        if self._too_large(Z):
+            self._set_whole(Z, pattern)
             return
-        self.points = inside(self.n, Z, pattern or csr(self.penalty.M))
+        self.whole, self.Z = False, Z
+        self.points = inside(self.n, Z, pattern)
+        self.held = self._held(self.points)
         self.cond = Condensation(self.K, Z, self.factorization, self.timings, self._blocks())
         if Z.size:
             self.problem = ZoneProblem(self.cond, self.penalty, self.points, self.timings)
