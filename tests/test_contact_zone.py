@@ -379,10 +379,10 @@ def test_a_failed_factorization_raises_a_clear_error() -> None:
 def test_a_zone_too_large_is_built_again_once_the_contact_shrinks(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """The cylindrical panel's first step penetrates 45 % of its dofs' points, its contact at
-    the first κ holds a third of that: the whole Jacobian is factorized only until a zone
-    built from the active points fits, then the steps are the zone's, with the answer of the
-    path without a zone."""
+    """The cylindrical panel's zone seeded where its first step penetrates holds 45 % of the
+    dofs; its contact at the first κ holds half those points: the whole Jacobian is factorized
+    only until a zone built from the active points fits, then the steps are the zone's, with
+    the answer of the path without a zone."""
     from pathlib import Path
 
     from shellobstacle.api import solve_config

@@ -63,7 +63,7 @@ class ContactZone:
         self.points: np.ndarray | None = None  # owned points inside the zone (None: no zone)
         self.Z: np.ndarray | None = None  # the zone's dofs (global, sorted, on all ranks)
         self.whole = False  # the zone is too large: factorize the whole Jacobian
-        self.held = 0  # points inside the zone (all ranks')
+        self.held = 0  # points inside a zone too large (all ranks')
         self.builds = 0  # zones built (each a factorization of K_II)
         self.cond: Condensation | None = None
         self.problem: ZoneProblem | None = None
@@ -147,7 +147,6 @@ class ContactZone:
             return
         self.whole, self.Z = False, Z
         self.points = inside(self.n, Z, pattern)
-        self.held = self._held(self.points)
         self.cond = Condensation(self.K, Z, self.factorization, self.timings, self._blocks())
         if Z.size:
             self.problem = ZoneProblem(self.cond, self.penalty, self.points, self.timings)
