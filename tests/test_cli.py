@@ -261,3 +261,47 @@ def test_an_experiment_whose_solver_fails_says_so_in_one_line(tmp_path: Path, ca
     assert "raise solver.max_iterations" in err and f"{out}/steps/" in err
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert "solver failure: Newton did not converge" in (out / "log.txt").read_text()
+
+
+def test_a_misspelled_petsc_option_is_a_warning_on_stderr_and_in_the_log(
+    tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """The warning of an option no PETSc object read (a misspelling) is reported where the
+    run's other lines are, once, besides summary.json's ``warnings``."""
+    out = tmp_path / "run"
+    args = ["solve", str(SMALL), "-o", str(out), "--set", "domain.h=0.1"]
+    args += ["--set", "output.figures=false", "--set", "solver.petsc_options.ksp_tpye=cg"]
+    capsys.readouterr()
+    assert main(args) == 0
+    err = capsys.readouterr().err
+    warning = "warning: solver.petsc_options.ksp_tpye: no PETSc object of newton read it"
+    assert err.count(warning) == 1, err
+    assert (out / "log.txt").read_text().count(warning) == 1
+    summary = json.loads((out / "summary.json").read_text())
+    assert [w for w in summary["warnings"] if "ksp_tpye" in w]
+    load = tmp_path / "load"  # an experiment's log too
+    paraboloid = SMALL.parent / "paraboloid.toml"
+    args = ["experiment", "load", str(paraboloid), "--values", "0,40", "-o", str(load), "-q"]
+    args += ["--set", "domain.h=0.1", "--set", "solver.petsc_options.ksp_tpye=cg", *NO_PICTURES]
+    assert main(args) == 0
+    assert (load / "log.txt").read_text().count(warning) == 1
+
+
+def test_the_first_line_with_h_names_the_target_too(tmp_path: Path) -> None:
+    """The mesh obtained (h, its largest cell diameter) beside the size asked for, in the
+    first line that reports h: for solve and for an experiment."""
+    import re
+
+    out = tmp_path / "run"
+    args = ["solve", str(SMALL), "-o", str(out), "-q", "--set", "domain.h=0.1"]
+    assert main([*args, "--set", "output.figures=false"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    with_h = [line for line in (out / "log.txt").read_text().splitlines() if "h = " in line]
+    assert f"h = {summary['h']:.4g} (target 0.1)" in with_h[0], with_h
+    load = tmp_path / "load"
+    paraboloid = SMALL.parent / "paraboloid.toml"
+    args = ["experiment", "load", str(paraboloid), "--values", "0", "-o", str(load), "-q"]
+    args += ["--set", "domain.h=0.1", *NO_PICTURES]
+    assert main(args) == 0
+    with_h = [line for line in (load / "log.txt").read_text().splitlines() if "h = " in line]
+    assert re.search(r"h = [0-9.]+ \(target 0\.1\), \d+ cells", with_h[0]), with_h

@@ -184,6 +184,7 @@ _COMPANIONS = {
     (Obstacle, "kind", "sphere"): {"center": (0, 0, -1), "radius": 1.0},
     (Obstacle, "kind", "cylinder"): {"point": (0, 0, -1), "axis": (1, 0, 0), "radius": 1.0},
     (Obstacle, "kind", "expression"): {"g": "x3"},
+    (Obstacle, "side", "inside"): {"kind": "sphere", "center": (0, 0, -1), "radius": 1.0},
 }
 
 

@@ -23,6 +23,9 @@ WITH_CONTACT = {"ellipsoid.toml", "paraboloid.toml", "cylinder_koiter.toml"}
 #: coarse, yet fine enough for every example's solution to be inside the model's validity (at
 #: 0.08 the paraboloid's bump load, 3 cells across, penetrates the plane by 11 % of its height)
 COARSE = "domain.h=0.06"
+#: the roller (radius 0.3) spans 3.6 of the coarse mesh's cells, too few (post/resolution);
+#: at the example's own h = 0.02 it spans about 10
+COARSE_WARNINGS = {"koiter_panel_on_roller.toml": "the mesh does not resolve the obstacle"}
 
 
 def _ids(path: Path) -> str:
@@ -63,7 +66,12 @@ def test_example_solves(path: Path, tmp_path: Path) -> None:
     assert summary["converged"] is True
     assert summary["error"] is None
     assert all(c["passed"] for c in summary["checks"])
-    assert summary["validity"]["valid"] is True and summary["warnings"] == []
+    assert summary["validity"]["valid"] is True
+    expected = COARSE_WARNINGS.get(path.name)
+    if expected is None:
+        assert summary["warnings"] == []
+    else:
+        assert len(summary["warnings"]) == 1 and summary["warnings"][0].startswith(expected)
     assert (out / "cross_section.png").is_file() and (out / "surface.bp").is_dir()
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")]  # no temporaries
     if path.name in WITH_CONTACT:

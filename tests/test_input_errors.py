@@ -316,8 +316,10 @@ def test_only_the_papers_load_draws_its_loaded_disk(tmp_path, monkeypatch) -> No
 
     labels = _horizontal_line_labels(monkeypatch)
     study = load.LoadStudy("ell", 0.1, 1e-3, 100)
-    study.rows = [{"ell": v, "contact_area": a, "contact_area_projected": a} for v, a in
-                  [(0.0, 0.01), (10.0, 0.02)]]  # fmt: skip
+    study.rows = [
+        {"ell": v, "contact_area_nodal": a, "contact_area_nodal_projected": a}
+        for v, a in [(0.0, 0.01), (10.0, 0.02)]
+    ]
     load.plot_contact_area(study, tmp_path / "paper.png", paper_load=True)
     assert any("loaded disk" in label for label in labels)
     labels.clear()

@@ -274,3 +274,66 @@ def test_ctrl_c_during_a_factorization_is_one_line_and_exit_130(tmp_path: Path, 
     again += ["--set", "domain.h=0.1", "--set", "output.pictures=false"]
     rerun = subprocess.run(again, capture_output=True, text=True)
     assert rerun.returncode == 0, rerun.stderr
+
+
+#: the command line, announcing on stdout when the cross-section is drawn, which is then
+#: slowed down so that Ctrl-C lands while the outputs are written
+DRAWING = textwrap.dedent(
+    """
+    import os, sys, time
+    from mpi4py import MPI
+    from shellobstacle.cli import interrupt
+    from shellobstacle.post import plotting
+
+    plot = plotting.plot_cross_section
+
+    def announced(*args, **kwargs):
+        os.write(1, b"drawing\\n")
+        time.sleep(1.0)
+        return plot(*args, **kwargs)
+
+    plotting.plot_cross_section = announced
+    assert interrupt.install(grace=30.0, comm=MPI.COMM_WORLD)
+    from shellobstacle.__main__ import main
+    sys.exit(main())
+    """
+)
+
+
+def test_ctrl_c_while_the_figures_are_drawn_keeps_the_summary(tmp_path: Path) -> None:
+    """SIGINT while a solve draws its figures: exit 130, and the folder holds the solution's
+    summary.json, which says that its outputs were interrupted and lists those written
+    (the ParaView files, the cross-section), so that nothing in the folder is unaccounted for."""
+    import json
+
+    out = tmp_path / "run"
+    command = [sys.executable, "-c", DRAWING, "solve", str(SMALL), "-q", "-o", str(out)]
+    command += ["--set", "domain.h=0.1"]
+    proc = subprocess.Popen(
+        command,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )
+    try:
+        assert proc.stdout.readline() == "drawing\n", proc.communicate()
+        proc.send_signal(signal.SIGINT)
+        _, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    assert proc.returncode == 130, stderr
+    assert stderr.splitlines() == [
+        f"shellobstacle: interrupted while writing the outputs; {out}/summary.json records the "
+        "solution and the files written (outputs_complete: false)"
+    ]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["outputs_complete"] is False
+    assert summary["interrupted"].startswith("while writing the outputs")
+    written = sorted(p.name for p in out.iterdir())
+    assert "cross_section.png" in written and "shell_3d.png" not in written
+    assert sorted(summary["files"]) == [n for n in written if n.endswith((".bp", ".png"))]
+    assert (out / "log.txt").read_text().splitlines()[-1].endswith("interrupted")

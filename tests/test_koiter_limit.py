@@ -164,3 +164,41 @@ def test_the_bending_form_of_the_config_reaches_the_experiment(tmp_path: Path, c
     assert hybrid["contact_area_membrane"] == c0ip["contact_area_membrane"]
     assert hybrid["distance_VM"] != c0ip["distance_VM"]
     assert hybrid["distance_VM"] == pytest.approx(c0ip["distance_VM"], rel=0.05)
+
+
+@pytest.mark.skipif(COMM.size > 1, reason="serial")
+def test_the_commands_study_is_small_unless_full(monkeypatch, tmp_path: Path) -> None:
+    """``experiment koiter-limit examples/paper.toml`` scales the config's sizes up alike to
+    at most FAST_DOFS dofs (its own sizes give 0.71 M); ``--full`` keeps them. The command
+    solves on the mesh its options describe."""
+    from shellobstacle.cli.parser import parser
+    from shellobstacle.config.loader import load_config
+    from shellobstacle.experiments import koiter_limit
+    from shellobstacle.experiments.boundary_layer import EDGE_FRACTION, graded_domain
+    from shellobstacle.experiments.options import experiment_domains, experiment_options
+    from shellobstacle.mesh.resources import estimate
+
+    cfg = load_config(PAPER)
+
+    def study(*extra: str) -> tuple[DomainSpec, list[float]]:
+        args = parser().parse_args(["experiment", "koiter-limit", str(PAPER), *extra])
+        options = experiment_options(args, cfg)
+        [domain] = experiment_domains(args, cfg, options)
+        return domain, options["--epsilons"]
+
+    (fast, epsilons), (full, _) = study(), study("--full")
+    assert full == graded_domain(cfg.domain, epsilons)
+    assert estimate(fast, "koiter", 2).dofs <= koiter_limit.FAST_DOFS
+    assert estimate(full, "koiter", 2).dofs > 5 * koiter_limit.FAST_DOFS
+    assert fast.h > cfg.domain.h and fast.edge_h == pytest.approx(EDGE_FRACTION * fast.h)
+    assert fast.edge_width == full.edge_width  # the band of the smallest ε's layer
+
+    solved: list[DomainSpec] = []
+
+    def run_koiter_limit(cfg, folder, domain, *_args, **_kwargs) -> str:
+        solved.append(domain)
+        return ""
+
+    monkeypatch.setattr(koiter_limit, "run_koiter_limit", run_koiter_limit)
+    assert main(["experiment", "koiter-limit", str(PAPER), "-q", "-o", str(tmp_path / "x")]) == 0
+    assert solved == [fast]

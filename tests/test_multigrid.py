@@ -345,3 +345,30 @@ def test_the_transfers_vanish_at_the_finer_levels_dirichlet_dofs(transverse: str
     zeta3 = K_coarse.getDiagonal().array_r[interior + 2]
     gathered = np.concatenate(MPI.COMM_WORLD.allgather(zeta3))
     assert 0 < gathered.max() <= 10 * np.median(gathered)
+
+
+@pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="serial")
+@pytest.mark.parametrize("refinements", [0, 1])
+def test_multigrid_without_levels_says_that_it_runs_gamg(capsys, tmp_path, refinements: int):
+    """``--set solver.linear_solver=multigrid`` on a mesh without refinements runs algebraic
+    multigrid: a warning on stderr and the summary's ``linear_solver_used`` say so, with the
+    fix; with the mesh's levels, neither."""
+    import json
+
+    from cli_helpers import run
+
+    small = Path(__file__).parents[1] / "examples" / "small.toml"
+    sets = ["solver.linear_solver=multigrid", "domain.h=0.1", f"domain.refinements={refinements}"]
+    sets += ["output.figures=false", "output.paraview=false"]
+    out = tmp_path / "run"
+    code, _, err = run(capsys, "solve", str(small), "-o", str(out), *(f"--set={s}" for s in sets))
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["linear_solver"] == "multigrid"
+    said = [line for line in err.splitlines() if "algebraic multigrid (GAMG)" in line]
+    if refinements:
+        assert not said and "linear_solver_used" not in summary, err
+    else:
+        assert len(said) == 1 and "warning:" in said[0] and "domain.refinements" in said[0], err
+        assert summary["linear_solver_used"] == "gamg"
+        assert "domain.refinements >= 1" in summary["linear_solver_reason"]

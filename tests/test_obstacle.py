@@ -146,10 +146,10 @@ def test_koiter_p2_contact_is_measured_where_the_penalty_acts(koiter_p2) -> None
     assert c["contact_points"] == "quadrature points"
     assert c["zeta3_min"] < -0.15  # the cap's top (θ·q = 0.15, c = e_3 there) crosses the plane
     g = koiter_p2["penalty_gap"]
-    assert c["num_contact_nodes"] == COMM.allreduce(
+    assert c["num_contact_points"] == COMM.allreduce(
         int((g <= koiter_p2["penalty_tol"]).sum()), op=MPI.SUM
     )
-    assert c["num_contact_nodes"] > 0 and c["contact_area"] > 0.0
+    assert c["num_contact_points"] > 0 and c["contact_area"] > 0.0
     min_gap = COMM.allreduce(float(g.min()), op=MPI.MIN)
     assert c["max_violation"] == pytest.approx(-min_gap, rel=1e-10)
     # the crossing depth of the lowest dof: the largest violation is at least of its order

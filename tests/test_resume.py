@@ -262,3 +262,32 @@ def test_verbose_prints_newton_iterations(tmp_path: Path, capsys: pytest.Capture
     assert capsys.readouterr().err == ""
     with pytest.raises(SystemExit):
         main([*args, "-q", "-v"])
+
+
+@serial
+def test_a_picture_not_drawn_before_the_interruption_is_said_missing(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path, capsys: pytest.CaptureFixture
+) -> None:
+    """Ctrl-C while the largest load's solution is drawn, after its step was recorded: the
+    resumed run reads that solution back and does not draw it, and says so in report.md and
+    on stderr (not a report without its picture and without a word)."""
+    import shellobstacle.post.pictures
+
+    args = ["experiment", "load", PARABOLOID, "--set", "domain.h=0.06", "--values", "0,40,80"]
+    out = tmp_path / "load"
+
+    def interrupted(*_args, **_kwargs):
+        raise KeyboardInterrupt
+
+    with monkeypatch.context() as m:
+        m.setattr(shellobstacle.post.pictures, "write_picture", interrupted)
+        assert main([*args, "-q", "-o", str(out)]) == EXIT_INTERRUPTED
+    capsys.readouterr()
+    assert main([*args, "-o", str(out), "--resume"]) == 0
+    err = capsys.readouterr().err
+    report = (out / "report.md").read_text()
+    assert not (out / "batch3_shell_3d.png").exists()
+    missing = "3D picture (the shell in 3D at ell = 80) is missing"
+    assert f"*The {missing}: this run read its solution back" in report
+    assert err.count(f"warning: the {missing}") == 1, err
+    assert f"warning: the {missing}" in (out / "log.txt").read_text()

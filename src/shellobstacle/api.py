@@ -22,7 +22,7 @@ import dolfinx
 from shellobstacle.config.loader import Config, ConfigError
 from shellobstacle.geometry.assumptions import check_assumptions, require
 from shellobstacle.mesh.domains import DomainSpec
-from shellobstacle.mesh.measures import mesh_size
+from shellobstacle.mesh.measures import mesh_size, num_cells_global
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.messages import not_one_of
 from shellobstacle.models.problem import PenalizedProblem
@@ -48,15 +48,37 @@ __all__ = [
 Progress = Callable[[str], Any]
 
 
-def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:
+def make_mesh(
+    domain: DomainSpec, ghosted: bool = False, progress: Progress | None = None
+) -> dolfinx.mesh.Mesh:
     """Mesh ω (``ghosted``: with facet-sharing ghost cells in parallel, which Koiter's facet
-    terms read); a bad domain description becomes a :class:`ConfigError` naming it."""
+    terms read); a bad domain description becomes a :class:`ConfigError` naming it.
+    ``progress`` gets the mesh obtained: its h (the largest cell diameter) beside the size
+    asked for (gmsh's target is not the largest cell diameter)."""
     try:
         size = "" if domain.h is None else f" (h = {domain.h:g})"
         with phase(f"meshing the {domain.kind}{size}"):
-            return create_mesh(domain, ghosted=ghosted)
+            mesh = create_mesh(domain, ghosted=ghosted)
     except (ValueError, FileNotFoundError) as err:
         raise ConfigError(f"[domain]: {err}") from None
+    if progress is not None:
+        progress(_obtained(domain, mesh))
+    return mesh
+
+
+def _obtained(domain: DomainSpec, mesh: dolfinx.mesh.Mesh) -> str:
+    """``meshed the disk: h = 0.0139 (target 0.01), 7362 cells`` (collective)."""
+    h, cells = mesh_size(mesh), num_cells_global(mesh)
+    if domain.h is None:
+        return f"read the mesh {domain.path}: h = {h:.4g}, {cells} cells"
+    asked = [f"target {domain.h:g}"]
+    if domain.central_h is not None:
+        asked.append(f"{domain.central_h:g} in the centre")
+    if domain.edge_h is not None:
+        asked.append(f"{domain.edge_h:g} along the boundary")
+    if domain.refinements:
+        asked.append(f"then {domain.refinements} uniform refinement(s)")
+    return f"meshed the {domain.kind}: h = {h:.4g} ({', '.join(asked)}), {cells} cells"
 
 
 def solve(
@@ -119,8 +141,7 @@ def solve(
             degree = (discretization or Discretization()).degree
             linear = linear_solver_of(method, options)
             require_fits(domain, shell.model, degree, linear_solver=linear)
-        say(f"meshing {domain.kind} (target h = {domain.h})")
-        mesh = make_mesh(domain, ghosted=shell.model == "koiter" or adapt is not None)
+        mesh = make_mesh(domain, shell.model == "koiter" or adapt is not None, say)
     else:
         mesh = domain
     h = mesh_size(mesh)

@@ -3,14 +3,19 @@ material, load, obstacle) and the discretization (the penalty's data:
 :class:`~shellobstacle.penalty.spec.PenaltySpec`).
 
 These small frozen dataclasses are the Python API that mirrors the config file; they
-validate at construction with the config's messages and know nothing about meshes.
+validate at construction exactly as the config does, with its messages, and know nothing about
+meshes. :func:`finite`, :func:`integer` and :func:`boolean` check a single value for both: the
+config loader checks every number and flag of a file with them.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import functools
+import math
+import numbers
 import warnings
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,7 +37,40 @@ __all__ = [
     "Material",
     "Obstacle",
     "Shell",
+    "boolean",
+    "finite",
+    "integer",
+    "obstacle_kinds_reading",
+    "require_obstacle_keys",
 ]
+
+
+def finite(value: Any, what: str) -> float:
+    """``value`` as a float if it is a finite number (not a bool), else a ValueError naming
+    ``what``: the check of every number of the config and of the dataclasses below."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{what} must be a number, got {value!r}")
+    try:
+        out = float(value)
+    except OverflowError:
+        raise ValueError(f"{what} is too large to be a floating-point number") from None
+    if not math.isfinite(out):
+        raise ValueError(f"{what} must be finite, got {value!r}")
+    return out
+
+
+def boolean(value: Any, what: str) -> bool:
+    """``value`` if it is true or false, else a ValueError naming ``what``."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{what} must be true or false, got {value!r}")
+    return value
+
+
+def integer(value: Any, what: str) -> int:
+    """``value`` if it is an integer (not a bool), else a ValueError naming ``what``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{what} must be an integer, got {value!r}")
+    return int(value)
 
 
 @dataclass(frozen=True)
@@ -44,6 +82,8 @@ class Material:
     mu: float
 
     def __post_init__(self) -> None:
+        for name, key in (("epsilon", "epsilon"), ("lam", "lambda"), ("mu", "mu")):
+            object.__setattr__(self, name, finite(getattr(self, name), f"material.{key}"))
         if not self.epsilon > 0:
             raise ValueError(f"material.epsilon must be > 0 (half-thickness), got {self.epsilon}")
         if not self.lam >= 0:
@@ -71,11 +111,14 @@ class Load:
     parameters: Mapping[str, float] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        if len(self.p) != 3:
-            raise ValueError(f"load.p needs three components (p^1, p^2, p^3), got {len(self.p)}")
+        if isinstance(self.p, str) or len(self.p) != 3:
+            raise ValueError(f"load.p needs three components (p^1, p^2, p^3), got {self.p!r}")
+        object.__setattr__(self, "p", tuple(_component(v, i) for i, v in enumerate(self.p)))
         for name in self.parameters:
             if not is_safe_name(name) or name in ("y1", "y2", "r", "epsilon", "lambda", "mu"):
                 raise ValueError(f"load.parameters: {name!r} cannot be used as a parameter name")
+        for name, value in self.parameters.items():
+            finite(value, f"load.parameters.{name}")
 
     def expressions(self, material: Material) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
         """The three components as SymPy expressions in ``y1, y2`` and the parameter symbols."""
@@ -85,6 +128,15 @@ class Load:
     def uniform_normal_pressure(p: float) -> Load:
         """``p^{i,ε} = (0, 0, p)``: a pressure along ``a^3``."""
         return Load(("0", "0", repr(float(p))))
+
+
+def _component(value: Any, i: int) -> str:
+    """A component of ``load.p``: a string expression, or a number as its ``repr``."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"load.p[{i + 1}] must be a string expression, got {value!r}")
+    return repr(finite(value, f"load.p[{i + 1}]"))
 
 
 @functools.lru_cache(maxsize=32)
@@ -102,13 +154,31 @@ OBSTACLE_KINDS = ("plane", "sphere", "cylinder", "expression")
 SIDES = ("outside", "inside")
 CONTACT_FACES = ("middle", "lower", "upper")
 
-#: the keys of ``[obstacle]`` that each kind reads (besides ``kind`` and ``contact_face``)
+#: the keys of ``[obstacle]`` that each kind reads (besides ``kind`` and ``contact_face``):
+#: the one statement of it, which the config's schema and :class:`Obstacle` read
 OBSTACLE_KEYS = {
     "plane": ("q", "c"),
     "sphere": ("center", "radius", "side"),
     "cylinder": ("point", "axis", "radius", "side"),
     "expression": ("g",),
 }
+
+
+def obstacle_kinds_reading(name: str) -> tuple[str, ...]:
+    """The obstacle kinds that read the ``[obstacle]`` key ``name`` (:data:`OBSTACLE_KEYS`)."""
+    return tuple(kind for kind, keys in OBSTACLE_KEYS.items() if name in keys)
+
+
+def require_obstacle_keys(kind: str, given: Iterable[str]) -> None:
+    """A ValueError naming the first key of ``given`` that ``obstacle.kind = kind`` does not
+    read, and the kinds that do; nothing if it reads them all."""
+    for name in given:
+        if name not in ("kind", "contact_face", *OBSTACLE_KEYS[kind]):
+            kinds = " or ".join(map(repr, obstacle_kinds_reading(name)))
+            raise ValueError(
+                f"obstacle.{name} is not read by obstacle.kind = {kind!r}: set obstacle.kind = "
+                f"{kinds}, or remove it"
+            )
 
 
 @dataclass(frozen=True)
@@ -125,6 +195,9 @@ class Obstacle:
 
     ``contact_face``: the surface that must stay admissible, ``θ + η`` (``"middle"``) or the
     face ``θ ∓ ε a_3 + η`` (``"lower"``/``"upper"``).
+
+    A key the kind does not read (:data:`OBSTACLE_KEYS`) given a value other than its default
+    is refused, as the config refuses it.
     """
 
     q: tuple[float, float, float] = (0.0, 0.0, 1.0)
@@ -146,6 +219,7 @@ class Obstacle:
         ):
             if value not in choices:
                 raise ValueError(not_one_of(f"obstacle.{name}", value, choices))
+        require_obstacle_keys(self.kind, [f.name for f in _FIELDS if self._set(f.name, f.default)])
         needed = {"sphere": ("center", "radius"), "cylinder": ("point", "axis", "radius")}
         missing = [k for k in needed.get(self.kind, ()) if getattr(self, k) is None]
         if self.kind == "expression" and not self.g:
@@ -154,18 +228,17 @@ class Obstacle:
             raise ValueError(
                 f"obstacle.kind = {self.kind!r} needs obstacle.{', obstacle.'.join(missing)}"
             )
-        if (
-            isinstance(self.c, bool)
-            or not isinstance(self.c, int | float)
-            or not np.isfinite(self.c)
-        ):
-            raise ValueError(f"obstacle.c must be a finite number, got {self.c!r}")
+        object.__setattr__(self, "c", finite(self.c, "obstacle.c"))
         for name in ("center", "point"):
             value = getattr(self, name)
             if value is not None:
                 object.__setattr__(self, name, _three(value, f"obstacle.{name}"))
-        if self.radius is not None and not (np.isfinite(self.radius) and self.radius > 0):
-            raise ValueError(f"obstacle.radius must be a finite number > 0, got {self.radius!r}")
+        if self.radius is not None:
+            object.__setattr__(self, "radius", finite(self.radius, "obstacle.radius"))
+            if not self.radius > 0:
+                raise ValueError(f"obstacle.radius must be > 0, got {self.radius!r}")
+        if self.g is not None and not isinstance(self.g, str):
+            raise ValueError(f"obstacle.g must be a string, got {self.g!r}")
         if self.axis is not None:
             object.__setattr__(self, "axis", _unit(self.axis, "obstacle.axis", "axis"))
         object.__setattr__(self, "q", _unit(self.q, "obstacle.q", "half-space"))
@@ -174,13 +247,27 @@ class Obstacle:
         """The ``[obstacle]`` keys this kind reads."""
         return ("kind", *OBSTACLE_KEYS[self.kind], "contact_face")
 
+    def _set(self, name: str, default: Any) -> bool:
+        """Whether the field ``name`` holds something other than its default."""
+        value = getattr(self, name)
+        if default is None:
+            return value is not None
+        if isinstance(default, tuple):
+            same = _numeric(value) and np.shape(value) == np.shape(default)
+            return not (same and np.array_equal(np.asarray(value, dtype=float), default))
+        return bool(value != default)
+
+
+#: the fields of :class:`Obstacle` that a kind may not read
+_FIELDS = [f for f in dataclasses.fields(Obstacle) if f.name not in ("kind", "contact_face")]
+
 
 def _three(value: Any, what: str) -> tuple[float, float, float]:
-    """Three finite numbers, or a ValueError naming ``what``."""
-    v = np.asarray(value, dtype=float) if _numeric(value) else np.array([np.nan])
-    if v.shape != (3,) or not np.all(np.isfinite(v)):
+    """Three finite numbers (not bools), or a ValueError naming ``what``."""
+    if isinstance(value, str) or not _numeric(value) or np.shape(value) != (3,):
         raise ValueError(f"{what} must be three finite numbers, got {value!r}")
-    return (float(v[0]), float(v[1]), float(v[2]))
+    x, y, z = (finite(v, f"{what}[{i + 1}]") for i, v in enumerate(value))
+    return (x, y, z)
 
 
 def _numeric(value: Any) -> bool:
@@ -262,6 +349,12 @@ class Discretization:
     bending: str = field(default="hybrid", metadata={"choices": BENDING_FORMS})
 
     def __post_init__(self) -> None:
+        integer(self.degree, "discretization.degree")
+        if self.quadrature_degree is not None:
+            integer(self.quadrature_degree, "discretization.quadrature_degree")
+        if self.interior_penalty is not None:
+            value = finite(self.interior_penalty, "discretization.interior_penalty")
+            object.__setattr__(self, "interior_penalty", value)
         if self.degree not in (1, 2):
             raise ValueError(f"discretization.degree must be 1 or 2, got {self.degree}")
         if self.transverse not in TRANSVERSE:

@@ -13,6 +13,7 @@ from typing import Any
 
 from mpi4py import MPI
 
+from shellobstacle.cli.output import emit
 from shellobstacle.cli.reporter import Reporter
 from shellobstacle.progress import LiveStatus, on_terminal, phase
 
@@ -29,22 +30,22 @@ def check(args: argparse.Namespace) -> int:
         require_fits(cfg.domain, solve=False)
     if MPI.COMM_WORLD.rank == 0:
         for message in config_warnings:
-            print(f"shellobstacle: warning: {message}", file=sys.stderr)
+            emit(f"shellobstacle: warning: {message}", sys.stderr)
     with _live_status():
         mesh = make_mesh(cfg.domain)
         with phase("checking the assumptions"):
             checks = check_assumptions(cfg.shell, mesh)
     if MPI.COMM_WORLD.rank == 0:
-        print(
+        emit(
             f"{cfg.shell.surface.description}; q = {cfg.shell.obstacle.q}; "
             f"ε = {cfg.shell.material.epsilon}"
         )
-        print(format_checks(checks))
+        emit(format_checks(checks))
         failed = [c.name for c in checks if not c.passed]
         if failed:
-            print(
+            emit(
                 f"shellobstacle: error: assumptions fail: {', '.join(failed)} (see the table)",
-                file=sys.stderr,
+                sys.stderr,
             )
     return EXIT_OK if all(c.passed for c in checks) else EXIT_USAGE
 
@@ -102,6 +103,7 @@ def run_and_write(
     from shellobstacle.io.records import atomic_write
     from shellobstacle.io.summary import write_solution
     from shellobstacle.mesh.resources import linear_solver_of, require_fits
+    from shellobstacle.post.contact import contact_text
 
     if not force:
         linear = linear_solver_of(cfg.method, cfg.solver)
@@ -115,10 +117,9 @@ def run_and_write(
     for message in config_warnings:
         report(f"warning: {message}")
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with report.reporting_warnings() as raised:
         result = solve_config(cfg, force=force, progress=report, newton_progress=report.newton)
-    seen = [*config_warnings, *(str(w.message) for w in caught)]
+    seen = [*config_warnings, *raised]
     summary = write_solution(result, cfg, folder, report, seen)
     if not result.converged:
         report(f"FAILED: {result.error}")
@@ -126,9 +127,13 @@ def run_and_write(
         _commit(where, report)
         return EXIT_FAILED
     report(
-        f"done: κ = {summary['kappa']:.3e}, contact area {summary['contact_area']:.5g} "
-        f"(projected {summary['contact_area_projected']:.5g}), min ζ_3 = {summary['zeta3_min']:.5g}"
+        f"done: κ = {summary['kappa']:.3e}, {contact_text(summary, projected=True)}, "
+        f"min ζ_3 = {summary['zeta3_min']:.5g}"
     )
+    if summary.get("local_solution"):
+        from shellobstacle.post.sides import local_solution_text
+
+        report(local_solution_text(summary))
     _commit(where, report)
     if not summary["validity"]["valid"]:
         report(
@@ -177,7 +182,8 @@ def reproduce(args: argparse.Namespace) -> int:
     checkpoint = _open_checkpoint(folder, meta, args, report)
     report.attach(folder / "log.txt", append=args.resume)
     _announce(where, report, f" (mode {mode}{', resumed' if args.resume else ''})")
-    reproduce(folder, mode, report, checkpoint, report.newton)
+    with report.reporting_warnings():
+        reproduce(folder, mode, report, checkpoint, report.newton)
     _finish(checkpoint, report)
     _commit(where, report)
     return EXIT_OK
@@ -224,20 +230,12 @@ def _finish(checkpoint: Any, report: Reporter) -> None:
 def experiment(args: argparse.Namespace) -> int:
     """One batch on a user's config."""
     from shellobstacle.config.loader import ConfigError, to_toml
-    from shellobstacle.experiments import (
-        adaptive,
-        boundary_layer,
-        koiter_limit,
-        load,
-        mesh,
-        solvers,
-    )
+    from shellobstacle.experiments import koiter_limit
     from shellobstacle.experiments.options import (
         experiment_domains,
         experiment_options,
         require_experiment_fits,
     )
-    from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
     from shellobstacle.io.folders import prepare_folder
     from shellobstacle.io.records import atomic_write
 
@@ -277,6 +275,39 @@ def experiment(args: argparse.Namespace) -> int:
         report(f"warning: {message}")
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
     kw: dict[str, Any] = {"checkpoint": checkpoint, "newton_progress": report.newton}
+    with report.reporting_warnings():
+        text = _run_batch(args, cfg, folder, options, report, kw)
+    loaded = checkpoint.stats["loaded"]
+    if loaded:
+        text += (
+            f"\n\nResumed: {loaded} finished step(s) were taken from the records of an "
+            "interrupted run (`steps/`), not recomputed; their `seconds` are those of that run.\n"
+        )
+    atomic_write(folder / "report.md", f"# Experiment {args.batch}: {args.config}\n\n{text}")
+    report(f"report written: {where.target / 'report.md'}")
+    _finish(checkpoint, report)
+    _commit(where, report)
+    return EXIT_OK
+
+
+def _run_batch(
+    args: argparse.Namespace,
+    cfg: Any,
+    folder: Path,
+    options: dict[str, Any],
+    report: Reporter,
+    kw: dict[str, Any],
+) -> str:
+    """Run the batch of ``experiment``; returns its report section."""
+    from shellobstacle.experiments import (
+        adaptive,
+        koiter_limit,
+        load,
+        mesh,
+        solvers,
+    )
+    from shellobstacle.experiments.penalty import PenaltyStudyOptions, run_penalty
+
     if args.batch == "penalty":
         opts = PenaltyStudyOptions(args.start, args.step, args.tol, args.q_max)
         quadratures = options["--quadratures"]
@@ -294,8 +325,8 @@ def experiment(args: argparse.Namespace) -> int:
         sizes = [dataclasses.replace(cfg.domain, h=v) for v in options["--sizes"]]
         text = solvers.run_solvers(cfg, folder, sizes, args.exponent, report, **kw)
     elif args.batch == "koiter-limit":
-        domain = boundary_layer.graded_domain(
-            cfg.domain, options["--epsilons"], args.edge_h, args.edge_width
+        domain = koiter_limit.study_domain(
+            cfg.domain, options["--epsilons"], args.edge_h, args.edge_width, options["--full"]
         )
         epsilons = options["--epsilons"]
         text = koiter_limit.run_koiter_limit(cfg, folder, domain, epsilons, report, **kw)
@@ -310,17 +341,7 @@ def experiment(args: argparse.Namespace) -> int:
             args.parameter,
             **kw,
         )
-    loaded = checkpoint.stats["loaded"]
-    if loaded:
-        text += (
-            f"\n\nResumed: {loaded} finished step(s) were taken from the records of an "
-            "interrupted run (`steps/`), not recomputed; their `seconds` are those of that run.\n"
-        )
-    atomic_write(folder / "report.md", f"# Experiment {args.batch}: {args.config}\n\n{text}")
-    report(f"report written: {where.target / 'report.md'}")
-    _finish(checkpoint, report)
-    _commit(where, report)
-    return EXIT_OK
+    return text
 
 
 def doctor(args: argparse.Namespace) -> int:
@@ -332,9 +353,9 @@ def doctor(args: argparse.Namespace) -> int:
     repaired = repair_cache() if args.repair and MPI.COMM_WORLD.rank == 0 else []
     lines, problems = report(bootstrap())
     if MPI.COMM_WORLD.rank == 0:
-        print("\n".join([*lines, *repaired]))
+        emit("\n".join([*lines, *repaired]))
         for problem in problems:
-            print(f"problem: {problem}")
+            emit(f"problem: {problem}")
         if not problems:
-            print("no problems found")
+            emit("no problems found")
     return EXIT_FAILED if problems else EXIT_OK

@@ -78,7 +78,10 @@ def alive():
         return True
 def stop(why):
     if loud:
-        os.write(2, ("shellobstacle: interrupted (" + why + "); stopping it\n").encode())
+        try:
+            os.write(2, ("shellobstacle: interrupted (" + why + "); stopping it\n").encode())
+        except OSError:
+            pass  # stderr's reader has gone (a pipe): the stop matters, not the line
     for sig in [first] * (first > 0) + [signal.SIGTERM, signal.SIGKILL]:
         if not alive():
             return

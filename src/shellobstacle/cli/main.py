@@ -24,14 +24,32 @@ from shellobstacle.cli.commands import (
     EXIT_OK,
     EXIT_USAGE,
 )
+from shellobstacle.cli.output import EXIT_CLOSED_PIPE, emit
 from shellobstacle.cli.parser import parser
 
-__all__ = ["EXIT_FAILED", "EXIT_INTERRUPTED", "EXIT_INVALID", "EXIT_OK", "EXIT_USAGE", "main"]
+__all__ = [
+    "EXIT_CLOSED_PIPE",
+    "EXIT_FAILED",
+    "EXIT_INTERRUPTED",
+    "EXIT_INVALID",
+    "EXIT_OK",
+    "EXIT_USAGE",
+    "main",
+]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point; returns the exit code (0 ok, 1 solver failure, 2 user error, 3 a solution
-    outside the model's validity, 130 interrupted)."""
+    outside the model's validity, 130 interrupted, 141 stdout's reader has gone: see
+    :mod:`shellobstacle.cli.output`, which also makes SIGPIPE ignored again, Python's default
+    that PETSc and gmsh change)."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:  # (stdout is silenced: nothing more can be said)
+        return EXIT_CLOSED_PIPE
+
+
+def _main(argv: Sequence[str] | None) -> int:
     args = parser().parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.folder = None  # the ResultFolder, once known (for the messages below)
@@ -53,16 +71,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConfigError, ExpressionError, AssumptionError, ResultsError) as err:
         _record(args, f"error: {_one_line(str(err))}")
         if MPI.COMM_WORLD.rank == 0:
-            print(f"shellobstacle: error: {_one_line(f'{err}{_kept(args)}')}", file=sys.stderr)
+            emit(f"shellobstacle: error: {_one_line(f'{err}{_kept(args)}')}", sys.stderr)
         return EXIT_USAGE
     except ConvergenceError as err:
         _record(args, f"solver failure: {_one_line(str(err))}")
         if MPI.COMM_WORLD.rank == 0:
-            print(
+            emit(
                 f"shellobstacle: solver failure: {_one_line(str(err))}: raise "
                 "solver.max_iterations or loosen solver.rtol in a new run"
                 f"{_steps_recorded(args) or _kept(args)}",
-                file=sys.stderr,
+                sys.stderr,
             )
         return EXIT_FAILED
     except KeyboardInterrupt:
@@ -71,16 +89,19 @@ def main(argv: Sequence[str] | None = None) -> int:
         interrupt.acknowledge()
         _record(args, "interrupted")
         if MPI.COMM_WORLD.rank == 0:
-            print(f"shellobstacle: interrupted{_resume_hint(args) or _kept(args)}", file=sys.stderr)
+            hint = _resume_hint(args) or _kept(args) or _summary_kept(args)
+            emit(f"shellobstacle: interrupted{hint}", sys.stderr)
         return EXIT_INTERRUPTED
+    except BrokenPipeError:
+        raise  # stdout's reader has gone: not a bug
     except Exception:
         _record(args, f"internal error (a bug):\n{traceback.format_exc()}")
         if MPI.COMM_WORLD.rank == 0:
-            traceback.print_exc()
-            print(
+            emit(traceback.format_exc().rstrip("\n"), sys.stderr)
+            emit(
                 "shellobstacle: internal error (a bug): please report it with the traceback "
                 f"above and your config file{_kept(args)}",
-                file=sys.stderr,
+                sys.stderr,
             )
         return EXIT_FAILED
     finally:  # the result folder is free for the next run
@@ -95,7 +116,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if args.command == "config-reference":
         from shellobstacle.config.schema import reference_text
 
-        print(reference_text())
+        emit(reference_text())
         return EXIT_OK
     if args.command == "doctor":
         return commands.doctor(args)
@@ -164,6 +185,17 @@ def _steps_recorded(args: argparse.Namespace) -> str:
     if args.folder is None or not hasattr(args, "resume"):
         return ""
     return f"; the finished steps are recorded in {args.folder.path}/steps/"
+
+
+def _summary_kept(args: argparse.Namespace) -> str:
+    """For a solve interrupted while it wrote its outputs: its summary.json is in place
+    (:func:`shellobstacle.io.summary.write_solution`); rank 0."""
+    if args.folder is None or not (args.folder.path / "summary.json").is_file():
+        return ""
+    return (
+        f" while writing the outputs; {args.folder.target}/summary.json records the solution "
+        "and the files written (outputs_complete: false)"
+    )
 
 
 def _resume_hint(args: argparse.Namespace) -> str:

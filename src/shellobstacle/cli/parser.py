@@ -9,6 +9,7 @@ import re
 from collections.abc import Sequence
 
 import shellobstacle
+from shellobstacle.cli.output import emit
 
 __all__ = ["parser"]
 
@@ -24,8 +25,8 @@ class _Version(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None) -> None:
         from shellobstacle.dependencies import installed_versions, summary
 
-        print(f"shellobstacle {shellobstacle.__version__}")
-        print(f"Python {platform.python_version()}; {summary(installed_versions())}")
+        emit(f"shellobstacle {shellobstacle.__version__}")
+        emit(f"Python {platform.python_version()}; {summary(installed_versions())}")
         parser.exit()
 
 
@@ -217,6 +218,12 @@ def parser() -> argparse.ArgumentParser:
         default=None,
         help="koiter-limit: width of the band meshed at --edge-h (default: domain.edge_width, "
         "else 3√(smallest ε))",
+    )
+    e.add_argument(
+        "--full",
+        action="store_true",
+        help="koiter-limit: the config's own mesh sizes (long); by default they are scaled up "
+        "alike to a mesh of about 10⁵ dofs",
     )
     e.add_argument(
         "--force",

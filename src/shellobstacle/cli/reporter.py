@@ -5,11 +5,15 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from mpi4py import MPI
 
+from shellobstacle.cli.output import emit
 from shellobstacle.progress import LiveStatus, on_terminal
 
 __all__ = ["NewtonEcho", "Reporter"]
@@ -51,10 +55,28 @@ class Reporter:
         if self._status is not None:
             self._status.print(line, msg)
         elif not self.quiet:
-            print(line, file=sys.stderr, flush=True)
+            emit(line, sys.stderr)  # (a closed stderr is silenced: the run goes on)
         if self.log is not None:
             with self.log.open("a") as f:
                 f.write(line + "\n")
+
+    @contextmanager
+    def reporting_warnings(self) -> Iterator[list[str]]:
+        """Report every warning raised in the block as a line ``warning: ...`` (stderr and the
+        log file) when it is raised, once per text, and collect the texts in the list yielded
+        (for ``summary.json``'s ``warnings``): e.g. a PETSc option that no solver read."""
+        seen: list[str] = []
+
+        def show(message: Any, *_args: Any, **_kwargs: Any) -> None:
+            text = str(message)
+            if text not in seen:
+                seen.append(text)
+                self(f"warning: {text}")
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("always")
+            warnings.showwarning = show
+            yield seen
 
     def record(self, text: str) -> None:
         """Append ``text`` (how the run ended: an error, a traceback) to the log file only.

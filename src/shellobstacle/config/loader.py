@@ -7,10 +7,8 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import math
-import re
 import warnings
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +16,7 @@ from typing import Any
 from shellobstacle.adapt.options import AdaptOptions
 from shellobstacle.config.keys import REQUIRED, Key
 from shellobstacle.config.options import adapt_options, method_options, solver_options
+from shellobstacle.config.origins import Origins, in_section
 from shellobstacle.config.schema import OPTIONAL_SECTIONS, REQUIRED_SECTIONS, SCHEMA, SELECTORS
 from shellobstacle.config.toml_io import apply_overrides, read_toml, to_toml
 from shellobstacle.geometry.expressions import ExpressionError
@@ -33,6 +32,10 @@ from shellobstacle.spec import (
     Material,
     Obstacle,
     Shell,
+    boolean,
+    finite,
+    integer,
+    require_obstacle_keys,
 )
 
 __all__ = [
@@ -68,55 +71,19 @@ class Config:
         return solver_options(method, self.resolved["solver"], self.resolved["solver"])
 
 
-class _Origins:
-    """Which ``--set`` gave a key, so that an error names it rather than the file."""
-
-    def __init__(self, source: str, given: Mapping[str, str] | None) -> None:
-        self.source = source
-        self.given = dict(given or {})
-
-    def of(self, prefix: str) -> str:
-        """The ``--set`` that gave ``prefix`` or a key inside it, else the file."""
-        for dotted, text in reversed(self.given.items()):
-            if dotted == prefix or dotted.startswith(prefix + "."):
-                return text
-        return self.source
-
-    def named_in(self, message: str) -> str:
-        """The ``--set`` texts whose keys ``message`` names, else the file."""
-        texts = [
-            text
-            for dotted, text in self.given.items()
-            if re.search(rf"(?<![\w.]){re.escape(dotted)}(?!\w)", message)
-        ]
-        return ", ".join(dict.fromkeys(texts)) or self.source
-
-
 def _coerce(value: Any, key: Key, where: str, origin: str, dotted: str) -> Any:
     """Check and convert one value to the key's type (``where`` = ``origin: dotted``)."""
 
     def number(v: Any, what: str) -> float:
-        if isinstance(v, bool) or not isinstance(v, int | float):
-            raise ConfigError(f"{what} must be a number, got {v!r}")
-        try:
-            value = float(v)
-        except OverflowError:
-            raise ConfigError(f"{what} is too large to be a floating-point number") from None
-        if not math.isfinite(value):
-            raise ConfigError(f"{what} must be finite, got {v!r}")
-        return value
+        return _checked(finite, v, what)
 
     t = key.type
     if t == "float":
         return number(value, where)
     if t == "int":
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise ConfigError(f"{where} must be an integer, got {value!r}")
-        return value
+        return _checked(integer, value, where)
     if t == "bool":
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where} must be true or false, got {value!r}")
-        return value
+        return _checked(boolean, value, where)
     if t == "str":
         if not isinstance(value, str):
             raise ConfigError(f"{where} must be a string, got {value!r}")
@@ -169,6 +136,15 @@ def _coerce(value: Any, key: Key, where: str, origin: str, dotted: str) -> Any:
     raise AssertionError(t)
 
 
+def _checked(check: Callable[[Any, str], Any], value: Any, what: str) -> Any:
+    """``check(value, what)``, one of the API's checks of a value (:mod:`shellobstacle.spec`),
+    its ValueError a ConfigError."""
+    try:
+        return check(value, what)
+    except ValueError as err:
+        raise ConfigError(str(err)) from None
+
+
 def parse_config(
     data: Mapping[str, Any],
     source: str = "<config>",
@@ -191,7 +167,7 @@ def parse_config(
     Raises:
         ConfigError: naming the file (or ``--set``), the section, the key and the fix.
     """
-    origins = _Origins(source, overrides)
+    origins = Origins(source, overrides)
     resolved: dict[str, dict[str, Any]] = {}
     for section in data:
         if section not in SCHEMA:
@@ -234,10 +210,12 @@ def parse_config(
                     # changed the shape, and the key is the file's for the old one)
                     changed = origins.of(selector) != source and origin == source
                     if section == "obstacle" and not changed:
-                        raise ConfigError(
-                            f"{origin}: {dotted} is not read by {selector} = {value!r}: "
-                            f"set {selector} = {' or '.join(map(repr, key.when))}, or remove it"
-                        )
+                        try:  # the API's rule and message (shellobstacle.spec)
+                            require_obstacle_keys(value, [name])
+                        except ValueError as err:
+                            raise ConfigError(f"{origin}: {err}") from None
+                    if section == "obstacle":  # not read: not in the resolved config either
+                        del out[name]
                     warnings.warn(
                         f"{origin}: {dotted} is ignored: {selector} = {value!r} {reason}"
                         + (f" (read with {' or '.join(map(repr, key.when))})" if key.when else ""),
@@ -251,10 +229,12 @@ def parse_config(
     try:
         return _build(resolved, source, given_keys)
     except (ValueError, ExpressionError) as err:  # ConfigError is a ValueError
-        raise ConfigError(f"{origins.named_in(str(err))}: {err}") from None
+        section = getattr(err, "section", "")
+        own = [n for n in data.get(section, {}) if origins.of(f"{section}.{n}") == source]
+        raise ConfigError(f"{origins.named_in(str(err), section, own)}: {err}") from None
 
 
-def _selected(data: Mapping[str, Any], origins: _Origins) -> dict[str, Any]:
+def _selected(data: Mapping[str, Any], origins: Origins) -> dict[str, Any]:
     """The value of every selector (:data:`~shellobstacle.config.schema.SELECTORS`) that ``data``
     gives or defaults: which keys of a section are read depends on it."""
     out: dict[str, Any] = {}
@@ -301,7 +281,8 @@ def _build(r: dict[str, dict[str, Any]], source: str, given: set[str]) -> Config
     """The objects of a resolved configuration; their constructors validate (the API's
     messages, which :func:`parse_config` prefixes with the file or the ``--set``). ``given``:
     the keys of ``[solver]`` and the dotted others the file or a ``--set`` gives."""
-    surface = _surface(r["surface"])
+    with in_section("surface"):
+        surface = _surface(r["surface"])
     m = r["material"]
     material = Material(m["epsilon"], m["lambda"], m["mu"])
     load = Load(tuple(r["load"]["p"]), dict(r["load"].get("parameters", {})))
@@ -315,9 +296,10 @@ def _build(r: dict[str, dict[str, Any]], source: str, given: set[str]) -> Config
         # the absolute path, so that it reruns from anywhere
         base = Path(source).parent if source not in ("<config>", "") else Path(".")
         d["path"] = r["domain"]["path"] = str((base / d["path"]).resolve())
-    if d["kind"] == "file" and "path" in d:
-        _require_mesh_file(d["path"])
-    domain = DomainSpec(**d)
+    with in_section("domain"):
+        if d["kind"] == "file" and "path" in d:
+            _require_mesh_file(d["path"])
+        domain = DomainSpec(**d)
 
     disc = Discretization(**r["discretization"])
     sv = r["solver"]

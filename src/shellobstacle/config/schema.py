@@ -27,14 +27,20 @@ from shellobstacle.spec import (
     Load,
     Obstacle,
     Shell,
+    obstacle_kinds_reading,
 )
 
 __all__ = ["OPTIONAL_SECTIONS", "REQUIRED_SECTIONS", "SCHEMA", "SELECTORS", "reference_text"]
 
 #: the methods that read [penalty] (the registry's at import)
 _PENALIZED = tuple(m.name for m in METHODS.values() if m.penalized)
-_PLANE = ("plane",)
-_ROUND = ("sphere", "cylinder")
+
+
+def _obstacle(name: str, type: str, help: str) -> Key:
+    """The ``[obstacle]`` key ``name``, read by the kinds :data:`~shellobstacle.spec.OBSTACLE_KEYS`
+    gives it to (every kind for ``kind`` and ``contact_face``)."""
+    return bound(Obstacle, name, type, help, when=obstacle_kinds_reading(name))
+
 
 SCHEMA: dict[str, dict[str, Key]] = {
     "surface": {
@@ -127,37 +133,27 @@ SCHEMA: dict[str, dict[str, Key]] = {
         ),
     },
     "obstacle": {
-        "kind": bound(
-            Obstacle,
+        "kind": _obstacle(
             "kind",
             "str",
             "the rigid obstacle: plane (the paper's), sphere, cylinder or expression; the "
             "contact face must stay where g ≥ 0",
         ),
-        "q": bound(Obstacle, "q", "float[3]", "normal of the plane; g = x·q − c", when=_PLANE),
-        "c": bound(Obstacle, "c", "float", "the plane's offset along q", when=_PLANE),
-        "center": bound(Obstacle, "center", "float[3]", "centre of the ball", when=("sphere",)),
-        "point": bound(
-            Obstacle, "point", "float[3]", "a point of the cylinder's axis", when=("cylinder",)
-        ),
-        "axis": bound(Obstacle, "axis", "float[3]", "the cylinder's axis", when=("cylinder",)),
-        "radius": bound(Obstacle, "radius", "float", "radius R > 0", when=_ROUND),
-        "side": bound(
-            Obstacle,
+        "q": _obstacle("q", "float[3]", "normal of the plane; g = x·q − c"),
+        "c": _obstacle("c", "float", "the plane's offset along q"),
+        "center": _obstacle("center", "float[3]", "centre of the ball"),
+        "point": _obstacle("point", "float[3]", "a point of the cylinder's axis"),
+        "axis": _obstacle("axis", "float[3]", "the cylinder's axis"),
+        "radius": _obstacle("radius", "float", "radius R > 0"),
+        "side": _obstacle(
             "side",
             "str",
             "outside: g = distance − R (the shell stays out; not convex); inside: R − distance",
-            when=_ROUND,
         ),
-        "g": bound(
-            Obstacle,
-            "g",
-            "str",
-            "g(x1, x2, x3), admissible where g ≥ 0 (x: ambient coordinates)",
-            when=("expression",),
+        "g": _obstacle(
+            "g", "str", "g(x1, x2, x3), admissible where g ≥ 0 (x: ambient coordinates)"
         ),
-        "contact_face": bound(
-            Obstacle,
+        "contact_face": _obstacle(
             "contact_face",
             "str",
             "the face that must stay admissible: middle (θ), lower (θ − ε a_3) or upper "

@@ -174,7 +174,7 @@ def adaptive_study(
     cp = checkpoint or Checkpoint(None)
     adapt = cfg.adapt or AdaptOptions()
     study = AdaptiveStudy()
-    base = make_mesh(domain, ghosted=True)
+    base = make_mesh(domain, ghosted=True, progress=say)
     dofs = options.dofs or adapt.target_dofs or options.reference_dofs // 8
     run = dataclasses.replace(adapt, max_levels=MAX_LEVELS, target_dofs=dofs, target_error=None)
     say(f"adaptive study: {cfg.method}, κ '{adapt.kappa}', adapted up to {dofs} dofs")

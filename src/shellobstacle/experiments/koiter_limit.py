@@ -10,6 +10,9 @@ clamped (the paper's discretization); ζ_M with ζ_3 free (the continuous model'
 reference of the boundary layer, whose width is where ζ_K,3 first reaches half of ζ_M,3 going
 inwards from the edge along y2 = 0 (:mod:`.boundary_layer`). Theory: the layer of an elliptic
 shell is √ε wide.
+
+The command's study (:func:`study_domain`) coarsens the configuration's mesh to about
+:data:`FAST_DOFS` dofs unless ``--full`` asks for the configuration's own sizes.
 """
 
 from __future__ import annotations
@@ -34,6 +37,7 @@ from shellobstacle.experiments.boundary_layer import (
     BAND,
     EDGE_WIDTHS,
     distance_to_boundary,
+    graded_domain,
     layer_width,
     zeta3_profile,
 )
@@ -53,11 +57,18 @@ from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
+    "FAST_DOFS",
     "KoiterLimit",
     "koiter_limit",
     "run_koiter_limit",
+    "study_domain",
     "validate",
 ]
+
+#: the most dofs (estimated, :func:`~shellobstacle.mesh.resources.estimate`) of the command's
+#: mesh without ``--full`` (``examples/paper.toml``: its target h 0.0058 scaled to 0.0149, 116k
+#: dofs against 742k)
+FAST_DOFS = 120_000
 
 COLUMNS = (
     "epsilon",
@@ -122,6 +133,33 @@ def validate(
             f"--edge-h/--edge-width grade disk, ellipse and polygon meshes, not a "
             f"{cfg.domain.kind!r} domain: leave them out"
         )
+
+
+def study_domain(
+    domain: DomainSpec,
+    epsilons: Sequence[float],
+    edge_h: float | None = None,
+    edge_width: float | None = None,
+    full: bool = False,
+) -> DomainSpec:
+    """The mesh of ``experiment koiter-limit``: ``domain`` graded towards γ
+    (:func:`~.boundary_layer.graded_domain`, ``edge_h`` and ``edge_width`` as given); unless
+    ``full``, its own sizes (``h``, ``central_h``, ``edge_h``) scaled up alike until, graded
+    by default, the estimated dofs of Koiter's P2 are at most :data:`FAST_DOFS` (a mesh file
+    as it is)."""
+    from shellobstacle.mesh.resources import estimate
+
+    scaled = domain
+    while not full and domain.kind != "file":
+        e = estimate(graded_domain(scaled, epsilons), "koiter", 2)
+        if e is None or e.dofs <= FAST_DOFS:
+            break
+        scale = max(1.05, math.sqrt(e.dofs / FAST_DOFS))
+        sizes = ("h", "central_h", "edge_h")
+        scaled = dataclasses.replace(
+            scaled, **{k: scale * getattr(scaled, k) for k in sizes if getattr(scaled, k)}
+        )
+    return graded_domain(scaled, epsilons, edge_h, edge_width)
 
 
 def koiter_limit(
@@ -298,7 +336,7 @@ def run_koiter_limit(
     newton_progress: NewtonProgress = None,
 ) -> str:
     """The experiment on ``cfg``'s shell and ``domain`` (graded towards γ); the report section."""
-    mesh = make_mesh(domain, ghosted=True)
+    mesh = make_mesh(domain, ghosted=True, progress=say)
     kappas = cfg.penalty.ladder(mesh_size(mesh))
     cp = (checkpoint or Checkpoint(None)).scope("koiter_limit")
     picture = SolutionPicture(cfg, folder / "koiter_limit_shell_3d.png", say)

@@ -1,4 +1,8 @@
-"""Batch 3 (physics): a load parameter ℓ sweeps the load; the contact area must grow with ℓ."""
+"""Batch 3 (physics): a load parameter ℓ sweeps the load; the contact area must grow with ℓ.
+
+The area is the nodal figure (``contact_area_nodal``: at the P1 vertices or the P2 nodes,
+docs/model.md §7), the paper's measure, whatever points the penalty acts at.
+"""
 
 from __future__ import annotations
 
@@ -53,12 +57,19 @@ PAPER_BATCH3_LOAD = (
     "Piecewise((-(2*epsilon/25)*(-5.0*y1**2 - 5.0*y2**2 + (1 + 0.05*ell)*0.295), r < 0.060),"
     " (0, True))"
 )
-COLUMNS = ("ell", "contact_area", "contact_area_projected", "max_violation", "zeta3_min")
+COLUMNS = (
+    "ell",
+    "contact_area_nodal",
+    "contact_area_nodal_projected",
+    "max_violation_nodal",
+    "zeta3_min",
+)
 
 
 @dataclass
 class LoadStudy:
-    """Contact quantities and cross-sections per value of the load parameter."""
+    """Contact quantities (the nodal figures) and cross-sections per value of the load
+    parameter."""
 
     parameter: str
     h: float
@@ -69,8 +80,8 @@ class LoadStudy:
     seconds: float = 0.0
 
     def area_increases(self) -> bool:
-        """Whether the contact area is nondecreasing in the parameter and grows overall."""
-        a = np.array([r["contact_area"] for r in self.rows])
+        """Whether the nodal contact area is nondecreasing in the parameter and grows overall."""
+        a = np.array([r["contact_area_nodal"] for r in self.rows])
         return bool(np.all(np.diff(a) >= 0) and a[-1] > a[0])
 
 
@@ -135,9 +146,9 @@ def load_study(
             row = {
                 parameter: value,
                 "ell": value,
-                "contact_area": c["contact_area"],
-                "contact_area_projected": c["contact_area_projected"],
-                "max_violation": c["max_violation"],
+                "contact_area_nodal": c["contact_area_nodal"],
+                "contact_area_nodal_projected": c["contact_area_nodal_projected"],
+                "max_violation_nodal": c["max_violation_nodal"],
                 "zeta3_min": post.zeta3_range()[0],
                 "newton": sum(s.newton.iterations for s in steps),
                 "violations": validity.violations,
@@ -163,23 +174,24 @@ def load_study(
             for name, v in record["section"].items()
         }
         study.sections.append((f"{parameter} = {value:g}", CrossSection(**section)))
-        area = record["row"]["contact_area"]
-        say(f"batch 3: {parameter} = {value:g}: contact area {area:.6g}{tag}")
+        area = record["row"]["contact_area_nodal"]
+        say(f"batch 3: {parameter} = {value:g}: contact area {area:.6g} (nodal){tag}")
     cp.drop_vector(saved)  # the sweep is complete
     study.seconds = time.perf_counter() - t0 + recorded_seconds
     return study
 
 
 def write_load_study(study: LoadStudy, folder: Path) -> Path:
-    """``batch3.csv``: ell, contact_area, contact_area_projected, max_violation, zeta3_min."""
+    """``batch3.csv``: ell, contact_area_nodal, contact_area_nodal_projected,
+    max_violation_nodal, zeta3_min."""
     path = folder / "batch3.csv"
     write_csv(path, study.rows, COLUMNS)
     return path
 
 
 def plot_contact_area(study: LoadStudy, path: Path, paper_load: bool = False) -> Path:
-    """Contact area (surface and projected) against the load parameter; with ``paper_load``
-    also the area of the paper's loaded disk ``|y| < 0.06``."""
+    """The nodal contact area (surface and projected) against the load parameter; with
+    ``paper_load`` also the area of the paper's loaded disk ``|y| < 0.06``."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -187,8 +199,9 @@ def plot_contact_area(study: LoadStudy, path: Path, paper_load: bool = False) ->
 
     ell = [r["ell"] for r in study.rows]
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
-    ax.plot(ell, [r["contact_area"] for r in study.rows], "o-", label="area with √a dy")
-    ax.plot(ell, [r["contact_area_projected"] for r in study.rows], "s--", label="projected (dy)")
+    ax.plot(ell, [r["contact_area_nodal"] for r in study.rows], "o-", label="area with √a dy")
+    area = [r["contact_area_nodal_projected"] for r in study.rows]
+    ax.plot(ell, area, "s--", label="projected (dy)")
     if paper_load:
         ax.axhline(np.pi * 0.06**2, color="grey", ls=":", label="loaded disk |y| < 0.06 (π·0.06²)")
     return finish_figure(
@@ -196,7 +209,7 @@ def plot_contact_area(study: LoadStudy, path: Path, paper_load: bool = False) ->
         ax,
         path,
         study.parameter,
-        "contact area",
+        "contact area at the nodes",
         f"Batch 3: contact area vs {study.parameter} (h = {study.h:.4g}, κ = {study.kappa:.2e})",
         loglog=False,
     )
@@ -228,7 +241,7 @@ def run_load(
 
     s = load_study(
         cfg.shell,
-        make_mesh(domain),
+        make_mesh(domain, progress=say),
         cfg.discretization,
         penalty_at(cfg.penalty, exponent),
         values,
@@ -271,16 +284,16 @@ def run_load(
             "",
             f"{_load_text(cfg.shell.load, paper_load)}; h = {s.h:.4g}{_refined_text(domain)}, "
             f"κ = h^{exponent:g} = {s.kappa:.3e}, {s.dofs} dofs. "
-            f"The contact area {verdict} with {name}. Areas are measured on the nodes (lumped "
-            f"masses of the vertices with g ≤ 0). {validity}",
+            f"The contact area {verdict} with {name}. Areas are measured on the nodes "
+            f"(`contact_area_nodal`: the lumped masses of the nodes with g ≤ 0). {validity}",
             "",
             table(
                 s.rows,
                 (
                     "ell",
-                    "contact_area",
-                    "contact_area_projected",
-                    "max_violation",
+                    "contact_area_nodal",
+                    "contact_area_nodal_projected",
+                    "max_violation_nodal",
                     "zeta3_min",
                     "newton",
                 ),

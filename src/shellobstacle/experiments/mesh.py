@@ -311,9 +311,8 @@ def run_mesh(
         "C h (1 + 1/√κ) = O(h^{1 − q/2}).",
         "",
     ]
-    levels = mesh_levels(
-        cfg.shell, make_mesh(base), refinements, cfg.discretization, cfg.solver, say, cp
-    )
+    coarsest = make_mesh(base, progress=say)
+    levels = mesh_levels(cfg.shell, coarsest, refinements, cfg.discretization, cfg.solver, say, cp)
     reference = None
     if batch4 is not None:
         where = f"the finest mesh (h = {levels[-1].h:.4g})"

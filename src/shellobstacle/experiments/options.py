@@ -150,6 +150,7 @@ def experiment_options(args: argparse.Namespace, cfg: Config) -> dict[str, Any]:
             "--epsilons": numbers(args.epsilons, "--epsilons", positive=True),
             "--edge-h": args.edge_h,
             "--edge-width": args.edge_width,
+            "--full": args.full,
         }
     parameters = sorted(cfg.shell.load.parameters)
     if args.parameter not in parameters:
@@ -208,10 +209,10 @@ def experiment_domains(
         elif args.batch == "solvers":
             domains = [dataclasses.replace(domain, h=h) for h in options["--sizes"]]
         elif args.batch == "koiter-limit":
-            from shellobstacle.experiments.boundary_layer import graded_domain
+            from shellobstacle.experiments.koiter_limit import study_domain
 
-            epsilons = options["--epsilons"]
-            domains = [graded_domain(domain, epsilons, args.edge_h, args.edge_width)]
+            epsilons, full = options["--epsilons"], options["--full"]
+            domains = [study_domain(domain, epsilons, args.edge_h, args.edge_width, full)]
         else:
             domains = [domain]
         for spec in domains:

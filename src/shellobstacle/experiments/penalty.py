@@ -321,7 +321,7 @@ def run_penalty(
     summary = []
     picture = SolutionPicture(cfg, folder / "batch1_shell_3d.png", say)
     for i, spec in enumerate(meshes):
-        mesh = make_mesh(spec)
+        mesh = make_mesh(spec, progress=say)
         studies = []
         for quadrature in quadratures:
             last = i == len(meshes) - 1 and quadrature == quadratures[0]

@@ -3,7 +3,8 @@
 Each experiment draws one solution it has just solved (its finest mesh, its largest load,
 the paper's ε, the last adapted mesh) with :func:`~shellobstacle.post.pictures.write_picture`,
 when ``output.pictures`` is on. A resumed run keeps the picture of the run that solved that
-solution: a solution read back from a checkpoint is not drawn again.
+solution: a solution read back from a checkpoint is not drawn again. When that run was stopped
+before it drew it, the report and the log say that the picture is missing and how to get it.
 """
 
 from __future__ import annotations
@@ -35,6 +36,8 @@ class SolutionPicture:
     def __init__(self, cfg: Config, path: Path, say: Say) -> None:
         self.enabled = bool(cfg.output.get("pictures", True))
         self.path, self.say = path, say
+        #: whether this run has drawn (or tried to draw) the solution
+        self.attempted = False
 
     def draw(self, problem: PenalizedProblem | Postprocessor, title: str) -> None:
         """Draw the current solution of ``problem`` (collective)."""
@@ -42,6 +45,7 @@ class SolutionPicture:
             return
         from shellobstacle.post.pictures import write_picture
 
+        self.attempted = True
         post = problem if isinstance(problem, Postprocessor) else Postprocessor(problem)
         with phase("drawing the 3D picture"):
             picture = write_picture(post, self.path, title)
@@ -62,7 +66,22 @@ class SolutionPicture:
         return draw
 
     def markdown(self, alt: str) -> list[str]:
-        """The report's image line and a blank line, if the picture exists (collective)."""
+        """The report's image line and a blank line, if the picture exists (collective).
+
+        A picture that is missing because this run read its solution back from the records
+        of an interrupted run (and so did not draw it) is said missing, in the report and as
+        a warning; one whose drawing failed was reported when it failed.
+        """
         comm = MPI.COMM_WORLD
         drawn = comm.bcast(self.path.is_file() if comm.rank == 0 else None, root=0)
-        return [f"![{alt}]({self.path.name})", ""] if drawn else []
+        if drawn:
+            return [f"![{alt}]({self.path.name})", ""]
+        if not self.enabled or self.attempted:
+            return []
+        missing = (
+            f"3D picture ({alt}) is missing: this run read its solution back from the records "
+            "of an interrupted run (steps/) and does not draw it again; to draw it, run the "
+            "command with --overwrite instead of --resume"
+        )
+        self.say(f"warning: the {missing}")
+        return [f"*The {missing}.*", ""]

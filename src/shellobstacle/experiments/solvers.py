@@ -142,7 +142,8 @@ def compare_solvers(
         h = mesh_size(mesh)
         kappas = penalty_at(penalty, q).ladder(h)
         problem = PenalizedProblem(shell, mesh, disc, kappa=kappas[0])
-        say(f"h = {h:.4g} ({problem.num_dofs} dofs), κ = h^{q:g} = {kappas[-1]:.3e}: Newton")
+        asked = "" if target is None else f" (target {target:g})"
+        say(f"h = {h:.4g}{asked}, {problem.num_dofs} dofs, κ = h^{q:g} = {kappas[-1]:.3e}: Newton")
 
         t0 = time.perf_counter()
         with phase(f"h = {h:.4g}: Newton"):

@@ -64,29 +64,30 @@ Extreme = tuple[float, tuple[float, float]]
 
 
 def _pick(candidates: list[Extreme], kind: str) -> Extreme:
-    """The first NaN of ``candidates`` if any, else the smallest (``min``) or largest value
-    (the first one on ties)."""
-    nans = [c for c in candidates if np.isnan(c[0])]
-    if nans:
-        return nans[0]
+    """The first NaN or infinity of ``candidates`` if any, else the smallest (``min``) or
+    largest value (the first one on ties)."""
+    bad = [c for c in candidates if not np.isfinite(c[0]) and np.isfinite(c[1][0])]
+    if bad:
+        return bad[0]
     return (min if kind == "min" else max)(candidates, key=lambda c: c[0])
 
 
 def _local_extreme(values: np.ndarray, points: np.ndarray, kind: str) -> Extreme:
-    """Min or max of ``values`` and the point where it occurs (the first NaN, if any)."""
+    """Min or max of ``values`` and the point where it occurs (the first NaN or infinity, if
+    any)."""
     if not values.size:
         return (np.inf if kind == "min" else -np.inf, (np.nan, np.nan))
-    nan = np.isnan(values)
-    if nan.any():
-        i = int(np.argmax(nan))
-        return (float("nan"), (float(points[i, 0]), float(points[i, 1])))
+    bad = ~np.isfinite(values)
+    if bad.any():
+        i = int(np.argmax(bad))
+        return (float(values[i]), (float(points[i, 0]), float(points[i, 1])))
     i = int(np.argmin(values) if kind == "min" else np.argmax(values))
     return (float(values[i]), (float(points[i, 0]), float(points[i, 1])))
 
 
 def _quantities(shell: Shell, obstacle: Obstacle, G: Geometry, n: int) -> list[np.ndarray]:
     """det(a_αβ), K, θ·q, a³·q and ε·max|κ_principal| from ``G`` evaluated at ``n`` points."""
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
         det_a = np.asarray(G.det_a, float)
         K = np.asarray(G.gaussian_curvature, float)
         theta_q = np.asarray(obstacle.reference_gap(G), float)  # g(θ) (a plane's θ·q)
@@ -111,8 +112,8 @@ ROWS = [
         "K (Gaussian curvature)",
         "min",
         "min K > 0",
-        "the theory needs an elliptic surface (K ≥ K0 > 0): flat or saddle shells are not "
-        "elliptic membrane shells",
+        "the membrane model needs an elliptic surface (K ≥ K0 > 0), and flat or saddle shells "
+        'are not elliptic: set model.kind = "koiter" (membrane and bending, any thin shell)',
     ),
     (
         "inside half-space",
@@ -166,6 +167,7 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
     pts = sample_points(mesh)
     obstacle = from_spec(shell.obstacle, shell.material.epsilon)
     found: list[list[Extreme]] = [[] for _ in ROWS]
+    largest: list[Extreme] = []  # of g(θ): below 0 everywhere, the shell is on the wrong side
     failures: list[Failure | None] = []
     for start in range(0, max(len(pts), 1), CHUNK):
         chunk = pts[start : start + CHUNK]
@@ -174,13 +176,17 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
         quantities = _quantities(shell, obstacle, G, len(chunk))
         for row, values, found_row in zip(ROWS, quantities, found, strict=True):
             found_row.append(_local_extreme(values, chunk, row[2]))
+        largest.append(_local_extreme(quantities[2], chunk, "max"))
     require_finite(shell, failures, mesh.comm)
+    g_max = _pick(mesh.comm.allgather(_pick(largest, "max")), "max")[0]
     checks = []
     for (name, quantity, kind, requirement, hint), local in zip(_rows(shell), found, strict=True):
         if name == "inside half-space":
             hint = _half_space_hint(shell, hint)
         value, where = _pick(mesh.comm.allgather(_pick(local, kind)), kind)
         ok = bool(np.isfinite(value) and (value < 1.0 if kind == "max" else value > 0.0))
+        if not ok:
+            requirement, hint = _gap_fix(shell, name, value, g_max, requirement, hint)
         if name == "elliptic" and shell.model == "koiter":
             # Koiter's model needs an immersion and a thin shell, not K > 0 (docs/model.md §8)
             requirement, ok = "none (Koiter's model)", bool(np.isfinite(value))
@@ -196,6 +202,36 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
             )
         )  # fmt: skip
     return checks
+
+
+def _gap_fix(
+    shell: Shell, name: str, value: float, g_max: float, requirement: str, hint: str
+) -> tuple[str, str]:
+    """The requirement and the fix of a failed row of a curved obstacle's gap: a ``g`` or a
+    ``∇g`` that is not finite says so; a shell wholly on the wrong side of a ball or a
+    cylinder (``g(θ) < 0`` everywhere, largest ``g_max``) names ``obstacle.side``."""
+    o = shell.obstacle
+    if o.kind == "plane" or name not in ("admissible reference", "normal towards obstacle"):
+        return requirement, hint
+    what = "g(θ)" if name == "admissible reference" else "∇g·a³"
+    if not np.isfinite(value):
+        if o.kind == "expression":
+            why = (
+                "obstacle.g has no finite value or gradient there (a logarithm or a root of a "
+                "negative number, a division by zero?): change obstacle.g"
+            )
+        else:
+            axis = "centre" if o.kind == "sphere" else "axis"
+            why = f"∇g is not defined at the {o.kind}'s {axis}: move the {o.kind}"
+        return f"{what} finite", f"{what} = {value} on the reference shell: {why}"
+    if name == "admissible reference" and o.kind in ("sphere", "cylinder") and g_max < 0:
+        where = "inside" if o.side == "outside" else "outside"
+        return requirement, (
+            f"the reference shell lies wholly {where} the {o.kind} (g(θ) ≤ {g_max:.4g} < 0), "
+            f"which obstacle.side = {o.side!r} forbids: set obstacle.side = {where!r} to keep "
+            f"it {where}, or move the {o.kind}"
+        )
+    return requirement, hint
 
 
 def _rows(shell: Shell) -> list[tuple[str, str, str, str, str]]:
@@ -232,6 +268,7 @@ def format_checks(checks: list[Check]) -> str:
             verdict = f"not required: {c.requirement[6:-1]}"
         value = c.value + 0.0  # no "-0"
         lines.append(f"{c.name:<24} {c.quantity:<22} {value:>13.6g}  {at:<22} {verdict}")
+    lines += [f"{c.name}: {c.hint}" for c in checks if not c.passed]  # the fixes
     return "\n".join(lines)
 
 
@@ -240,7 +277,8 @@ def require(checks: list[Check]) -> None:
     failed = [c for c in checks if not c.passed]
     if failed:
         msg = "; ".join(
-            f"{c.name}: {c.quantity} = {c.value:.6g} at y = ({c.where[0]:.4g}, {c.where[1]:.4g}) "
+            f"{c.name}: {c.quantity} = {c.value + 0.0:.6g} at y = ({c.where[0]:.4g}, "
+            f"{c.where[1]:.4g}) "
             f"violates {c.requirement} — {c.hint}"
             for c in failed
         )

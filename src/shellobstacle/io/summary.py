@@ -15,6 +15,7 @@ from shellobstacle.io.records import versions, write_json
 from shellobstacle.progress import phase
 
 if TYPE_CHECKING:
+    from shellobstacle.post.contact import Postprocessor
     from shellobstacle.solvers.result import SolveResult
 
 __all__ = ["write_solution"]
@@ -30,19 +31,24 @@ def write_solution(
     """Write ``summary.json`` (always, also after a failure), ParaView files and figures;
     the validity measures (:mod:`shellobstacle.post.validity`) are reported through ``say``.
 
+    ``summary.json`` is written first, with ``outputs_complete`` false, and again once the
+    other files are written: a run stopped in between (Ctrl-C: also ``interrupted``) leaves
+    the solution's record, listing in ``files`` the files it wrote.
+
     Returns:
         The summary dictionary.
     """
-    from shellobstacle.io.paraview import write_paraview
     from shellobstacle.post.contact import Postprocessor
-    from shellobstacle.post.plotting import plot_cross_section
+    from shellobstacle.post.resolution import unresolved_obstacle
 
     problem = result.problem
     t = time.perf_counter()
     post = Postprocessor(problem, result.constraint)
     quantities = post.summary()
     validity = result.validity(post)
-    for line in validity.warnings():
+    unresolved = unresolved_obstacle(post.points, post.tolerance())
+    solution_warnings = [*validity.warnings(), *([unresolved] if unresolved else [])]
+    for line in solution_warnings:
         say(f"warning: {line}")
     timings = dict(result.timings)
     timings["postprocess"] = time.perf_counter() - t
@@ -74,14 +80,50 @@ def write_solution(
             for c in result.checks
         ],
         "validity": validity.as_dict(),
-        "warnings": [*(warnings_seen or []), *validity.warnings()],
+        "warnings": [*(warnings_seen or []), *solution_warnings],
         "surface": cfg.shell.surface.description,
         "timings": timings,
         "versions": versions(),
     }
-    output = cfg.output
-    t = time.perf_counter()
+    # the solution's record first: a run stopped while it writes the files below (Ctrl-C, a
+    # kill) leaves a summary.json that says so and lists the files written
     files: list[str] = []
+    summary["files"] = files
+    summary["outputs_complete"] = False
+    write_json(folder / "summary.json", summary)
+    if MPI.COMM_WORLD.rank == 0:
+        (folder / "checks.txt").write_text(format_checks(result.checks) + "\n")
+    t = time.perf_counter()
+    try:
+        _write_outputs(result, cfg, post, summary, folder, say)
+    except KeyboardInterrupt:
+        summary["interrupted"] = "while writing the outputs (those written are in 'files')"
+        write_json(folder / "summary.json", summary)
+        raise
+    timings["output"] = time.perf_counter() - t
+    summary["outputs_complete"] = True
+    write_json(folder / "summary.json", summary)
+    say(f"wrote summary.json and {len(files)} other file(s)")
+    return summary
+
+
+def _write_outputs(
+    result: SolveResult,
+    cfg: Any,
+    post: Postprocessor,
+    summary: dict[str, Any],
+    folder: Path,
+    say: Callable[[str], Any],
+) -> None:
+    """The ParaView files, the cross-section and the 3D picture, each added to
+    ``summary["files"]`` once written (``summary["warnings"]``: a picture not drawn)."""
+    from shellobstacle.io.paraview import write_paraview
+    from shellobstacle.post.contact import contact_text
+    from shellobstacle.post.plotting import plot_cross_section
+
+    problem = result.problem
+    output = cfg.output
+    files = summary["files"]
     if output.get("paraview", True):
         extra = []
         pressure = result.extra.get("contact_pressure")
@@ -107,8 +149,8 @@ def write_solution(
         from shellobstacle.post.pictures import describe, write_picture
 
         title = (
-            f"Deformed middle surface θ + ζᵢ aⁱ over {describe(problem.obstacle)}: "
-            f"κ = {summary['kappa']:.2e}, contact area {summary['contact_area']:.4g}"
+            f"Deformed middle surface θ + ζᵢ aⁱ over {describe(problem.obstacle)}:\n"
+            f"κ = {summary['kappa']:.2e}, {contact_text(summary, '.4g')}"
             + ("" if result.converged else " (NOT converged)")
         )
         with phase("drawing the 3D picture"):
@@ -118,10 +160,3 @@ def write_solution(
         if picture.warning is not None:
             say(f"warning: {picture.warning}")
             summary["warnings"].append(picture.warning)
-    timings["output"] = time.perf_counter() - t
-    summary["files"] = files
-    write_json(folder / "summary.json", summary)
-    if MPI.COMM_WORLD.rank == 0:
-        (folder / "checks.txt").write_text(format_checks(result.checks) + "\n")
-    say(f"wrote summary.json and {len(files)} other file(s)")
-    return summary

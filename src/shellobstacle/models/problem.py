@@ -32,6 +32,7 @@ from shellobstacle.models.hybrid_bending import (
 from shellobstacle.models.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
 from shellobstacle.models.membrane import elastic_product, strain
 from shellobstacle.obstacle import Obstacle, from_spec
+from shellobstacle.obstacle.singular import GradientCheck
 from shellobstacle.penalty.rule import penalty_measure
 from shellobstacle.progress import phase
 from shellobstacle.spec import Discretization, Shell
@@ -209,6 +210,7 @@ class PenalizedProblem:
         self.c_norm = obstacle.c_norm(G)
         self.g = obstacle.gap(G, zeta)  # g(ζ)
         self.zeta_lin: dolfinx.fem.Function | None = None
+        self._gradient_check: GradientCheck | None = None
         if obstacle.affine:
             self.c = obstacle.c(G)  # c_j = ∂g/∂ζ_j
             self.g0 = obstacle.reference_gap(G)
@@ -227,9 +229,17 @@ class PenalizedProblem:
 
     def linearize(self) -> None:
         """``ζ̄ ← ζ``: linearize a curved obstacle's gap at the current ``ζ`` (nothing for a
-        plane)."""
+        plane).
+
+        Raises:
+            SingularGradientError: a constraint point lies where ``∇g`` is undefined
+                (:mod:`shellobstacle.obstacle.singular`).
+        """
         if self.zeta_lin is not None:
             self.zeta_lin.x.array[:] = self.zeta.x.array
+            if self._gradient_check is None:
+                self._gradient_check = GradientCheck(self)
+            self._gradient_check()
 
     @property
     def penalized(self) -> bool:

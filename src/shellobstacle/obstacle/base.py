@@ -68,6 +68,9 @@ class Obstacle(ABC):
     affine: bool = False
     convex: bool | None = False
     constant_parameters: ClassVar[tuple[str, ...]] = ()
+    singular_set: ClassVar[str] = "a point where ∇g is not finite"
+    """Where ``∇g`` is undefined, for the error that a constraint point there raises
+    (:mod:`shellobstacle.obstacle.singular`)."""
 
     def __init__(self, offset: float = 0.0) -> None:
         self.offset = float(offset)
@@ -99,6 +102,18 @@ class Obstacle(ABC):
     @abstractmethod
     def gradient(self, G: Geometry, x: Sequence[Any]) -> list[Any]:
         """``∇g(x)``, three scalars of ``G``'s backend."""
+
+    def singular_distance(self, G: Geometry, x: Sequence[Any]) -> Any | None:
+        """The distance from ``x`` to :attr:`singular_set` over the obstacle's size (``G``'s
+        backend), None where no formula gives it (a plane: none; a user's ``g``: the check
+        is that ``∇g`` is finite)."""
+        return None
+
+    def curvature_radius(self, x: np.ndarray) -> np.ndarray:
+        """The smallest principal radius of curvature of the level surface of ``g`` through
+        each point ``x`` (NumPy, shape ``(n, 3)``; ``inf`` where it is flat): near the
+        contact, the obstacle's own (:mod:`shellobstacle.post.resolution`)."""
+        return np.full(x.shape[0], np.inf)
 
     def point(self, G: Geometry, eta: Sequence[Any] | None = None) -> list[Any]:
         """``θ + s a_3 + η_i a^i``: the contact face displaced by ``η`` (0 if None)."""

@@ -57,6 +57,7 @@ class ExpressionObstacle(Obstacle):
         self.affine = all(sp.simplify(h) == 0 for h in hessian)
         self.convex = True if self.affine else None  # a curved g: not decided here
         self._numpy = [to_numpy(e, X) for e in (self.expr, *self.grad)]
+        self._hessian = [to_numpy(e, X) for e in hessian]
 
     def __repr__(self) -> str:
         return f"ExpressionObstacle(g={shown(self.expr)!r})"
@@ -72,6 +73,23 @@ class ExpressionObstacle(Obstacle):
     def value(self, G: Geometry, x: Sequence[Any]) -> Any:
         """``g(x)``."""
         return self._evaluate(G, 0, self.expr, x)
+
+    def curvature_radius(self, x: np.ndarray) -> np.ndarray:
+        """``1/max|k_i|``, ``k_i`` the principal curvatures of the level surface through
+        ``x``: the eigenvalues of ``P H P / |∇g|`` (``H`` the Hessian of ``g``,
+        ``P = I − n nᵀ``, ``n = ∇g/|∇g|``) on the tangent plane."""
+        cols = [np.asarray(x[:, k], dtype=float) for k in range(3)]
+        n = x.shape[0]
+        full = lambda v: np.broadcast_to(np.asarray(v, dtype=float), (n,))  # noqa: E731
+        with np.errstate(invalid="ignore", divide="ignore"):
+            grad = np.stack([full(f(*cols)) for f in self._numpy[1:]], axis=1)
+            H = np.stack([full(f(*cols)) for f in self._hessian], axis=1).reshape(n, 3, 3)
+            norm = np.linalg.norm(grad, axis=1)
+            unit = grad / norm[:, None]
+            P = np.eye(3)[None] - unit[:, :, None] * unit[:, None, :]
+            shape = P @ H @ P / norm[:, None, None]
+            k = np.abs(np.linalg.eigvalsh(shape)).max(axis=1)
+            return 1.0 / k
 
     def gradient(self, G: Geometry, x: Sequence[Any]) -> list[Any]:
         """``∇g(x)``, derived symbolically (constants stay numbers: a plane's UFL is a plane's)."""

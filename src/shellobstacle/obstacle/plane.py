@@ -30,6 +30,7 @@ class Plane(Obstacle):
     affine = True
     convex = True
     constant_parameters = ("q", "level")
+    singular_set = "nowhere"
 
     def __init__(self, q: Sequence[float], c: float = 0.0, offset: float = 0.0) -> None:
         super().__init__(offset)

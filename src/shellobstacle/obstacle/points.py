@@ -2,27 +2,29 @@
 §7).
 
 The contact of a solution is measured at the points where its constraint acts, each with a
-weight ``w_k`` of a rule on ω (``Σ_k w_k φ(x_k) ≈ ∫ φ dy``):
+weight ``w_k`` of a rule on ω (``Σ_k w_k φ(x_k) ≈ ∫ φ dy``) (:func:`constraint_points`):
 
 - the Lagrange nodes (:class:`NodePoints`): the exact nodal solvers' constraint and the
   vertex penalty's (P1: the vertices with the vertex rule, ``w_i = ∫ φ_i dy`` lumped; P2: the
   vertices and edge midpoints, each cell's measure shared ``1/12`` per vertex and ``1/4`` per
   edge midpoint, the vertex rule of the cell's uniform refinement);
-- the Gauss points of the penalty's rule (:class:`QuadraturePoints`), for P2.
+- the Gauss points of the penalty's rule (:class:`QuadraturePoints`), for the Gauss penalty
+  (P1 and P2).
 
 The contact set is ``{x_k : g(x_k) ≤ tol}``; its area is the weight of its points, with the
 surface element (``Σ w_k √a(x_k)``) and projected (``Σ w_k``): for P1 at the vertices that is
 the sum of the lumped masses ``∫ φ_i √a dy`` of the contact vertices.
 
-For P1 the Gauss-point penalty's contact is also measured at the vertices
-(:func:`constraint_points`), against every obstacle: a P1 solution is its vertex values, while
-at the Gauss points of a contact cell the sign of ``g`` is decided by the ``O(h²)`` curvature of
-``g(θ)`` within the cell (of ``θ`` and of the obstacle) against the penetration, so that only
-some of them touch (docs/model.md, Contact).
+The Gauss penalty's contact is measured at its Gauss points for P1 too, where it acts: its
+vertices can all stay off an obstacle that its Gauss points touch (a ball a few cells wide,
+between the vertices, docs/model.md §7). The nodal figure (:class:`NodePoints`: the
+P1 vertices, the P2 nodes), which the paper's batch 3 measures, is reported beside it
+(:meth:`~shellobstacle.post.contact.Postprocessor.contact`).
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 from mpi4py import MPI
@@ -37,6 +39,7 @@ from shellobstacle.penalty.quadrature import quadrature_space
 
 __all__ = [
     "CONSTRAINTS",
+    "ContactMeasure",
     "ContactPoints",
     "NodePoints",
     "QuadraturePoints",
@@ -58,16 +61,35 @@ def constraint_points(problem: Any, constraint: str = "penalty") -> ContactPoint
             (a solution of the exact nodal problem).
 
     Returns:
-        The Lagrange nodes for ``"nodes"``, for the vertex penalty and for P1 (see the module's
-        note); the penalty's Gauss points otherwise.
+        The Lagrange nodes for ``"nodes"`` and for the vertex penalty; the penalty's Gauss
+        points otherwise (P1 and P2).
     """
     if constraint not in CONSTRAINTS:
         raise ValueError(f"constraint must be one of {CONSTRAINTS}, got {constraint!r}")
     if constraint == "nodes" or problem.disc.penalty_quadrature == "vertex":
         return NodePoints(problem)
-    if problem.disc.degree == 1:
-        return NodePoints(problem)
     return QuadraturePoints(problem)
+
+
+@dataclass(frozen=True)
+class ContactMeasure:
+    """The contact set ``{g ≤ tol}`` at a set of points ``x_k`` with weights ``w_k``.
+
+    Attributes:
+        area: ``Σ w_k √a(x_k)`` over the contact points.
+        area_projected: ``Σ w_k`` over them.
+        max_violation: ``max_k {g(x_k)}^-``.
+        min_gap: ``min_k g(x_k)``.
+        count: the number of contact points.
+        points: where: ``"vertices"``, ``"nodes"`` or ``"quadrature points"``.
+    """
+
+    area: float
+    area_projected: float
+    max_violation: float
+    min_gap: float
+    count: int
+    points: str
 
 
 class ContactPoints:
@@ -99,15 +121,8 @@ class ContactPoints:
         self.values.x.scatter_forward()
         return self.values.x.array[: self.n]
 
-    def measure(self, tol: float) -> dict[str, Any]:
-        """The contact set ``{g ≤ tol}`` at the points and its measures (global values).
-
-        Returns:
-            ``contact_area`` (``Σ w_k √a(x_k)`` over the contact points),
-            ``contact_area_projected`` (``Σ w_k``), ``max_violation`` (``max {g}^-``),
-            ``min_gap``, ``num_contact_nodes`` (the contact points), ``tol`` and
-            ``contact_points`` (:attr:`kind`).
-        """
+    def measure(self, tol: float) -> ContactMeasure:
+        """The contact set ``{g ≤ tol}`` at the points and its measures (global values)."""
         g = self.gap()
         mask = g <= tol
         comm = self.comm
@@ -115,15 +130,9 @@ class ContactPoints:
         projected = comm.allreduce(float(self.mass_projected[mask].sum()), op=MPI.SUM)
         count = comm.allreduce(int(mask.sum()), op=MPI.SUM)
         min_gap = float(comm.allreduce(float(np.min(g, initial=np.inf)), op=MPI.MIN))
-        return {
-            "contact_area": float(area),
-            "contact_area_projected": float(projected),
-            "max_violation": max(-min_gap, 0.0),
-            "min_gap": min_gap,
-            "num_contact_nodes": int(count),
-            "tol": tol,
-            "contact_points": self.kind,
-        }
+        return ContactMeasure(
+            float(area), float(projected), max(-min_gap, 0.0), min_gap, int(count), self.kind
+        )
 
     def indicator(self, tol: float, out: dolfinx.fem.Function) -> dolfinx.fem.Function:
         """``out`` (a P1 Function) ← the contact flags ``g ≤ tol`` of the points, lumped onto

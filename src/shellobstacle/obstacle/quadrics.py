@@ -43,16 +43,27 @@ class _Round(Obstacle):
         return self.sign * (G.sqrt(dot(r, r)) - self.radius)
 
     def gradient(self, G: Geometry, x: Sequence[Any]) -> list[Any]:
-        """``±radial(x)/d``."""
+        """``±radial(x)/d``: ``0/0`` at the centre (the axis), :attr:`singular_set`."""
         r = self.radial(x)
         d = G.sqrt(dot(r, r))
         return [self.sign * rk / d for rk in r]
+
+    def singular_distance(self, G: Geometry, x: Sequence[Any]) -> Any:
+        """``d/R``: the distance to the centre (the axis) over the radius."""
+        r = self.radial(x)
+        return G.sqrt(dot(r, r)) / number(self.radius)
+
+    def curvature_radius(self, x: np.ndarray) -> np.ndarray:
+        """``R`` (the surface ``g = 0``: a sphere's two principal radii, a cylinder's
+        smaller one)."""
+        return np.full(x.shape[0], float(self.radius))
 
 
 class Sphere(_Round):
     """The ball ``|x − center| ≤ R``: the shell stays outside it or inside it."""
 
     constant_parameters = ("center", "radius")
+    singular_set = "the ball's centre, where ∇g = ±(x − centre)/|x − centre| is 0/0"
 
     def __init__(
         self, center: Sequence[float], radius: float, side: str = "outside", offset: float = 0.0
@@ -71,6 +82,7 @@ class Cylinder(_Round):
     """The round cylinder of radius ``R`` about the line through ``point`` along ``axis``."""
 
     constant_parameters = ("origin", "axis", "radius")
+    singular_set = "the cylinder's axis, where ∇g = ±(radial part)/|radial part| is 0/0"
 
     def __init__(
         self,

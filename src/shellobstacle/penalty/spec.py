@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from shellobstacle.spec import boolean, finite  # the config's checks of a value
+
 __all__ = ["KAPPA_MODES", "PenaltySpec"]
 
 #: how κ = h^exponent follows an adapted mesh (:mod:`~shellobstacle.penalty.kappa`): the
@@ -27,6 +29,10 @@ class PenaltySpec:
     continuation: bool = True
 
     def __post_init__(self) -> None:
+        for name in ("kappa", "exponent"):
+            if getattr(self, name) is not None:
+                object.__setattr__(self, name, finite(getattr(self, name), f"penalty.{name}"))
+        boolean(self.continuation, "penalty.continuation")
         if self.kappa is not None and self.exponent is not None:
             raise ValueError("give either penalty.kappa or penalty.exponent, not both")
         if self.kappa is None and self.exponent is None:

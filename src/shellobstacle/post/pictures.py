@@ -291,7 +291,7 @@ def _lay_out(views: dict[str, np.ndarray], path: Path, title: str) -> None:
 
     clim = tuple(float(v) for v in views["clim"])
     curved = bool(views.get("curved", False))
-    what = "the contact zone" if bool(views["contact"]) else "the lowest point (no contact)"
+    what = "the contact zone" if bool(views["contact"]) else "the lowest point (no contact vertex)"
     low, high = ELEVATIONS
     fig, axes = plt.subplots(1, 2, figsize=(13.0, 5.4), constrained_layout=True)
     for ax, image, label in (

@@ -7,8 +7,10 @@ over itself. Scale-free measures, computed after every solve:
 
 ``penetration``
     ``max {g(ζ)}^- / max θ·q``: the largest penetration of the plane against the shell's
-    initial height above it (the gap scale). The penalized solution's penetration vanishes as
-    κ → 0; one that is a sizeable part of the height means the constraint is not imposed.
+    initial height above it (the gap scale), the larger of the one where the constraint acts
+    and the one at the nodes (``max_violation``, ``max_violation_nodal``). The penalized
+    solution's penetration vanishes as κ → 0; one that is a sizeable part of the height means
+    the constraint is not imposed.
 ``displacement``
     ``max |ζ_i a^i| / diam θ(ω)``: the linearized strain (docs/model.md §2) assumes displacements
     small against the shell; beyond a quarter of its size the linearization is not credible.
@@ -135,7 +137,8 @@ def assess(post: Any, kappa: float) -> Validity:
     penalty parameter of the solve (0 for the exact problem: no ``penalty_ratio``)."""
     problem = post.problem
     comm: MPI.Comm = post.comm
-    violation = float(post.contact()["max_violation"])
+    contact = post.contact()
+    violation = max(float(contact["max_violation"]), float(contact["max_violation_nodal"]))
     penetration = violation / post.gap_scale if post.gap_scale > 0 else float("inf")
 
     n_owned = post.P1.dofmap.index_map.size_local

@@ -42,7 +42,8 @@ A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
 component as its near-nullspace: set up at every Newton step, it is 1.5–1.9× slower than the
 direct path and the geometric V-cycle on the paper's problem at 0.3–1.3 M dofs
-(docs/performance.md).
+(docs/performance.md). :attr:`MultigridStrategy.fallback` says so, and Newton's method passes
+it on (a warning and the summary's ``linear_solver_used``).
 
 The Newton side (forcing terms, the seeded first step, the finished direction) is that of
 :class:`~shellobstacle.solvers.linear.iterative.IterativeStrategy`.
@@ -139,6 +140,8 @@ class MultigridStrategy(IterativeStrategy):
         self._levels_most = 0  # the most CG iterations of a direction since the set-up
         self._coarse_active: np.ndarray | None = None  # the active points of the coarse operators
         self.coarse_updates = 0  # of the coarser operators within a solve (active points moved)
+        #: why algebraic multigrid runs instead of the geometric one ("" when it does not)
+        self.fallback = ""
 
     def attach(self, system: PenalizedSystem, timings: dict[str, float]) -> None:
         """CG with PCMG on the mesh hierarchy (GAMG without one) under a prefix of its own."""
@@ -157,6 +160,12 @@ class MultigridStrategy(IterativeStrategy):
                 "domain.refinements >= 1, or use linear_solver = 'direct'"
             )
         self.levels = len(transfers) + 1
+        if not transfers and self.max_levels != 1:
+            self.fallback = (
+                "solver.linear_solver = 'multigrid': the mesh has no coarser levels (no "
+                "domain.refinements), so algebraic multigrid (GAMG) runs instead of the "
+                "geometric one; set domain.refinements >= 1 for the geometric one"
+            )
         options = dict(_GEOMETRIC if transfers else _ALGEBRAIC)
         options["mg_levels_pc_type"] = self.smoother
         if system.problem.model == "koiter":  # fourth-order bending: W-cycles (docstring)

@@ -110,6 +110,12 @@ class NewtonContinuation(MethodBase):
         out.extra["linear_solver"] = solver.linear_solver
         if solver.options.linear_solver == "auto" and solver.linear_solver != "direct":
             say(f'linear solver: {solver.linear_solver} ("auto": {solver.auto_reason})')
+        fallback = getattr(solver.linear, "fallback", "")  # multigrid without levels: GAMG
+        if fallback:
+            out.extra["linear_solver_used"] = "gamg"
+            out.extra["linear_solver_reason"] = fallback
+            if kept is None or kept[1] is not solver:  # said once, when it is set up
+                say(f"warning: {fallback}")
         try:
             out.steps = list(
                 continuation(problem, solver, list(kappas), say, newton_progress=newton_progress)
