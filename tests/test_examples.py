@@ -24,7 +24,7 @@ WITH_CONTACT = {"ellipsoid.toml", "paraboloid.toml", "cylinder_koiter.toml"}
 #: 0.08 the paraboloid's bump load, 3 cells across, penetrates the plane by 11 % of its height)
 COARSE = "domain.h=0.06"
 #: the roller (radius 0.3) spans 3.6 of the coarse mesh's cells, too few (post/resolution);
-#: at the example's own h = 0.02 it spans about 10
+#: at the example's own h = 0.02 there is no warning
 COARSE_WARNINGS = {"koiter_panel_on_roller.toml": "the mesh does not resolve the obstacle"}
 
 
