@@ -25,10 +25,6 @@ def kernels(tag: int, rows: int, seconds: float, barrier) -> dict:
     """Products and triads on a ``rows``-row matrix for ``seconds`` each; their rates."""
     from mpi4py import MPI
 
-    from shellobstacle import tuning
-
-    tuning.apply(MPI.COMM_WORLD.size)  # as the command tunes itself
-
     import dolfinx
     import dolfinx.fem.petsc
     import ufl

@@ -22,8 +22,8 @@ from mpi4py import MPI
 # isort: split
 
 from shellobstacle.api import make_mesh
+from shellobstacle.checks.assumptions import check_assumptions
 from shellobstacle.config.loader import load_config
-from shellobstacle.geometry.assumptions import check_assumptions
 
 PAPER = Path(__file__).parents[1] / "src" / "shellobstacle" / "configs" / "paper.toml"
 

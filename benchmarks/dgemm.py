@@ -1,4 +1,3 @@
-# ruff: noqa: E402  (the tuning must come before PETSc and NumPy are loaded)
 """Dense matrix products in the OpenBLAS that PETSc and MUMPS run on: Gflop/s by size.
 
 MUMPS' dense kernels (its fronts) run on the DOLFINx wheel's OpenBLAS. That library picks its
@@ -8,12 +7,12 @@ double matrices through ``cblas_dgemm``, about 2 Gflop per size, best of three.
 
 ``--gemmt`` times instead the update MUMPS makes in an LDLᵀ factorization, C := C − A Bᵀ on
 the lower triangle of an n × n C with k columns (DGEMMT), by OpenBLAS' own DGEMMT, by the
-package's blocked one (:mod:`shellobstacle.tuning.gemmt`) and, for comparison, by one DGEMM of the
-whole C (twice the flops): milliseconds per call and Gflop/s counted on the triangle's n² k.
+blocked one of ``blocked_gemmt.py`` and, for comparison, by one DGEMM of the whole C (twice the
+flops): milliseconds per call and Gflop/s counted on the triangle's n² k.
 
     OPENBLAS_CORETYPE=Haswell .venv/bin/python benchmarks/dgemm.py
     env -u OPENBLAS_CORETYPE .venv/bin/python benchmarks/dgemm.py
-    SHELLOBSTACLE_TUNING=gemmt .venv/bin/python benchmarks/dgemm.py --gemmt
+    .venv/bin/python benchmarks/dgemm.py --gemmt
 """
 
 from __future__ import annotations
@@ -22,13 +21,13 @@ import argparse
 import ctypes
 import json
 import os
+import sys
 import time
 
-from mpi4py import MPI
+import blocked_gemmt
 
-from shellobstacle import tuning
-
-tuning.apply(MPI.COMM_WORLD.size)  # as the command does, before PETSc loads its OpenBLAS
+if "--gemmt" in sys.argv:
+    blocked_gemmt.load()  # before PETSc loads its OpenBLAS
 
 # isort: split
 from petsc4py import PETSc  # noqa: F401  (loads the wheel's OpenBLAS)
@@ -40,14 +39,7 @@ ROW_MAJOR, NO_TRANS = 101, 111
 
 def gemmt(config: str) -> None:
     """DGEMMT (OpenBLAS', blocked) against one whole DGEMM, at MUMPS-like shapes."""
-    from shellobstacle.tuning.gemmt import openblas_path
-
-    policy = tuning.policies()["gemmt"]
-    if policy != "blocked":
-        raise SystemExit(
-            f"the blocked DGEMMT is not in use: {policy} (run with SHELLOBSTACLE_TUNING=gemmt)"
-        )
-    theirs = ctypes.CDLL(str(openblas_path()), mode=os.RTLD_NOLOAD)
+    theirs = ctypes.CDLL(str(blocked_gemmt.openblas()), mode=os.RTLD_NOLOAD)
     ours = ctypes.CDLL(None).dgemmt_  # the process' first dgemmt_: the one MUMPS calls
     ref = ctypes.c_int
     rng = np.random.default_rng(0)
@@ -65,6 +57,15 @@ def gemmt(config: str) -> None:
             "blocked_gemmt": (ours, (L, N, T, ints[0], ints[1], *args, *hidden)),
             "whole_gemm": (theirs.dgemm_, (N, T, ints[0], ints[0], ints[1], *args, *hidden[:2])),
         }
+        results, start = [], C.copy()  # each DGEMMT once on the same C: equal to round-off
+        for name in ("openblas_gemmt", "blocked_gemmt"):
+            C[:] = start
+            calls[name][0](*calls[name][1])
+            results.append(C.copy())
+        if not np.allclose(results[0], results[1], rtol=1e-12, atol=1e-12 * n):
+            raise RuntimeError("the blocked DGEMMT differs from OpenBLAS'")
+        if not np.array_equal(np.triu(results[1], 1), np.triu(start, 1)):
+            raise RuntimeError("the blocked DGEMMT wrote above the diagonal")
         repeats = max(1, int(2e9 / (n * n * k)))
         rec = {"benchmark": "gemmt", "n": n, "k": k, "petsc_blas": config}
         for name, (fn, fn_args) in calls.items():

@@ -30,7 +30,7 @@ Two drivers:
   from ``ζ = 0``, interpolated, ``fmg_cycles`` V-cycles on each finer level, then V-cycles on
   the finest level until the same rule.
 
-The coarse problem (the variants of docs/perf/multigrid.md, "FAS: a prototype"):
+The coarse problem (the variants behind docs/perf/multigrid.md's "Tried, not kept: FAS"):
 
 - default: textbook FAS, the level's own stiffness and Gauss points at the injected state;
 - ``--coarse-points fine``: the coarser levels' penalty at the finest level's points
@@ -53,7 +53,7 @@ Then the package's own solves on the same mesh (``linear_solver = "multigrid"`` 
 state's), residual histories with ``--verbose``. The records
 (docs/perf/multigrid/fas_trial.jsonl) came from, e.g.:
 
-    export PYTHONPATH=$PWD/src SHELLOBSTACLE_TUNING=off
+    export PYTHONPATH=$PWD/src
     S="--pre 1 --post 1 --cheb 4"
     E="$S --coarse-points fine --galerkin-k --coarse-state subspace --zero-bc-rows --band 0.01"
     .venv/bin/python benchmarks/fas_trial.py --h 0.0058 $S --max-cycles 40 --package=
@@ -89,10 +89,10 @@ from shellobstacle.config.loader import load_config
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.kappa import kappa_on_mesh
-from shellobstacle.penalty.quadrature import rows_of
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.linear.multigrid import CHEBYSHEV_INTERVAL, largest_eigenvalue
+from shellobstacle.solvers.quadrature_penalty import rows_of
 from shellobstacle.solvers.system import PenalizedSystem
 
 PAPER = "examples/paper.toml"

@@ -28,9 +28,9 @@ from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import load_config
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.quadrature import penalty_rule
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.quadrature_penalty import penalty_rule
 from shellobstacle.spec import Discretization
 
 PAPER = "src/shellobstacle/configs/paper.toml"

@@ -33,7 +33,7 @@ loading libraries or compiling forms. Methods: ``active-set``, ``newton``,
 from __future__ import annotations
 
 # isort: split
-import record  # bootstrap and process tuning before PETSc, DOLFINx and NumPy
+import record  # the DOLFINx wheel's bootstrap before PETSc and DOLFINx
 
 # isort: split
 import argparse

@@ -1,4 +1,4 @@
-# ruff: noqa: E402  (the tuning must come before dolfinx, PETSc and NumPy are loaded)
+# ruff: noqa: E402  (the DOLFINx wheel's bootstrap must come before dolfinx and PETSc)
 """Shared parts of the benchmark scripts: solver arguments, peak memory, one JSON line."""
 
 from __future__ import annotations
@@ -14,29 +14,28 @@ from typing import Any
 
 from mpi4py import MPI
 
-from shellobstacle import tuning
+import blocked_gemmt
+
 from shellobstacle.compat import bootstrap
 
-# the benchmarks run as the ``shellobstacle`` command does: tuned before PETSc and NumPy are
-# loaded when SHELLOBSTACLE_TUNING asks for it, untouched when unset (import this module first)
+# the benchmarks run as the ``shellobstacle`` command does (import this module first); the
+# process tuning is the environment's (docs/user-guide.md, "Process tuning")
 bootstrap()
-tuning.apply(MPI.COMM_WORLD.size)
 
 # isort: split
 
 import dolfinx
 
 from shellobstacle.api import make_mesh
+from shellobstacle.checks.assumptions import check_assumptions
 from shellobstacle.config.loader import Config
-from shellobstacle.geometry.assumptions import check_assumptions
+from shellobstacle.io.records import process_environment
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.solvers.linear import LinearStrategy
 from shellobstacle.solvers.linear.direct import DirectStrategy
 from shellobstacle.solvers.linear.iterative import IterativeStrategy
 from shellobstacle.solvers.linear.zone import ZoneStrategy
 from shellobstacle.solvers.newton import NewtonOptions
-from shellobstacle.tuning.gemmt import gemmt_calls
-from shellobstacle.tuning.prefault import prefaulted_gib
 
 
 def petsc_blas() -> str:
@@ -51,8 +50,7 @@ def petsc_blas() -> str:
 
 
 def numpy_blas_threads() -> list[int]:
-    """The threads of each BLAS NumPy loaded (threadpoolctl), as the ``threads`` knob left
-    them."""
+    """The threads of each BLAS NumPy loaded (threadpoolctl)."""
     from threadpoolctl import threadpool_info
 
     return [p["num_threads"] for p in threadpool_info() if "numpy" in p["filepath"]]
@@ -69,10 +67,9 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     CPU seconds (user + system, all threads, since the process started: imports included, and
     in a ladder every size so far) against the wall clock show how many cores a run kept busy.
     The system CPU seconds and the memory faulted in (minor page faults times the page size,
-    GiB, summed over ranks) show what first touches of memory cost; ``tuning`` the process
-    tuning in force (:mod:`shellobstacle.tuning`), ``gemmt_calls`` how many DGEMMT calls the
-    blocked DGEMMT took in blocks or passed to OpenBLAS and ``prefaulted_gib_total`` how much
-    of the heap the helper thread faulted in.
+    GiB, summed over ranks) show what first touches of memory cost; ``environment`` the
+    variables of the process tuning that were set (``io.records.process_environment``),
+    ``blocked_gemmt_calls`` the DGEMMT calls of ``blocked_gemmt.py`` (None: not loaded).
     Floats keep 6 significant digits.
     """
     usage = resource.getrusage(resource.RUSAGE_SELF)
@@ -84,9 +81,8 @@ def emit(rec: dict[str, Any], comm: MPI.Comm) -> None:
     rec["cpu_sys_s_total"] = comm.allreduce(usage.ru_stime, op=MPI.SUM)
     faulted = usage.ru_minflt * resource.getpagesize() / 2**30
     rec["faulted_gib_total"] = comm.allreduce(faulted, op=MPI.SUM)
-    rec["tuning"] = tuning.policies()
-    rec["gemmt_calls"] = gemmt_calls()
-    rec["prefaulted_gib_total"] = comm.allreduce(prefaulted_gib(), op=MPI.SUM)
+    rec["environment"] = process_environment()
+    rec["blocked_gemmt_calls"] = blocked_gemmt.calls()
     rec["petsc_blas"] = petsc_blas()
     rec["openblas_num_threads"] = os.environ.get("OPENBLAS_NUM_THREADS", "unset")
     rec["numpy_blas_threads"] = numpy_blas_threads()

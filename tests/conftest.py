@@ -1,9 +1,6 @@
 """Test configuration: the DOLFINx wheel's environment is checked once, as the command does;
 the paper's problem data shared by the tests; hypothesis made deterministic.
 
-The suite runs the plain library: ``./run test`` sets ``SHELLOBSTACLE_TUNING=off`` for the
-commands it starts, and the tuning's own tests start their processes with it set.
-
 Hypothesis draws the same examples on every run (profile ``deterministic``, the default), so
 that a random example can never fail CI by chance; ``HYPOTHESIS_PROFILE=random`` draws new
 ones and ten times as many (``HYPOTHESIS_PROFILE=random ./run test tests/test_config_fuzz.py``).

@@ -13,8 +13,8 @@ import pytest
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.obstacle.points import lumped_mass_p2
 from shellobstacle.post.norms import l2_norm, vm_norm
+from shellobstacle.post.points import lumped_mass_p2
 from shellobstacle.solvers.active_set import ActiveSetSolver
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.newton import NewtonSolver

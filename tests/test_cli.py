@@ -10,8 +10,8 @@ from mpi4py import MPI
 
 import pytest
 
-from shellobstacle import tuning
 from shellobstacle.cli.main import main
+from shellobstacle.io.records import process_environment
 
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
 #: for the tests whose subject is not the 3D picture (tests/test_pictures.py)
@@ -45,8 +45,7 @@ def test_solve_writes_a_complete_result_folder(tmp_path: Path) -> None:
     assert summary["contact_area_projected"] <= summary["contact_area"]
     assert summary["kappa"] == pytest.approx(summary["h"] ** 2.0)
     assert summary["versions"]["dolfinx"].startswith("0.11")
-    assert summary["versions"]["tuning"] == tuning.policies()  # (the library's: none)
-    assert set(summary["versions"]["tuning"]) == set(tuning.KNOBS)
+    assert summary["versions"]["environment"] == process_environment()
     resolved = tomllib.loads((out / "config.toml").read_text())
     assert resolved["domain"]["h"] == 0.05
     assert resolved["discretization"]["transverse"] == "clamped"

@@ -22,6 +22,7 @@ from shellobstacle.config.keys import METHOD_OPTIONS, REQUIRED
 from shellobstacle.config.loader import parse_config
 from shellobstacle.config.schema import SCHEMA, reference_text
 from shellobstacle.mesh.domains import DomainSpec
+from shellobstacle.obstacle.shapes import SHAPES, example
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions
 from shellobstacle.solvers.registry import METHODS
@@ -174,18 +175,23 @@ def test_every_default_of_the_schema_is_a_fields() -> None:
                 continue
             assert key.fields, f"{dotted} has a default but sets no field of the API"
             for selector, (cls, field) in key.fields.items():
+                if (cls, field) == (Obstacle, "parameters"):  # the shape's declaration's
+                    declared = {p.name: p for p in SHAPES[selector].parameters}[name]
+                    assert key.default_for(selector) == declared.default, (dotted, selector)
+                    continue
                 f = cls.__dataclass_fields__[field]
                 api = f.default_factory() if f.default is dataclasses.MISSING else f.default
                 assert key.default_for(selector or None) == api, (dotted, selector)
 
 
-#: the other fields a choice needs (an obstacle kind its shape)
-_COMPANIONS = {
-    (Obstacle, "kind", "sphere"): {"center": (0, 0, -1), "radius": 1.0},
-    (Obstacle, "kind", "cylinder"): {"point": (0, 0, -1), "axis": (1, 0, 0), "radius": 1.0},
-    (Obstacle, "kind", "expression"): {"g": "x3"},
-    (Obstacle, "side", "inside"): {"kind": "sphere", "center": (0, 0, -1), "radius": 1.0},
-}
+def _build(cls: type, field: str, value: Any, key: str, selector: str) -> Any:
+    """``cls`` with ``field = value``; an obstacle is built with its shape's examples (the
+    shape: ``kind`` itself, or the key's selector for a shape's parameter ``key``)."""
+    if cls is not Obstacle:
+        return cls(**{field: value})
+    if field == "parameters":
+        return Obstacle(kind=selector, **{**example(selector), key: value})
+    return Obstacle(**{field: value}, **(example(value) if value in SHAPES else {}))
 
 
 def test_every_choice_is_one_the_api_accepts() -> None:
@@ -193,13 +199,13 @@ def test_every_choice_is_one_the_api_accepts() -> None:
     refused by both."""
     for section, keys in SCHEMA.items():
         for name, key in keys.items():
-            for cls, field in key.fields.values():
+            for selector, (cls, field) in key.fields.items():
                 if not key.choices or cls in (Shell, DomainSpec):
                     continue
                 for choice in key.choices:
-                    cls(**{field: choice}, **_COMPANIONS.get((cls, field, choice), {}))
+                    _build(cls, field, choice, name, selector)
                 with pytest.raises(ValueError, match=rf"{section}\.{name}"):
-                    cls(**{field: "no such choice"})
+                    _build(cls, field, "no such choice", name, selector)
 
 
 def test_brezis_sibony_stops_at_the_apis_tolerance() -> None:

@@ -26,9 +26,9 @@ import ufl
 
 from shellobstacle.api import solve
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.obstacle.points import NodePoints, QuadraturePoints
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor, contact_text
+from shellobstacle.post.points import NodePoints, QuadraturePoints
 from shellobstacle.spec import Discretization, Obstacle
 from tests.test_active_set import paper_shell, square
 from tests.test_obstacle import _displaced

@@ -1,4 +1,4 @@
-"""``shellobstacle doctor``: the environment, the active tuning and known problems."""
+"""``shellobstacle doctor``: the environment, the process tuning in force and known problems."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import pytest
 
 from shellobstacle.cli.doctor import coretype_warning, numpy_blas_config
 from shellobstacle.dependencies import out_of_range, pinned_ranges
+from shellobstacle.io.records import TIMING_VARIABLES
 
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="fresh processes, serially")
 
@@ -20,8 +21,7 @@ FINE = "OpenBLAS 0.3.33.112.0  USE64BITINT DYNAMIC_ARCH NO_AFFINITY Haswell MAX_
 
 
 def doctor(**environ: str) -> subprocess.CompletedProcess:
-    drop = ("OPENBLAS_CORETYPE", "SHELLOBSTACLE_TUNING")
-    env = {k: v for k, v in os.environ.items() if k not in drop} | environ
+    env = {k: v for k, v in os.environ.items() if k not in TIMING_VARIABLES} | environ
     return subprocess.run(
         [sys.executable, "-m", "shellobstacle", "doctor"],
         env=env,
@@ -31,26 +31,36 @@ def doctor(**environ: str) -> subprocess.CompletedProcess:
     )
 
 
-@pytest.mark.parametrize("value", ["on", "off", None])
-def test_the_doctor_shows_versions_and_the_tuning_in_force(value: str | None) -> None:
-    out = doctor() if value is None else doctor(SHELLOBSTACLE_TUNING=value)
+@pytest.mark.parametrize(
+    ("environ", "tuning"),
+    [
+        ({}, "none set"),
+        (
+            {"MALLOC_MMAP_MAX_": "0", "OPENBLAS_NUM_THREADS": "1"},
+            "OPENBLAS_NUM_THREADS=1 MALLOC_MMAP_MAX_=0",
+        ),
+    ],
+)
+def test_the_doctor_shows_versions_and_the_process_tuning_in_force(
+    environ: dict[str, str], tuning: str
+) -> None:
+    out = doctor(**environ)
     assert out.returncode in (0, 1), out.stderr
     text = out.stdout
     assert "DOLFINx 0.11" in text and "PETSc" in text and "MPI:" in text
     (deps,) = [line for line in text.splitlines() if line.startswith("dependencies: ")]
     assert all(f" {name} " in deps for name in ("petsc4py", "numpy", "sympy", "gmsh", "rich"))
-    setting = "SHELLOBSTACLE_TUNING unset" if value is None else f"SHELLOBSTACLE_TUNING={value}"
-    assert f"tuning ({setting}):" in text
-    knobs = [line.strip() for line in text.splitlines() if line.startswith("  ")]
-    assert [k.split(":")[0] for k in knobs] == ["heap", "gemmt", "threads"]
-    assert all(k.endswith(f"off ({setting})") for k in knobs) == (value != "on")
+    assert f"process tuning (docs/user-guide.md): {tuning}\n" in text
+    (blas,) = [line for line in text.splitlines() if line.startswith("NumPy's BLAS: ")]
+    if environ:  # NumPy's OpenBLAS takes the thread count from the environment
+        assert blas.endswith(", 1 thread(s)")
     problems = [line for line in text.splitlines() if line.startswith("problem: ")]
     assert (out.returncode == 1) == bool(problems)
     assert ("no problems found" in text) == (not problems)
 
 
 def test_a_crashing_forced_kernel_is_a_problem_exactly_when_numpy_is_affected() -> None:
-    out = doctor(OPENBLAS_CORETYPE="Haswell", SHELLOBSTACLE_TUNING="off")
+    out = doctor(OPENBLAS_CORETYPE="Haswell")
     affected = numpy_blas_config().startswith("OpenBLAS 0.3.34")
     assert ("problem: OPENBLAS_CORETYPE=Haswell" in out.stdout) == affected
     if affected:

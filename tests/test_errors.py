@@ -515,8 +515,8 @@ def test_checks_in_chunks_find_the_same_extremes(tmp_path, monkeypatch, case: st
     the table of one chunk for the whole mesh (values, points, verdicts), and the same
     point where θ is not defined."""
     from shellobstacle.api import make_mesh
+    from shellobstacle.checks import assumptions as checks
     from shellobstacle.config.loader import load_config
-    from shellobstacle.geometry import assumptions as checks
     from shellobstacle.geometry.expressions import ExpressionError
 
     changes = NOT_DEFINED if case == "not defined" else ASSUMPTIONS[case][0]

@@ -404,7 +404,7 @@ def test_offset_hint_points_the_way_that_fixes_it(tmp_path, q3: float, way: str)
     """θ_3 = √(R² − |y|²) − offset: θ·q falls by q_3 per unit of offset. Following the hint
     (by 0.2) turns the failing half-space check into a passing one."""
     from shellobstacle.api import make_mesh
-    from shellobstacle.geometry.assumptions import check_assumptions
+    from shellobstacle.checks.assumptions import check_assumptions
 
     offset = 0.95 if q3 > 0 else 0.9  # 0.866 − offset ≤ θ_3 ≤ 1 − offset: partly outside
 

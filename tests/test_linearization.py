@@ -19,10 +19,10 @@ import pytest
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.quadrature import QuadraturePenalty
 from shellobstacle.solvers.methods.base import MethodBase
 from shellobstacle.solvers.methods.newton import NewtonContinuation
 from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
 from tests.test_active_set import paper_shell, square
 from tests.test_obstacle_kinds import VERTEX, _max, _solve, _zeta, ball
 

@@ -248,8 +248,8 @@ def test_the_coarser_operators_follow_the_jacobian(share: float, monkeypatch) ->
     Jacobian's in at most ``share`` of them, also at the steps of a κ after its first, where
     the active points moved (``share = 0``, the default: the current Jacobian's own); the
     answer is the direct path's."""
-    from shellobstacle.penalty.quadrature import penalty_hessian
     from shellobstacle.solvers.linear import active_changes
+    from shellobstacle.solvers.quadrature_penalty import penalty_hessian
 
     monkeypatch.setattr(multigrid, "COARSE_UPDATE_SHARE", share)
     gaps: list[float] = []

@@ -377,7 +377,7 @@ def test_the_iterative_solvers_jacobian_is_updated_by_the_changed_points() -> No
     the result is K + P_A of the last active set to round-off."""
     from petsc4py import PETSc
 
-    from shellobstacle.penalty.quadrature import penalty_hessian
+    from shellobstacle.solvers.quadrature_penalty import penalty_hessian
 
     problem = PenalizedProblem(paper_shell(), square(n=16))
     solver = NewtonSolver(problem, NewtonOptions(linear_solver="iterative"))

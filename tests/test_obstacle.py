@@ -18,9 +18,9 @@ from shellobstacle.api import solve_config
 from shellobstacle.config.loader import load_config
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.obstacle import Plane, from_spec
-from shellobstacle.obstacle.points import NodePoints, QuadraturePoints, constraint_points
-from shellobstacle.penalty.quadrature import QuadraturePenalty
 from shellobstacle.post.contact import Postprocessor
+from shellobstacle.post.points import NodePoints, QuadraturePoints, constraint_points
+from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
 from shellobstacle.spec import Discretization
 from tests.test_active_set import paper_shell
 from tests.test_active_set_p2 import square

@@ -1,7 +1,7 @@
 """Where a curved obstacle's description breaks down, said plainly: a constraint point at a
 ball's centre or on a cylinder's axis (``∇g`` is ``0/0`` there) raises an error naming it, and a
 ball whose radius spans too few cells near the contact is warned about with the cell size that
-would resolve it (:mod:`shellobstacle.obstacle.singular`, :mod:`shellobstacle.post.resolution`)."""
+would resolve it (:mod:`shellobstacle.models.singular`, :mod:`shellobstacle.post.resolution`)."""
 
 from __future__ import annotations
 
@@ -17,10 +17,10 @@ from conftest import make_paper_shell
 
 from shellobstacle.api import solve
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.models.singular import SingularGradientError
 from shellobstacle.obstacle import Cylinder, ExpressionObstacle, Sphere
-from shellobstacle.obstacle.points import NodePoints, QuadraturePoints
-from shellobstacle.obstacle.singular import SingularGradientError
 from shellobstacle.penalty.spec import PenaltySpec
+from shellobstacle.post.points import NodePoints, QuadraturePoints
 from shellobstacle.post.resolution import RESOLVE_CELLS, unresolved_obstacle
 from shellobstacle.spec import Discretization, Obstacle
 

@@ -1,6 +1,6 @@
 """The wheel installs a working ``shellobstacle``: built from a copy of the sources, installed
 (not editable) into a fresh virtual environment, it runs ``check`` and a small ``solve`` with
-the configuration and the C sources it ships.
+the configuration it ships.
 
 The new environment sees this one's site-packages as a plain path entry after its own (a
 ``.pth`` line: the ``.pth`` files in there, such as an editable install of shellobstacle, are
@@ -79,34 +79,25 @@ def venv(wheel: Path, tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 def test_the_wheel_holds_every_module_and_the_package_data(wheel: Path) -> None:
     names = set(zipfile.ZipFile(wheel).namelist())
-    shipped = [
-        *PACKAGE.rglob("*.py"),
-        *PACKAGE.glob("configs/*.toml"),
-        *PACKAGE.glob("tuning/native/*.c"),
-    ]
+    shipped = [*PACKAGE.rglob("*.py"), *PACKAGE.glob("configs/*.toml")]
     expected = {str(p.relative_to(PACKAGE.parent)) for p in shipped}
     assert any(name.endswith(".toml") for name in expected)
-    assert any(name.endswith(".c") for name in expected)
     assert expected <= names, sorted(expected - names)
 
 
 def test_the_environment_imports_the_installed_wheel(venv: Path) -> None:
-    """shellobstacle, its configuration and its C sources come from the new environment."""
+    """shellobstacle and its configuration come from the new environment."""
     probe = (
         "import json, shellobstacle\n"
         "from shellobstacle.experiments.reproduce import PAPER_CONFIG\n"
-        "from shellobstacle.tuning.build import NATIVE\n"
-        "print(json.dumps([shellobstacle.__file__, str(PAPER_CONFIG), str(NATIVE)]))"
+        "print(json.dumps([shellobstacle.__file__, str(PAPER_CONFIG)]))"
     )
     out = run(venv / "bin" / "python", "-c", probe)
     assert out.returncode == 0, out.stderr
-    module, config, native = map(Path, json.loads(out.stdout))
-    for path in (module, config, native):
+    module, config = map(Path, json.loads(out.stdout))
+    for path in (module, config):
         assert path.resolve().is_relative_to(venv.resolve()), path
     assert config.is_file()
-    assert sorted(p.name for p in native.glob("*.c")) == sorted(
-        p.name for p in (PACKAGE / "tuning" / "native").glob("*.c")
-    )
 
 
 def test_version_and_doctor_name_the_dependencies_within_their_ranges(venv: Path) -> None:
@@ -117,7 +108,7 @@ def test_version_and_doctor_name_the_dependencies_within_their_ranges(venv: Path
     assert version.stdout.splitlines()[0] == f"shellobstacle {shellobstacle.__version__}"
     for name in ("dolfinx", "petsc4py", "numpy", "sympy", "matplotlib", "gmsh", "rich"):
         assert f" {name} " in version.stdout
-    doctor = run(venv / "bin" / "shellobstacle", "doctor", SHELLOBSTACLE_TUNING="off")
+    doctor = run(venv / "bin" / "shellobstacle", "doctor")
     assert doctor.returncode in (0, 1), doctor.stderr
     assert "dependencies: " in doctor.stdout
     assert "outside the range" not in doctor.stdout
@@ -134,26 +125,8 @@ def test_check_and_a_small_solve_with_the_shipped_config(venv: Path, tmp_path: P
     assert check.returncode == 0, check.stderr
     assert "elliptic" in check.stdout and "fail" not in check.stdout
     out = tmp_path / "solve"
-    solve = run(
-        shellobstacle, "solve", config, "-o", out, "--set", "domain.h=0.05", "-q",
-        SHELLOBSTACLE_TUNING="off",
-    )  # fmt: skip
+    solve = run(shellobstacle, "solve", config, "-o", out, "--set", "domain.h=0.05", "-q")
     assert solve.returncode == 0, solve.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert summary["converged"] is True
     assert summary["contact_area"] > 0
-
-
-def test_the_shipped_c_sources_compile(venv: Path, tmp_path: Path) -> None:
-    """The tuning's helpers build from the wheel's ``native/*.c`` into an empty cache."""
-    probe = (
-        "from shellobstacle.tuning.build import build, compiler\n"
-        "cc = compiler()\n"
-        "print(cc and build('prefault', cc, ['-lpthread']))"
-    )
-    out = run(venv / "bin" / "python", "-c", probe, XDG_CACHE_HOME=str(tmp_path))
-    assert out.returncode == 0, out.stderr
-    if out.stdout.strip() == "None":
-        pytest.skip("no C compiler on this machine")
-    library = Path(out.stdout.strip())
-    assert library.is_file() and library.parent == tmp_path / "shellobstacle"

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty import quadrature
-from shellobstacle.penalty.quadrature import QuadraturePenalty
+from shellobstacle.solvers import quadrature_penalty as quadrature
 from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear.direct import DirectStrategy
 from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
 from shellobstacle.spec import Discretization
 from tests.test_newton import paper_shell, square
 

@@ -1,4 +1,8 @@
-"""shellobstacle: elliptic membrane shells confined to a half-space (Meixner & Piersanti 2024).
+"""shellobstacle: linearly elastic shells, membrane and Koiter, against a rigid obstacle.
+
+The obstacle problem of Meixner & Piersanti (2024) for elliptic membrane shells, and Koiter's
+model for any thin shell, against any rigid obstacle ``g(x) ≥ 0`` (a plane, a ball, a cylinder,
+a formula): penalty and exact solvers, adaptive refinement, geometric multigrid, MPI.
 
 The Python API mirrors the configuration file::
 
@@ -10,8 +14,7 @@ The Python API mirrors the configuration file::
 
 Names are imported lazily: ``import shellobstacle`` loads neither DOLFINx nor MPI and changes
 nothing in the process, and the package may be imported before or after ``dolfinx`` and
-``petsc4py``. Process tuning for long runs is the command line's, opt-in
-(:mod:`shellobstacle.tuning`).
+``petsc4py``. Process tuning for long runs is set from the environment (docs/user-guide.md).
 """
 
 from __future__ import annotations

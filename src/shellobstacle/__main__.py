@@ -1,10 +1,10 @@
-"""``shellobstacle`` (and ``python -m shellobstacle``): the command line with its tuning.
+"""``shellobstacle`` (and ``python -m shellobstacle``): the command line.
 
-The entry point checks the DOLFINx wheel's environment (:mod:`.compat`), applies the opt-in
-process tuning (:mod:`.tuning`, ``SHELLOBSTACLE_TUNING``) before MPI's solvers, PETSc and
-NumPy are loaded, starts the watcher that makes Ctrl-C take effect within seconds also inside
-long calls into C (:mod:`.interrupt`), then runs :func:`shellobstacle.cli.main`, which itself
-changes nothing in the process (tests and scripts call it directly).
+The entry point checks the DOLFINx wheel's environment (:mod:`.compat`), starts the watcher
+that makes Ctrl-C take effect within seconds also inside long calls into C (:mod:`.interrupt`),
+then runs :func:`shellobstacle.cli.main`, which itself changes nothing in the process (tests
+and scripts call it directly). The process is left as the environment made it: the variables
+that tune it are the user's (docs/user-guide.md, "Process tuning").
 """
 
 from __future__ import annotations
@@ -15,22 +15,14 @@ __all__ = ["main"]
 
 
 def main() -> int:
-    """Bootstrap, tune, run the command line; returns its exit code (130 after a Ctrl-C in
-    the second or two of imports before the command line handles it itself)."""
+    """Bootstrap and run the command line; returns its exit code (130 after a Ctrl-C in the
+    second or two of imports before the command line handles it itself)."""
     try:
         from shellobstacle.compat import bootstrap
 
         bootstrap()
         from mpi4py import MPI
 
-        from shellobstacle import tuning
-
-        try:
-            tuning.apply(MPI.COMM_WORLD.size)
-        except ValueError as err:
-            if MPI.COMM_WORLD.rank == 0:
-                print(f"shellobstacle: error: {err}", file=sys.stderr)
-            return 2
         from shellobstacle.cli import interrupt
         from shellobstacle.cli.main import main as cli_main
 

@@ -19,8 +19,8 @@ from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 
 import dolfinx
 
+from shellobstacle.checks.assumptions import check_assumptions, require
 from shellobstacle.config.loader import Config, ConfigError
-from shellobstacle.geometry.assumptions import check_assumptions, require
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.measures import mesh_size, num_cells_global
 from shellobstacle.mesh.meshing import create_mesh

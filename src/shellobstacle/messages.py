@@ -1,5 +1,6 @@
 """Wording shared by the config loader and the Python API, so both raise the same text, and
-the error type of a problem the user can fix (:class:`ConfigError`).
+the error type of a problem the user can fix (:class:`ConfigError`), and the checks of a single
+value that both make (:func:`finite`, :func:`integer`, :func:`boolean`).
 
 A value outside its choices is reported as ``key = 'value' is not one of 'a', 'b'; did you
 mean 'a'?`` wherever it is caught: :mod:`shellobstacle.config.loader` prefixes the file (or the
@@ -9,9 +10,22 @@ mean 'a'?`` wherever it is caught: :mod:`shellobstacle.config.loader` prefixes t
 from __future__ import annotations
 
 import difflib
+import math
+import numbers
 from collections.abc import Sequence
+from typing import Any
 
-__all__ = ["ECHO_LIMIT", "ConfigError", "cut", "not_one_of", "shown", "suggest"]
+__all__ = [
+    "ECHO_LIMIT",
+    "ConfigError",
+    "boolean",
+    "cut",
+    "finite",
+    "integer",
+    "not_one_of",
+    "shown",
+    "suggest",
+]
 
 #: The most characters of user input a message echoes.
 ECHO_LIMIT = 80
@@ -47,3 +61,31 @@ def not_one_of(key: str, value: object, choices: Sequence[str]) -> str:
 
 class ConfigError(ValueError):
     """A configuration problem the user can fix; the message names file, key and fix."""
+
+
+def finite(value: Any, what: str) -> float:
+    """``value`` as a float if it is a finite number (not a bool), else a ValueError naming
+    ``what``: the check of every number of the config and of the API's dataclasses."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ValueError(f"{what} must be a number, got {value!r}")
+    try:
+        out = float(value)
+    except OverflowError:
+        raise ValueError(f"{what} is too large to be a floating-point number") from None
+    if not math.isfinite(out):
+        raise ValueError(f"{what} must be finite, got {value!r}")
+    return out
+
+
+def boolean(value: Any, what: str) -> bool:
+    """``value`` if it is true or false, else a ValueError naming ``what``."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{what} must be true or false, got {value!r}")
+    return value
+
+
+def integer(value: Any, what: str) -> int:
+    """``value`` if it is an integer (not a bool), else a ValueError naming ``what``."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise ValueError(f"{what} must be an integer, got {value!r}")
+    return int(value)

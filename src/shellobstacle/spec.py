@@ -4,32 +4,29 @@ material, load, obstacle) and the discretization (the penalty's data:
 
 These small frozen dataclasses are the Python API that mirrors the config file; they
 validate at construction exactly as the config does, with its messages, and know nothing about
-meshes. :func:`finite`, :func:`integer` and :func:`boolean` check a single value for both: the
-config loader checks every number and flag of a file with them.
+meshes. :func:`finite`, :func:`integer` and :func:`boolean`
+(:mod:`shellobstacle.messages`) check a single value for both: the config loader checks every
+number and flag of a file with them.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import functools
-import math
 import numbers
-import warnings
-from collections.abc import Iterable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
-import numpy as np
 import sympy as sp
 
 from shellobstacle.geometry.expressions import is_safe_name, parse, y1, y2
 from shellobstacle.geometry.surface import Surface
-from shellobstacle.messages import not_one_of
+from shellobstacle.messages import boolean, finite, integer, not_one_of
+from shellobstacle.obstacle.shapes import CONTACT_FACES, SHAPES, checked, declared
 
 __all__ = [
     "BENDING_FORMS",
     "MODELS",
-    "OBSTACLE_KINDS",
     "PENALTY_QUADRATURES",
     "TRANSVERSE",
     "Discretization",
@@ -40,37 +37,7 @@ __all__ = [
     "boolean",
     "finite",
     "integer",
-    "obstacle_kinds_reading",
-    "require_obstacle_keys",
 ]
-
-
-def finite(value: Any, what: str) -> float:
-    """``value`` as a float if it is a finite number (not a bool), else a ValueError naming
-    ``what``: the check of every number of the config and of the dataclasses below."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{what} must be a number, got {value!r}")
-    try:
-        out = float(value)
-    except OverflowError:
-        raise ValueError(f"{what} is too large to be a floating-point number") from None
-    if not math.isfinite(out):
-        raise ValueError(f"{what} must be finite, got {value!r}")
-    return out
-
-
-def boolean(value: Any, what: str) -> bool:
-    """``value`` if it is true or false, else a ValueError naming ``what``."""
-    if not isinstance(value, bool):
-        raise ValueError(f"{what} must be true or false, got {value!r}")
-    return value
-
-
-def integer(value: Any, what: str) -> int:
-    """``value`` if it is an integer (not a bool), else a ValueError naming ``what``."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{what} must be an integer, got {value!r}")
-    return int(value)
 
 
 @dataclass(frozen=True)
@@ -150,149 +117,67 @@ def _parse_load(
     return tuple(parse(t, names, f"load.p[{i + 1}]") for i, t in enumerate(p))  # type: ignore[return-value]
 
 
-OBSTACLE_KINDS = ("plane", "sphere", "cylinder", "expression")
-SIDES = ("outside", "inside")
-CONTACT_FACES = ("middle", "lower", "upper")
-
-#: the keys of ``[obstacle]`` that each kind reads (besides ``kind`` and ``contact_face``):
-#: the one statement of it, which the config's schema and :class:`Obstacle` read
-OBSTACLE_KEYS = {
-    "plane": ("q", "c"),
-    "sphere": ("center", "radius", "side"),
-    "cylinder": ("point", "axis", "radius", "side"),
-    "expression": ("g",),
-}
-
-
-def obstacle_kinds_reading(name: str) -> tuple[str, ...]:
-    """The obstacle kinds that read the ``[obstacle]`` key ``name`` (:data:`OBSTACLE_KEYS`)."""
-    return tuple(kind for kind, keys in OBSTACLE_KEYS.items() if name in keys)
-
-
-def require_obstacle_keys(kind: str, given: Iterable[str]) -> None:
-    """A ValueError naming the first key of ``given`` that ``obstacle.kind = kind`` does not
-    read, and the kinds that do; nothing if it reads them all."""
-    for name in given:
-        if name not in ("kind", "contact_face", *OBSTACLE_KEYS[kind]):
-            kinds = " or ".join(map(repr, obstacle_kinds_reading(name)))
-            raise ValueError(
-                f"obstacle.{name} is not read by obstacle.kind = {kind!r}: set obstacle.kind = "
-                f"{kinds}, or remove it"
-            )
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, init=False)
 class Obstacle:
     """The rigid obstacle: the admissible set ``{x : g(x) ≥ 0}`` of the contact face
     (docs/model.md :eq:`gap`; :mod:`shellobstacle.obstacle` computes with it).
 
-    - ``plane``: ``g(x) = x·q − c`` (the paper's half-space when ``c = 0``); ``q`` is
-      normalized (with a warning if needed).
-    - ``sphere``: ``g(x) = |x − center| − radius`` (``side = "outside"``: the shell stays out
-      of the ball) or ``radius − |x − center|`` (``"inside"``).
-    - ``cylinder``: the same with the distance to the axis through ``point`` along ``axis``.
-    - ``expression``: ``g`` a formula in the ambient coordinates ``x1, x2, x3``.
+    ``kind`` names a shape of :data:`~shellobstacle.obstacle.shapes.SHAPES` (by default
+    ``plane``, the paper's half-space) and the keywords give its parameters, which its
+    declaration checks (:func:`~shellobstacle.obstacle.shapes.checked`) and which read as
+    attributes: ``Obstacle(kind="sphere", center=(0, 0, -2), radius=2).radius``. The plane's
+    normal may come first, ``Obstacle(q)``. A key of another shape reads as that shape's
+    default; given another value, it is refused, as the config refuses it.
 
     ``contact_face``: the surface that must stay admissible, ``θ + η`` (``"middle"``) or the
     face ``θ ∓ ε a_3 + η`` (``"lower"``/``"upper"``).
 
-    A key the kind does not read (:data:`OBSTACLE_KEYS`) given a value other than its default
-    is refused, as the config refuses it.
+    Attributes:
+        kind: the shape.
+        parameters: its parameters by name, checked, with their defaults.
+        contact_face: the face that must stay admissible.
     """
 
-    q: tuple[float, float, float] = (0.0, 0.0, 1.0)
-    kind: str = field(default="plane", metadata={"choices": OBSTACLE_KINDS})
-    c: float = 0.0
-    center: tuple[float, float, float] | None = None
-    radius: float | None = None
-    side: str = field(default="outside", metadata={"choices": SIDES})
-    point: tuple[float, float, float] | None = None
-    axis: tuple[float, float, float] | None = None
-    g: str | None = None
+    kind: str = field(default="plane", metadata={"choices": SHAPES.keys()})
+    parameters: Mapping[str, Any] = field(default_factory=dict)
     contact_face: str = field(default="middle", metadata={"choices": CONTACT_FACES})
 
-    def __post_init__(self) -> None:
-        for name, value, choices in (
-            ("kind", self.kind, OBSTACLE_KINDS),
-            ("side", self.side, SIDES),
-            ("contact_face", self.contact_face, CONTACT_FACES),
-        ):
-            if value not in choices:
-                raise ValueError(not_one_of(f"obstacle.{name}", value, choices))
-        require_obstacle_keys(self.kind, [f.name for f in _FIELDS if self._set(f.name, f.default)])
-        needed = {"sphere": ("center", "radius"), "cylinder": ("point", "axis", "radius")}
-        missing = [k for k in needed.get(self.kind, ()) if getattr(self, k) is None]
-        if self.kind == "expression" and not self.g:
-            missing.append("g")
-        if missing:
-            raise ValueError(
-                f"obstacle.kind = {self.kind!r} needs obstacle.{', obstacle.'.join(missing)}"
-            )
-        object.__setattr__(self, "c", finite(self.c, "obstacle.c"))
-        for name in ("center", "point"):
-            value = getattr(self, name)
-            if value is not None:
-                object.__setattr__(self, name, _three(value, f"obstacle.{name}"))
-        if self.radius is not None:
-            object.__setattr__(self, "radius", finite(self.radius, "obstacle.radius"))
-            if not self.radius > 0:
-                raise ValueError(f"obstacle.radius must be > 0, got {self.radius!r}")
-        if self.g is not None and not isinstance(self.g, str):
-            raise ValueError(f"obstacle.g must be a string, got {self.g!r}")
-        if self.axis is not None:
-            object.__setattr__(self, "axis", _unit(self.axis, "obstacle.axis", "axis"))
-        object.__setattr__(self, "q", _unit(self.q, "obstacle.q", "half-space"))
+    def __init__(
+        self,
+        q: Any = None,
+        kind: str = "plane",
+        contact_face: str = "middle",
+        parameters: Mapping[str, Any] | None = None,
+        **given: Any,
+    ) -> None:
+        given = {**(parameters or {}), **given, **({} if q is None else {"q": q})}
+        for name in given:
+            if not declared(name):
+                raise TypeError(f"Obstacle() got an unexpected keyword argument {name!r}")
+        values = checked(kind, given)
+        if contact_face not in CONTACT_FACES:
+            raise ValueError(not_one_of("obstacle.contact_face", contact_face, CONTACT_FACES))
+        object.__setattr__(self, "kind", kind)
+        object.__setattr__(self, "parameters", values)
+        object.__setattr__(self, "contact_face", contact_face)
+
+    def __getattr__(self, name: str) -> Any:
+        """A parameter: this shape's value, another shape's default (None if it has none)."""
+        found = declared(name) if not name.startswith("_") and name != "parameters" else []
+        if not found:
+            raise AttributeError(f"'Obstacle' object has no attribute {name!r}")
+        return self.parameters.get(name, found[0][1].default)
+
+    def __hash__(self) -> int:
+        return hash((self.kind, tuple(sorted(self.parameters.items())), self.contact_face))
+
+    def __repr__(self) -> str:
+        given = "".join(f", {k}={v!r}" for k, v in self.parameters.items())
+        return f"Obstacle(kind={self.kind!r}{given}, contact_face={self.contact_face!r})"
 
     def keys(self) -> tuple[str, ...]:
         """The ``[obstacle]`` keys this kind reads."""
-        return ("kind", *OBSTACLE_KEYS[self.kind], "contact_face")
-
-    def _set(self, name: str, default: Any) -> bool:
-        """Whether the field ``name`` holds something other than its default."""
-        value = getattr(self, name)
-        if default is None:
-            return value is not None
-        if isinstance(default, tuple):
-            same = _numeric(value) and np.shape(value) == np.shape(default)
-            return not (same and np.array_equal(np.asarray(value, dtype=float), default))
-        return bool(value != default)
-
-
-#: the fields of :class:`Obstacle` that a kind may not read
-_FIELDS = [f for f in dataclasses.fields(Obstacle) if f.name not in ("kind", "contact_face")]
-
-
-def _three(value: Any, what: str) -> tuple[float, float, float]:
-    """Three finite numbers (not bools), or a ValueError naming ``what``."""
-    if isinstance(value, str) or not _numeric(value) or np.shape(value) != (3,):
-        raise ValueError(f"{what} must be three finite numbers, got {value!r}")
-    x, y, z = (finite(v, f"{what}[{i + 1}]") for i, v in enumerate(value))
-    return (x, y, z)
-
-
-def _numeric(value: Any) -> bool:
-    try:
-        np.asarray(value, dtype=float)
-    except (TypeError, ValueError):
-        return False
-    return True
-
-
-def _unit(value: Any, what: str, noun: str) -> tuple[float, float, float]:
-    """``value/|value|`` (a warning if ``|value| ≠ 1``), or a ValueError for a zero vector."""
-    v = np.asarray(_three(value, what))
-    largest = float(np.max(np.abs(v)))
-    if largest == 0.0:
-        vector = "normal" if noun == "half-space" else "direction"
-        raise ValueError(f"{what} = (0, 0, 0) defines no {noun}: give a nonzero {vector}")
-    norm = largest * float(np.linalg.norm(v / largest))  # no overflow for huge entries
-    if abs(norm - 1.0) > 1e-12:
-        warnings.warn(
-            f"{what} = {tuple(value)} has norm {norm:.6g}; using it divided by its norm",
-            stacklevel=4,
-        )
-    unit = (v / largest) / float(np.linalg.norm(v / largest))
-    return (float(unit[0]), float(unit[1]), float(unit[2]))
+        return ("kind", *self.parameters, "contact_face")
 
 
 MODELS = ("membrane", "koiter")

@@ -22,7 +22,7 @@ EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_INVALID, EXIT_INTERRUPTED = 0, 1, 2, 3, 1
 
 def check(args: argparse.Namespace) -> int:
     from shellobstacle.api import make_mesh
-    from shellobstacle.geometry.assumptions import check_assumptions, format_checks
+    from shellobstacle.checks.assumptions import check_assumptions, format_checks
     from shellobstacle.mesh.resources import require_fits
 
     cfg, config_warnings = _load(args)
@@ -345,7 +345,7 @@ def _run_batch(
 
 
 def doctor(args: argparse.Namespace) -> int:
-    """The environment, versions and active tuning; exit 1 when a problem was found
+    """The environment, versions and process tuning; exit 1 when a problem was found
     (``--repair``: after repairing the FFCx cache)."""
     from shellobstacle.cli.doctor import repair_cache, report
     from shellobstacle.compat import bootstrap

@@ -1,11 +1,12 @@
-"""``shellobstacle doctor``: the environment, the versions, and what tuning is active and why.
+"""``shellobstacle doctor``: the environment, the versions, and the process tuning in force.
 
-It prints the versions of the key dependencies and names known problems of an environment,
-with their fix: a release outside the range pyproject.toml pins (the tested one), a forced
-OpenBLAS kernel family that crashed NumPy's BLAS, MUMPS' selected inverse entries out of
-reach (the contact zone's condensation then falls back to one factorization per κ), no C
-compiler for the tuning's helpers, broken entries of the FFCx cache (:mod:`.jit_cache`), which
-``--repair`` removes.
+It prints the versions of the key dependencies, the environment variables that tune the
+process (docs/user-guide.md, "Process tuning") and the threads of NumPy's BLAS, and names
+known problems of an environment, with their fix: a release outside the range pyproject.toml
+pins (the tested one), a forced OpenBLAS kernel family that crashed NumPy's BLAS, MUMPS'
+selected inverse entries out of reach (the contact zone's condensation then falls back to one
+factorization per κ), broken entries of the FFCx cache (:mod:`.jit_cache`), which ``--repair``
+removes.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from shellobstacle.cli import jit_cache
 
 __all__ = [
     "CRASHING_CORETYPES",
+    "blas_threads",
     "coretype_warning",
     "numpy_blas_config",
     "repair_cache",
@@ -40,6 +42,15 @@ def numpy_blas_config() -> str:
         blas = numpy.show_config(mode="dicts")["Build Dependencies"]["blas"]
         return str(blas.get("openblas configuration", ""))
     return ""
+
+
+def blas_threads(config: str) -> int | None:
+    """The threads of NumPy's BLAS, the OpenBLAS of configuration ``config`` (threadpoolctl)."""
+    from threadpoolctl import threadpool_info
+
+    version = config.split()[1] if config.startswith("OpenBLAS ") else None
+    threads = [p["num_threads"] for p in threadpool_info() if p.get("version") == version]
+    return threads[0] if threads else None
 
 
 def coretype_warning(
@@ -85,12 +96,13 @@ def report(installed: str) -> tuple[list[str], list[str]]:
     """
     from mpi4py import MPI
 
-    from shellobstacle import dependencies, tuning
+    from shellobstacle import dependencies
     from shellobstacle.io.records import versions
     from shellobstacle.solvers.mumps import selected_inverse_available
-    from shellobstacle.tuning.build import cache_dir, compiler
 
     v = versions()
+    config = numpy_blas_config()
+    threads = blas_threads(config) if config else "?"
     releases = dependencies.installed_versions()
     memory = _memory_gib()
     lines = [
@@ -100,11 +112,10 @@ def report(installed: str) -> tuple[list[str], list[str]]:
         f"DOLFINx {v['dolfinx']} ({installed}), PETSc {v['petsc']}",
         f"dependencies: {dependencies.summary(releases)}",
         f"MPI: {MPI.Get_library_version().splitlines()[0].strip()}, {v['mpi_ranks']} rank(s)",
-        f"NumPy's BLAS: {numpy_blas_config().split('  ')[0] or 'not an OpenBLAS'}",
-        f"C compiler (tuning helpers): {compiler() or 'none'}; cache {cache_dir()}",
+        f"NumPy's BLAS: {config.split('  ')[0] or 'not an OpenBLAS'}, {threads} thread(s)",
         f"3D pictures: {_pictures()}",
-        f"tuning ({tuning.setting()}):",
-        *(f"  {name}: {policy}" for name, policy in v["tuning"].items()),
+        "process tuning (docs/user-guide.md): "
+        + (" ".join(f"{k}={val}" for k, val in v["environment"].items()) or "none set"),
     ]
     problems = dependencies.out_of_range(releases, dependencies.pinned_ranges())
     if (warning := coretype_warning()) is not None:

@@ -12,6 +12,11 @@ default) for ``NAME.c.cached`` and loads the module. An entry is therefore broke
   source left this);
 * ``NAME.c.cached`` has no module: every later compilation fails to load it.
 
+FFCx 0.11 renames the source of a failed compilation to ``NAME.c.failed`` only for an
+``Exception``; an interrupt (``KeyboardInterrupt``, ``SystemExit``) leaves it in place, and no
+upstream issue about it was found. This module stays with the command line, whose interrupt
+handling it uses (:mod:`shellobstacle.compat` holds the workarounds the library needs).
+
 :func:`guarded_compilations` makes an interrupted compilation (Ctrl-C, ``SystemExit``) remove
 the source that this process created, by name, before the interrupt goes on, so that nobody
 waits for it; it never touches an entry another process created. :func:`broken_entries` finds

@@ -54,9 +54,9 @@ def _main(argv: Sequence[str] | None) -> int:
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.folder = None  # the ResultFolder, once known (for the messages below)
     args.report = None  # the Reporter, whose log.txt also gets how the run ended
+    from shellobstacle.checks.assumptions import AssumptionError
     from shellobstacle.cli.jit_cache import guarded_compilations
     from shellobstacle.config.loader import ConfigError
-    from shellobstacle.geometry.assumptions import AssumptionError
     from shellobstacle.geometry.expressions import ExpressionError
     from shellobstacle.io.folders import ResultsError
     from shellobstacle.solvers.base import ConvergenceError

@@ -233,9 +233,8 @@ def parser() -> argparse.ArgumentParser:
 
     d = sub.add_parser(
         "doctor",
-        help="the environment, versions and what process tuning is active and why",
-        epilog="example: shellobstacle doctor  (SHELLOBSTACLE_TUNING=on shellobstacle doctor: "
-        "the opt-in tuning's policies on this machine)",
+        help="the environment, versions, process tuning in force and known problems",
+        epilog="example: shellobstacle doctor",
     )
     d.add_argument(
         "--repair",

@@ -23,6 +23,7 @@ from shellobstacle.geometry.expressions import ExpressionError
 from shellobstacle.geometry.surface import Surface
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.messages import ConfigError, not_one_of, suggest
+from shellobstacle.obstacle.shapes import require_read
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS
@@ -35,7 +36,6 @@ from shellobstacle.spec import (
     boolean,
     finite,
     integer,
-    require_obstacle_keys,
 )
 
 __all__ = [
@@ -210,8 +210,8 @@ def parse_config(
                     # changed the shape, and the key is the file's for the old one)
                     changed = origins.of(selector) != source and origin == source
                     if section == "obstacle" and not changed:
-                        try:  # the API's rule and message (shellobstacle.spec)
-                            require_obstacle_keys(value, [name])
+                        try:  # the API's rule and message (shellobstacle.obstacle.shapes)
+                            require_read(value, [name])
                         except ValueError as err:
                             raise ConfigError(f"{origin}: {err}") from None
                     if section == "obstacle":  # not read: not in the resolved config either

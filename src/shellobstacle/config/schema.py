@@ -10,6 +10,7 @@ either.
 
 from __future__ import annotations
 
+from collections.abc import Iterator, Mapping
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
@@ -17,32 +18,82 @@ from shellobstacle.config.keys import OPTIONAL, REQUIRED, ByValue, Key, bound, s
 from shellobstacle.geometry.surface import SURFACE_KINDS
 from shellobstacle.mesh.domains import KINDS, DomainSpec
 from shellobstacle.mesh.memory import MULTIGRID_FROM_DOFS
+from shellobstacle.obstacle.shapes import SHAPES, declared, shape_help
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.options import (
     PETSC_OPTIONS_HELP,
 )
 from shellobstacle.solvers.registry import DEFAULT, METHODS, method_help
-from shellobstacle.spec import (
-    Discretization,
-    Load,
-    Obstacle,
-    Shell,
-    obstacle_kinds_reading,
-)
+from shellobstacle.spec import Discretization, Load, Obstacle, Shell
 
-__all__ = ["OPTIONAL_SECTIONS", "REQUIRED_SECTIONS", "SCHEMA", "SELECTORS", "reference_text"]
+__all__ = [
+    "OPTIONAL_SECTIONS",
+    "REQUIRED_SECTIONS",
+    "SCHEMA",
+    "SELECTORS",
+    "ObstacleKeys",
+    "reference_text",
+]
 
 #: the methods that read [penalty] (the registry's at import)
 _PENALIZED = tuple(m.name for m in METHODS.values() if m.penalized)
 
 
-def _obstacle(name: str, type: str, help: str) -> Key:
-    """The ``[obstacle]`` key ``name``, read by the kinds :data:`~shellobstacle.spec.OBSTACLE_KEYS`
-    gives it to (every kind for ``kind`` and ``contact_face``)."""
-    return bound(Obstacle, name, type, help, when=obstacle_kinds_reading(name))
+class ObstacleKeys(Mapping[str, Key]):
+    """The keys of ``[obstacle]``, generated from :data:`~shellobstacle.obstacle.shapes.SHAPES`
+    (a live view: a shape registered later is in it): ``kind``, every shape's parameters,
+    ``contact_face``. A key that several shapes read is one key: their type, each one's
+    default (:class:`ByValue` where they differ) and meaning."""
+
+    def __init__(self) -> None:
+        self._shapes: tuple[tuple[str, type], ...] = ()
+        self._keys_now: dict[str, Key] = {}
+
+    def _keys(self) -> dict[str, Key]:
+        """The keys, made again when the registry has changed."""
+        shapes = tuple(SHAPES.items())
+        if shapes != self._shapes:
+            self._shapes, self._keys_now = shapes, _obstacle_keys()
+        return self._keys_now
+
+    def __getitem__(self, name: str) -> Key:
+        return self._keys()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys())
+
+    def __len__(self) -> int:
+        return len(self._keys())
 
 
-SCHEMA: dict[str, dict[str, Key]] = {
+def _obstacle_keys() -> dict[str, Key]:
+    """The keys of ``[obstacle]`` for the shapes registered now (:class:`ObstacleKeys`)."""
+    keys = {"kind": bound(Obstacle, "kind", "str", shape_help())}
+    names = dict.fromkeys(p.name for s in SHAPES.values() for p in s.parameters)
+    for name in names:
+        found = declared(name)
+        defaults = {kind: p.default for kind, p in found}
+        default = defaults[found[0][0]]
+        if any(v != default for v in defaults.values()):
+            default = ByValue(defaults)
+        helps = dict.fromkeys(p.help for _, p in found)
+        help = found[0][1].help
+        if len(helps) > 1:
+            help = "; ".join(f"{p.help} ({kind})" for kind, p in found)
+        choices = tuple(dict.fromkeys(c for _, p in found for c in p.choices))
+        kinds = tuple(kind for kind, _ in found)
+        fields = {kind: (Obstacle, "parameters") for kind in kinds}
+        keys[name] = Key(found[0][1].type, default, help, choices, kinds, fields)
+    keys["contact_face"] = bound(
+        Obstacle,
+        "contact_face",
+        "str",
+        "the face that must stay admissible: middle (θ), lower (θ − ε a_3) or upper (θ + ε a_3)",
+    )
+    return keys
+
+
+SCHEMA: dict[str, Mapping[str, Key]] = {
     "surface": {
         "kind": Key("str", REQUIRED, "built-in surface or 'expression'", SURFACE_KINDS),
         "radius": Key("float", OPTIONAL, "sphere radius R", when=("spherical_cap",)),
@@ -132,34 +183,7 @@ SCHEMA: dict[str, dict[str, Key]] = {
             "immersed thin shell (P2, C⁰ interior penalty for ζ_3)",
         ),
     },
-    "obstacle": {
-        "kind": _obstacle(
-            "kind",
-            "str",
-            "the rigid obstacle: plane (the paper's), sphere, cylinder or expression; the "
-            "contact face must stay where g ≥ 0",
-        ),
-        "q": _obstacle("q", "float[3]", "normal of the plane; g = x·q − c"),
-        "c": _obstacle("c", "float", "the plane's offset along q"),
-        "center": _obstacle("center", "float[3]", "centre of the ball"),
-        "point": _obstacle("point", "float[3]", "a point of the cylinder's axis"),
-        "axis": _obstacle("axis", "float[3]", "the cylinder's axis"),
-        "radius": _obstacle("radius", "float", "radius R > 0"),
-        "side": _obstacle(
-            "side",
-            "str",
-            "outside: g = distance − R (the shell stays out; not convex); inside: R − distance",
-        ),
-        "g": _obstacle(
-            "g", "str", "g(x1, x2, x3), admissible where g ≥ 0 (x: ambient coordinates)"
-        ),
-        "contact_face": _obstacle(
-            "contact_face",
-            "str",
-            "the face that must stay admissible: middle (θ), lower (θ − ε a_3) or upper "
-            "(θ + ε a_3)",
-        ),
-    },
+    "obstacle": ObstacleKeys(),
     "penalty": {
         "kappa": bound(PenaltySpec, "kappa", "float", "penalty parameter κ > 0", when=_PENALIZED),
         "exponent": bound(

@@ -36,7 +36,7 @@ EDGE_WIDTHS = 3.0
 #: ``examples/paper.toml`` (h = 0.0058, band 3√0.001 ≈ 0.095) makes about 60k vertices and
 #: 0.71 M P2 dofs, estimated at 6.9 GiB (:mod:`shellobstacle.mesh.resources`): the estimate may be
 #: 1.5 times short and still stays within the 80 % of a 24 GiB machine that may be used. h/4
-#: (2.3 M dofs, 22 GiB) was refused there, h/3 (13 GiB) has no room for the estimate's error.
+#: (2.3 M dofs, 22 GiB) does not fit there, h/3 (13 GiB) has no room for the estimate's error.
 EDGE_FRACTION = 0.5
 
 

@@ -187,7 +187,7 @@ def reproduce(
     times["adaptive"] = time.perf_counter() - t
     total = time.perf_counter() - t0
     v = versions()
-    tuned = "; ".join(f"{k}: {p}" for k, p in v["tuning"].items())
+    tuned = " ".join(f"{k}={value}" for k, value in v["environment"].items()) or "none set"
     head = [
         "# Meixner & Piersanti (2024), section 10, reproduced",
         "",

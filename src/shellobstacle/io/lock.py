@@ -1,36 +1,30 @@
-"""One run at a time per result folder: an advisory lock beside it, held for the whole run.
+"""One run at a time per result folder: a file lock beside it, held for the whole run.
 
-A run takes ``.NAME.lock`` beside its folder ``NAME`` (:func:`fcntl.flock`, exclusive, not
-waiting) before it looks into the folder, and keeps it until the command ends. The lock covers
-the folder, its staging folder ``.NAME.partial`` (``--overwrite``) and the final swap. The file
-records the holder (pid, host, command) for the message a refused run prints. The operating
-system drops the lock when its process ends, however it ends: the lock file that a killed run
-leaves behind blocks nothing. A lock file is removed by its holder while still locked, and a
-run that locked a file that is no longer in place tries again, so two runs never hold two
-different files for one folder.
+A run takes ``.NAME.lock`` beside its folder ``NAME`` (:class:`filelock.FileLock`: an exclusive
+``flock``, not waiting) before it looks into the folder, and keeps it until the command ends.
+The lock covers the folder, its staging folder ``.NAME.partial`` (``--overwrite``) and the
+final swap. The holder writes who it is (pid, host, command) into the file, for the message a
+refused run prints. The operating system drops the lock when its process ends, however it
+ends: the lock file that a killed run leaves behind blocks nothing. The holder removes the file
+while still holding it; a run that locked a file no longer in place tries again (filelock), so
+two runs never hold two different files for one folder. Where no file can be made beside the
+folder (an unwritable parent), the folder's own descriptor is locked.
 """
 
 from __future__ import annotations
 
 import contextlib
 import errno
-import fcntl
 import os
 import shlex
 import socket
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = [
-    "FolderInUseError",
-    "FolderLock",
-    "lock_file",
-    "lock_folder",
-    "release_folder",
-    "release_folders",
-]
+from filelock import FileLock, Timeout, lock_descriptor
+
+__all__ = ["FolderInUseError", "lock_file", "lock_folder", "release_folder", "release_folders"]
 
 #: how long a refused run waits for the holder to have written who it is
 _OWNER_WAIT = 1.0
@@ -44,25 +38,9 @@ class FolderInUseError(Exception):
         self.folder, self.owner = folder, owner
 
 
-@dataclass
-class FolderLock:
-    """The lock of one result folder, held by this process until :meth:`release`."""
-
-    folder: Path
-    path: Path | None  # the lock file (None: the folder's own descriptor is locked)
-    fd: int
-
-    def release(self) -> None:
-        """Remove the lock file (still locked, so nobody holds it) and unlock."""
-        _held.pop(self.folder, None)
-        if self.path is not None:
-            with contextlib.suppress(OSError):
-                self.path.unlink()
-        os.close(self.fd)
-
-
-#: the folders this process has locked (a run that prepares its folder twice reuses its lock)
-_held: dict[Path, FolderLock] = {}
+#: the folders this process has locked, with their lock (a file lock, or the folder's own
+#: descriptor); a run that prepares its folder twice reuses its lock
+_held: dict[Path, FileLock | int] = {}
 
 
 def lock_file(folder: Path) -> Path:
@@ -90,6 +68,10 @@ def _owner() -> str:
     return f"pid {os.getpid()} on {socket.gethostname()}: {command}"
 
 
+def _write_owner(fd: int) -> None:
+    os.write(fd, (_owner() + "\n").encode())
+
+
 def _read_owner(path: Path) -> str:
     """Who holds the lock file ``path``, as it wrote itself in."""
     deadline = time.monotonic() + _OWNER_WAIT
@@ -103,68 +85,57 @@ def _read_owner(path: Path) -> str:
         time.sleep(0.05)
 
 
-def lock_folder(folder: Path) -> FolderLock | None:
-    """Lock ``folder`` for this process (its parent must exist); None when neither a lock file
-    beside it nor the folder itself can be opened (an unwritable parent and no folder: the
-    folder cannot be created either, which the caller reports).
+def lock_folder(folder: Path) -> None:
+    """Lock ``folder`` for this process (its parent must exist). Neither a lock file beside it
+    nor the folder itself can be opened (an unwritable parent and no folder): nothing is
+    locked, and the folder cannot be created either, which the caller reports.
 
     Raises:
         FolderInUseError: another live process holds the lock.
     """
     folder = _canonical(folder)
     if folder in _held:
-        return _held[folder]
+        return
     path = lock_file(folder)
-    while True:
-        try:
-            fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-        except OSError as err:
-            if err.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
-                raise
-            return _lock_itself(folder)
-        try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            os.close(fd)
-            raise FolderInUseError(folder, _read_owner(path)) from None
-        except BaseException:
-            os.close(fd)
+    lock = FileLock(path, timeout=0, thread_local=False, on_acquired=_write_owner)
+    try:
+        lock.acquire()
+    except Timeout:
+        raise FolderInUseError(folder, _read_owner(path)) from None
+    except OSError as err:
+        if err.errno not in (errno.EACCES, errno.EPERM, errno.EROFS):
             raise
-        try:
-            in_place = os.stat(path).st_ino == os.fstat(fd).st_ino
-        except FileNotFoundError:
-            in_place = False
-        if not in_place:  # its holder removed it between our open and our lock
-            os.close(fd)
-            continue
-        os.ftruncate(fd, 0)
-        os.write(fd, (_owner() + "\n").encode())
-        lock = _held[folder] = FolderLock(folder, path, fd)
-        return lock
+        _lock_itself(folder)
+        return
+    _held[folder] = lock
 
 
-def _lock_itself(folder: Path) -> FolderLock | None:
+def _lock_itself(folder: Path) -> None:
     """Lock the folder's own descriptor, where no lock file can be written beside it."""
     try:
         fd = os.open(folder, os.O_RDONLY | os.O_DIRECTORY)
     except OSError:
-        return None
-    try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
+        return
+    if not lock_descriptor(fd, blocking=False):
         os.close(fd)
-        raise FolderInUseError(folder, "a process that could not say which") from None
-    lock = _held[folder] = FolderLock(folder, None, fd)
-    return lock
+        raise FolderInUseError(folder, "a process that could not say which")
+    _held[folder] = fd
 
 
 def release_folder(folder: Path) -> None:
-    """Release the lock of ``folder`` if this process holds it."""
-    if (lock := _held.get(_canonical(folder))) is not None:
+    """Release the lock of ``folder`` if this process holds it (a lock file is removed while
+    still locked, so nobody holds it)."""
+    folder = _canonical(folder)
+    lock = _held.pop(folder, None)
+    if isinstance(lock, FileLock):
+        with contextlib.suppress(OSError):
+            lock_file(folder).unlink()
         lock.release()
+    elif lock is not None:
+        os.close(lock)
 
 
 def release_folders() -> None:
     """Release every folder lock of this process (the command has ended)."""
-    for lock in list(_held.values()):
-        lock.release()
+    for folder in list(_held):
+        release_folder(folder)

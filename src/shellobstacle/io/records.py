@@ -1,5 +1,5 @@
 """What every record file of a run shares: written atomically on rank 0 (a reader never sees
-half a file), JSON with arrays as lists, and the versions and process tuning the run had."""
+half a file), JSON with arrays as lists, and the versions and process environment the run had."""
 
 from __future__ import annotations
 
@@ -8,6 +8,7 @@ import json
 import os
 import platform
 import socket
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -15,7 +16,30 @@ from mpi4py import MPI
 
 import shellobstacle
 
-__all__ = ["atomic_write", "jsonable", "versions", "write_json"]
+__all__ = [
+    "TIMING_VARIABLES",
+    "atomic_write",
+    "jsonable",
+    "process_environment",
+    "versions",
+    "write_json",
+]
+
+#: the environment variables that change a run's timings, not its numbers (docs/user-guide.md,
+#: "Process tuning"): BLAS threads, glibc's malloc, libraries loaded ahead
+TIMING_VARIABLES = (
+    "OMP_NUM_THREADS",
+    "OPENBLAS_NUM_THREADS",
+    "MKL_NUM_THREADS",
+    "OPENBLAS_CORETYPE",
+    "MALLOC_MMAP_MAX_",
+    "MALLOC_MMAP_THRESHOLD_",
+    "MALLOC_TRIM_THRESHOLD_",
+    "MALLOC_TOP_PAD_",
+    "MALLOC_ARENA_MAX",
+    "GLIBC_TUNABLES",
+    "LD_PRELOAD",
+)
 
 
 def atomic_write(path: Path, text: str, comm=MPI.COMM_WORLD) -> None:
@@ -41,16 +65,19 @@ def jsonable(obj: Any) -> Any:
     return str(obj)
 
 
+def process_environment(environ: Mapping[str, str] = os.environ) -> dict[str, str]:
+    """The :data:`TIMING_VARIABLES` set in ``environ``, with their values."""
+    return {name: environ[name] for name in TIMING_VARIABLES if name in environ}
+
+
 def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
     """Package, library, interpreter and machine versions for a results record, and the
-    process tuning that changes timings (:mod:`shellobstacle.tuning`)."""
+    environment variables that change timings (:func:`process_environment`)."""
     from petsc4py import PETSc
 
     import dolfinx
     import numpy
     import sympy
-
-    from shellobstacle import tuning
 
     petsc = ".".join(map(str, PETSc.Sys.getVersion()))
     return {
@@ -63,6 +90,6 @@ def versions(comm=MPI.COMM_WORLD) -> dict[str, Any]:
         "mpi_ranks": comm.size,
         "machine": f"{platform.machine()} {platform.system()} {socket.gethostname()}",
         "cpus": os.cpu_count(),
-        "tuning": tuning.policies(),
+        "environment": process_environment(),
         "date": _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"),
     }

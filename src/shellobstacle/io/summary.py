@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 from mpi4py import MPI
 
-from shellobstacle.geometry.assumptions import format_checks
+from shellobstacle.checks.assumptions import format_checks
 from shellobstacle.io.records import versions, write_json
 from shellobstacle.progress import phase
 

@@ -30,7 +30,6 @@ from typing import Any
 
 from mpi4py import MPI
 
-from shellobstacle.config.loader import ConfigError
 from shellobstacle.mesh import memory
 from shellobstacle.mesh.domains import DomainSpec, coarsening_steps, estimated_vertices
 from shellobstacle.mesh.memory import (
@@ -40,6 +39,7 @@ from shellobstacle.mesh.memory import (
     bytes_per_dof,
     linear_solver_for,
 )
+from shellobstacle.messages import ConfigError
 
 __all__ = ["Estimate", "ResourceError", "estimate", "linear_solver_of", "require_fits"]
 

@@ -31,13 +31,13 @@ from shellobstacle.models.hybrid_bending import (
 )
 from shellobstacle.models.koiter import DEFAULT_INTERIOR_PENALTY, bending_energy
 from shellobstacle.models.membrane import elastic_product, strain
+from shellobstacle.models.singular import GradientCheck
 from shellobstacle.obstacle import Obstacle, from_spec
-from shellobstacle.obstacle.singular import GradientCheck
 from shellobstacle.penalty.rule import penalty_measure
 from shellobstacle.progress import phase
 from shellobstacle.spec import Discretization, Shell
 
-__all__ = ["PenalizedProblem"]
+__all__ = ["PenalizedProblem", "boundary_facets", "load_ufl", "require_koiter_discretization"]
 
 
 class PenalizedProblem:
@@ -92,7 +92,7 @@ class PenalizedProblem:
         self.mesh = mesh
         self.disc = disc = discretization or Discretization()
         if shell.model == "koiter":
-            _require_koiter_discretization(disc, mesh)
+            require_koiter_discretization(disc, mesh)
         self.obstacle: Obstacle = from_spec(shell.obstacle, shell.material.epsilon)
         self.q = np.asarray(shell.obstacle.q, dtype=float)
         mat = shell.material
@@ -102,23 +102,11 @@ class PenalizedProblem:
         if kappa is not None:
             self.kappa = dolfinx.fem.Constant(mesh, PETSc.ScalarType(kappa))
         self.kappa_scale = kappa_scale
-        self.parameters = {
-            k: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v))
-            for k, v in shell.load.parameters.items()
-        }
-
+        shell_load, self.parameters = load_ufl(shell, mesh)
         self.G = G = shell.surface.geometry_ufl(mesh)
-        x = ufl.SpatialCoordinate(mesh)
-        symbols: dict[sp.Symbol, Any] = {y1: x[0], y2: x[1]}
-        symbols |= {sp.Symbol(k, real=True): c for k, c in self.parameters.items()}
-        # a component that is identically 0 stays a Constant so that UFL keeps the load forms
-        zero = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0))
         #: the load was given as UFL expressions (``p``), not the shell's own
         self.custom_load = p is not None
-        if p is None:
-            self.p = [zero if e == 0 else to_ufl(e, symbols) for e in shell.load_expressions()]
-        else:
-            self.p = list(p)
+        self.p = shell_load if p is None else list(p)
 
         self.dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
         self.dx_penalty = penalty_measure(mesh, disc, self.dx)
@@ -233,7 +221,7 @@ class PenalizedProblem:
 
         Raises:
             SingularGradientError: a constraint point lies where ``∇g`` is undefined
-                (:mod:`shellobstacle.obstacle.singular`).
+                (:mod:`shellobstacle.models.singular`).
         """
         if self.zeta_lin is not None:
             self.zeta_lin.x.array[:] = self.zeta.x.array
@@ -275,7 +263,7 @@ class PenalizedProblem:
         conditions fix in ``V``, a space of ζ's element on this mesh or any other mesh of ω
         (the levels of a refinement hierarchy)."""
         tdim = V.mesh.topology.dim
-        nodes = dolfinx.fem.locate_dofs_topological(V, tdim - 1, _boundary_facets(V.mesh))
+        nodes = dolfinx.fem.locate_dofs_topological(V, tdim - 1, boundary_facets(V.mesh))
         nodes = nodes[nodes < V.dofmap.index_map.size_local]
         bs = V.dofmap.index_map_bs
         return (bs * nodes[:, None] + np.array(self.dirichlet_components)).ravel()
@@ -283,7 +271,7 @@ class PenalizedProblem:
     def _boundary_conditions(self) -> list[dolfinx.fem.DirichletBC]:
         """Homogeneous Dirichlet conditions: ζ_α = 0 on γ, and ζ_3 = 0 if clamped."""
         tdim = self.mesh.topology.dim
-        facets = _boundary_facets(self.mesh)
+        facets = boundary_facets(self.mesh)
         bcs = []
         for i in self.dirichlet_components:
             Vi = self.V.sub(i)
@@ -349,7 +337,7 @@ class PenalizedProblem:
         """``t = 0`` on the boundary's facets (where no cell pair meets it)."""
         tdim = self.mesh.topology.dim
         T = self.t.function_space
-        dofs = dolfinx.fem.locate_dofs_topological(T, tdim - 1, _boundary_facets(self.mesh))
+        dofs = dolfinx.fem.locate_dofs_topological(T, tdim - 1, boundary_facets(self.mesh))
         return [dolfinx.fem.dirichletbc(PETSc.ScalarType(0), dofs, T)]
 
     def update_multiplier(self) -> None:
@@ -387,7 +375,24 @@ class PenalizedProblem:
         return {"energy": el - w, "penalty_energy": pen, "penalized_energy": el - w + pen}
 
 
-def _require_koiter_discretization(disc: Discretization, mesh: dolfinx.mesh.Mesh) -> None:
+def load_ufl(
+    shell: Shell, mesh: dolfinx.mesh.Mesh
+) -> tuple[list[Any], dict[str, dolfinx.fem.Constant]]:
+    """The shell's load ``p^{i,ε}`` as three UFL scalars on ``mesh``, and its parameters as
+    ``Constant`` objects by name (changing one reuses the compiled forms)."""
+    parameters = {
+        k: dolfinx.fem.Constant(mesh, PETSc.ScalarType(v)) for k, v in shell.load.parameters.items()
+    }
+    x = ufl.SpatialCoordinate(mesh)
+    symbols: dict[sp.Symbol, Any] = {y1: x[0], y2: x[1]}
+    symbols |= {sp.Symbol(k, real=True): c for k, c in parameters.items()}
+    # a component that is identically 0 stays a Constant so that UFL keeps the load forms
+    zero = dolfinx.fem.Constant(mesh, PETSc.ScalarType(0))
+    p = [zero if e == 0 else to_ufl(e, symbols) for e in shell.load_expressions()]
+    return p, parameters
+
+
+def require_koiter_discretization(disc: Discretization, mesh: dolfinx.mesh.Mesh) -> None:
     """Koiter's ζ_3 ∈ H²₀ needs P2 with interior penalties, clamped, and (in parallel) the
     ghost cells across process boundaries that the facet integrals read."""
     if disc.degree < 2:
@@ -408,7 +413,7 @@ def _require_koiter_discretization(disc: Discretization, mesh: dolfinx.mesh.Mesh
             )
 
 
-def _boundary_facets(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
+def boundary_facets(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
     """The facets of ``mesh`` on γ (its exterior facets)."""
     tdim = mesh.topology.dim
     mesh.topology.create_connectivity(tdim - 1, tdim)

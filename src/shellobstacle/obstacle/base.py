@@ -7,7 +7,11 @@ the lower and upper faces) and its derivative ``c_j = ∂g/∂η_j = ∇g·a^j``
 :class:`~shellobstacle.geometry.surface.Geometry` (UFL for the forms, NumPy at points, SymPy
 for manufactured solutions). A kind gives ``g`` and ``∇g`` at a point ``x`` of space
 (:meth:`Obstacle.value`, :meth:`Obstacle.gradient`). Where the constraint is enforced and how
-contact is measured there is :mod:`shellobstacle.obstacle.points`.
+contact is measured there is :mod:`shellobstacle.post.points`.
+
+A kind of obstacle the config names (``obstacle.kind``) is a subclass that declares its
+:attr:`~Obstacle.kind`, :attr:`~Obstacle.summary` and :attr:`~Obstacle.parameters`, registered
+in :data:`~shellobstacle.obstacle.shapes.SHAPES`.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from shellobstacle.geometry.surface import Geometry, Surface, dot
+from shellobstacle.obstacle.parameters import Parameter
 
 __all__ = ["Obstacle", "PointGap", "number"]
 
@@ -53,6 +58,14 @@ class PointGap:
 class Obstacle(ABC):
     """A rigid obstacle: the contact face ``θ + s a_3 + η_i a^i`` must satisfy ``g ≥ 0``.
 
+    A registered shape (:func:`~shellobstacle.obstacle.shapes.register`) declares, as class
+    attributes, what the config and the documentation say of it:
+
+    * ``kind``: the value of ``obstacle.kind`` that chooses it;
+    * ``summary``: its ``g`` in one line (the config reference, the user guide's table);
+    * ``parameters``: the keys of ``[obstacle]`` it reads, each an argument of its
+      constructor, which also takes ``offset``.
+
     Attributes:
         affine: whether ``g`` is affine in ``x`` (a plane): then ``g(η) = g(0) + c·η`` with
             ``c`` independent of ``η``, the penalty is piecewise quadratic and its
@@ -65,15 +78,23 @@ class Obstacle(ABC):
             :meth:`on_mesh` makes ``dolfinx.fem.Constant`` objects.
     """
 
+    kind: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    parameters: ClassVar[tuple[Parameter, ...]] = ()
     affine: bool = False
     convex: bool | None = False
     constant_parameters: ClassVar[tuple[str, ...]] = ()
     singular_set: ClassVar[str] = "a point where ∇g is not finite"
     """Where ``∇g`` is undefined, for the error that a constraint point there raises
-    (:mod:`shellobstacle.obstacle.singular`)."""
+    (:mod:`shellobstacle.models.singular`)."""
 
     def __init__(self, offset: float = 0.0) -> None:
         self.offset = float(offset)
+
+    def describe(self) -> str:
+        """This obstacle in words, for a picture's title: ``"the ball of radius 2 centred at
+        (0, 0, -2)"``."""
+        return "the obstacle g = 0"
 
     def on_mesh(self, mesh: Any) -> Obstacle:
         """This obstacle for the UFL forms on ``mesh``: a copy whose

@@ -20,6 +20,7 @@ from shellobstacle.geometry.surface import Geometry
 from shellobstacle.geometry.translation import to_numpy, to_ufl
 from shellobstacle.messages import shown
 from shellobstacle.obstacle.base import Obstacle
+from shellobstacle.obstacle.parameters import Parameter
 
 __all__ = ["ExpressionObstacle", "X"]
 
@@ -34,6 +35,17 @@ class ExpressionObstacle(Obstacle):
         ExpressionError: ``g`` does not parse, names something other than ``x1, x2, x3`` and
             numbers, or cannot be differentiated to a formula with values at points.
     """
+
+    kind = "expression"
+    summary = "a formula, g(x1, x2, x3) ≥ 0"
+    parameters = (
+        Parameter(
+            "g",
+            "str",
+            "g(x1, x2, x3), admissible where g ≥ 0 (x: ambient coordinates)",
+            example="x3",
+        ),
+    )
 
     def __init__(self, g: str | sp.Expr, offset: float = 0.0) -> None:
         super().__init__(offset)

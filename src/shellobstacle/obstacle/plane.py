@@ -10,6 +10,7 @@ import numpy as np
 
 from shellobstacle.geometry.surface import Geometry, Surface, dot
 from shellobstacle.obstacle.base import Obstacle, number
+from shellobstacle.obstacle.parameters import Parameter
 
 __all__ = ["Plane"]
 
@@ -27,6 +28,18 @@ class Plane(Obstacle):
         offset: ``s``, the contact face's offset along ``a_3``.
     """
 
+    kind = "plane"
+    summary = "the half-space x·q ≥ c (the paper's: c = 0)"
+    parameters = (
+        Parameter(
+            "q",
+            "float[3]",
+            "normal of the plane; g = x·q − c",
+            default=(0.0, 0.0, 1.0),
+            unit=("half-space", "normal"),
+        ),
+        Parameter("c", "float", "the plane's offset along q", default=0.0),
+    )
     affine = True
     convex = True
     constant_parameters = ("q", "level")
@@ -43,6 +56,9 @@ class Plane(Obstacle):
         extra = f", c={self.level:g}" if self.level else ""
         extra += f", offset={self.offset:g}" if self.offset else ""
         return f"Plane(q={tuple(float(v) for v in self.q)}{extra})"
+
+    def describe(self) -> str:
+        return f"the plane x·q = {self.level:g}"
 
     def value(self, G: Geometry, x: Sequence[Any]) -> Any:
         """``x·q − c`` (``x·q`` for a number ``c = 0``)."""

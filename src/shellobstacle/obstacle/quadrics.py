@@ -15,8 +15,19 @@ import numpy as np
 
 from shellobstacle.geometry.surface import Geometry, dot
 from shellobstacle.obstacle.base import Obstacle, number
+from shellobstacle.obstacle.parameters import Parameter
 
 __all__ = ["Cylinder", "Sphere"]
+
+#: the two parameters of every round obstacle
+RADIUS = Parameter("radius", "float", "radius R > 0", above=0.0, example=1.0)
+SIDE = Parameter(
+    "side",
+    "str",
+    "outside: g = distance − R (the shell stays out; not convex); inside: R − distance",
+    default="outside",
+    choices=("outside", "inside"),
+)
 
 
 class _Round(Obstacle):
@@ -25,12 +36,8 @@ class _Round(Obstacle):
 
     def __init__(self, radius: float, side: str, offset: float) -> None:
         super().__init__(offset)
-        if not radius > 0:
-            raise ValueError(f"obstacle.radius must be > 0, got {radius!r}")
-        if side not in ("outside", "inside"):
-            raise ValueError(f"obstacle.side must be 'outside' or 'inside', got {side!r}")
         self.radius, self.side = float(radius), side
-        self.sign = 1.0 if side == "outside" else -1.0
+        self.sign = {"outside": 1.0, "inside": -1.0}[side]
         self.convex = side == "inside"
 
     def radial(self, x: Sequence[Any]) -> list[Any]:
@@ -62,6 +69,13 @@ class _Round(Obstacle):
 class Sphere(_Round):
     """The ball ``|x − center| ≤ R``: the shell stays outside it or inside it."""
 
+    kind = "sphere"
+    summary = "outside or inside a ball"
+    parameters = (
+        Parameter("center", "float[3]", "centre of the ball", example=(0.0, 0.0, -1.0)),
+        RADIUS,
+        SIDE,
+    )
     constant_parameters = ("center", "radius")
     singular_set = "the ball's centre, where ∇g = ±(x − centre)/|x − centre| is 0/0"
 
@@ -74,13 +88,32 @@ class Sphere(_Round):
     def __repr__(self) -> str:
         return f"Sphere(center={tuple(self.center)}, radius={self.radius:g}, side={self.side!r})"
 
+    def describe(self) -> str:
+        centre = ", ".join(f"{v:g}" for v in self.center)
+        return f"the ball of radius {self.radius:g} centred at ({centre})"
+
     def radial(self, x: Sequence[Any]) -> list[Any]:
         return [x[k] - number(self.center[k]) for k in range(3)]
 
 
 class Cylinder(_Round):
-    """The round cylinder of radius ``R`` about the line through ``point`` along ``axis``."""
+    """The round cylinder of radius ``R`` about the line through ``point`` along ``axis``
+    (divided by its norm)."""
 
+    kind = "cylinder"
+    summary = "outside or inside a round cylinder"
+    parameters = (
+        Parameter("point", "float[3]", "a point of the cylinder's axis", example=(0.0, 0.0, -1.0)),
+        Parameter(
+            "axis",
+            "float[3]",
+            "the cylinder's axis",
+            unit=("axis", "direction"),
+            example=(1.0, 0.0, 0.0),
+        ),
+        RADIUS,
+        SIDE,
+    )
     constant_parameters = ("origin", "axis", "radius")
     singular_set = "the cylinder's axis, where ∇g = ±(radial part)/|radial part| is 0/0"
 
@@ -95,16 +128,16 @@ class Cylinder(_Round):
         super().__init__(radius, side, offset)
         self.origin = np.asarray(point, dtype=float)
         axis = np.asarray(axis, dtype=float)
-        norm = float(np.linalg.norm(axis))
-        if not norm > 0:
-            raise ValueError("obstacle.axis = (0, 0, 0) defines no axis: give a nonzero vector")
-        self.axis = axis / norm
+        self.axis = axis / np.linalg.norm(axis)
 
     def __repr__(self) -> str:
         return (
             f"Cylinder(point={tuple(self.origin)}, axis={tuple(self.axis)}, "
             f"radius={self.radius:g}, side={self.side!r})"
         )
+
+    def describe(self) -> str:
+        return f"the cylinder of radius {self.radius:g}"
 
     def radial(self, x: Sequence[Any]) -> list[Any]:
         d = [x[k] - number(self.origin[k]) for k in range(3)]

@@ -1,20 +1,24 @@
 """The penalty's quadrature rule (docs/model.md §5): the Gauss rule of the membrane integrals
 (degree ``Discretization.qdegree``, the paper's) or the vertex rule (nodal, mass-lumped; P1),
 as a UFL measure for the forms and as reference points and weights for the point operators
-(:mod:`~shellobstacle.penalty.quadrature`)."""
+(:mod:`~shellobstacle.solvers.quadrature_penalty`)."""
 
 from __future__ import annotations
+
+from typing import Any
 
 from mpi4py import MPI  # noqa: F401  (MPI before DOLFINx)
 
 import basix
+import basix.ufl
 import dolfinx
+import dolfinx.fem
 import numpy as np
 import ufl
 
 from shellobstacle.spec import Discretization
 
-__all__ = ["penalty_measure", "reference_rule"]
+__all__ = ["penalty_measure", "penalty_rule", "quadrature_space", "reference_rule"]
 
 
 def penalty_measure(mesh: dolfinx.mesh.Mesh, disc: Discretization, dx: ufl.Measure) -> ufl.Measure:
@@ -35,3 +39,18 @@ def reference_rule(cell: basix.CellType, disc: Discretization) -> tuple[np.ndarr
         volume = basix.cell.volume(cell)
         return points, np.full(points.shape[0], volume / points.shape[0])
     return basix.make_quadrature(cell, disc.qdegree)
+
+
+def penalty_rule(problem: Any) -> tuple[np.ndarray, np.ndarray]:
+    """The reference points and weights of the problem's penalty rule
+    (:func:`~shellobstacle.penalty.rule.reference_rule`)."""
+    return reference_rule(problem.mesh.basix_cell(), problem.disc)
+
+
+def quadrature_space(problem: Any) -> dolfinx.fem.FunctionSpace:
+    """Scalar quadrature space whose points are those of the problem's penalty rule."""
+    points, weights = penalty_rule(problem)
+    element = basix.ufl.quadrature_element(
+        problem.mesh.basix_cell(), points=points, weights=weights
+    )
+    return dolfinx.fem.functionspace(problem.mesh, element)

@@ -5,7 +5,7 @@ The contact set of a solution is where its gap ``g(ζ)`` (the obstacle's,
 projected (``dy``) at two sets of points (docs/model.md §7):
 
 - where the solution's constraint acts
-  (:func:`~shellobstacle.obstacle.points.constraint_points`: the penalty's Gauss points for
+  (:func:`~shellobstacle.post.points.constraint_points`: the penalty's Gauss points for
   the Gauss penalty, P1 and P2; the vertices or P2 nodes for the vertex penalty and the exact
   solvers): ``contact_area``, ``max_violation``, ...; a penalty that acts is never reported
   as no contact;
@@ -29,7 +29,7 @@ import numpy as np
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.obstacle.points import NodePoints, constraint_points
+from shellobstacle.post.points import NodePoints, constraint_points
 from shellobstacle.post.sections import AXES, CrossSection, cross_section, line_tree
 
 __all__ = ["POINTS", "Postprocessor", "contact_text"]
@@ -69,9 +69,9 @@ class Postprocessor:
             (a solution of the exact nodal problem): where contact is measured.
 
     Attributes:
-        points: The :class:`~shellobstacle.obstacle.points.ContactPoints` where the
+        points: The :class:`~shellobstacle.post.points.ContactPoints` where the
             constraint acts.
-        nodal: The :class:`~shellobstacle.obstacle.points.NodePoints` of ``ζ``'s space (the
+        nodal: The :class:`~shellobstacle.post.points.NodePoints` of ``ζ``'s space (the
             nodal figure; ``points`` itself where the constraint acts at the nodes).
         P1: Scalar P1 space on the mesh (vertex values).
         gap: ``g(ζ)`` at the vertices (a P1 Function, refreshed by :meth:`nodal_gap`).
@@ -128,7 +128,7 @@ class Postprocessor:
 
     def contact(self, tol_rel: float = 1e-12) -> dict[str, Any]:
         """The contact set ``{g(ζ) ≤ tol}`` where the constraint acts and at the nodes, and
-        their measures (:meth:`~shellobstacle.obstacle.points.ContactPoints.measure`;
+        their measures (:meth:`~shellobstacle.post.points.ContactPoints.measure`;
         docs/model.md §7).
 
         Args:

@@ -34,7 +34,7 @@ import dolfinx.fem
 import numpy as np
 
 from shellobstacle.geometry.surface import Surface
-from shellobstacle.obstacle import Cylinder, Obstacle, Plane, Sphere
+from shellobstacle.obstacle import Obstacle, Plane
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.obstacle_shape import level_box, onto
 from shellobstacle.post.render3d import (
@@ -112,16 +112,10 @@ def drawn_as_plane(obstacle: Obstacle) -> bool:
 
 
 def describe(obstacle: Obstacle) -> str:
-    """The obstacle in a picture's title: ``"the plane x·q = 0"``, ``"the ball of radius 2
-    centred at (0, 0, -2)"``, ..."""
-    if isinstance(obstacle, Plane):
-        return f"the plane x·q = {obstacle.level:g}"
-    if isinstance(obstacle, Sphere):
-        centre = ", ".join(f"{v:g}" for v in obstacle.center)
-        return f"the ball of radius {obstacle.radius:g} centred at ({centre})"
-    if isinstance(obstacle, Cylinder):
-        return f"the cylinder of radius {obstacle.radius:g}"
-    return "the obstacle g = 0"
+    """The obstacle in a picture's title: its own words
+    (:meth:`~shellobstacle.obstacle.base.Obstacle.describe`), ``"the plane x·q = 0"``, ``"the
+    ball of radius 2 centred at (0, 0, -2)"``, ..."""
+    return obstacle.describe()
 
 
 #: the box sampled around a curved obstacle: the shell's bounding box, widened on every side

@@ -5,7 +5,7 @@ the constraint at a handful of points: the contact then depends on where those p
 (a ball of radius two cells can slip between them), and the answer changes with the mesh
 more than the discretization error says. :func:`unresolved_obstacle` compares, at the
 contact points of a solution (where its constraint acts,
-:func:`~shellobstacle.obstacle.points.constraint_points`), the obstacle's smallest
+:func:`~shellobstacle.post.points.constraint_points`), the obstacle's smallest
 principal radius of curvature (:meth:`~shellobstacle.obstacle.base.Obstacle.curvature_radius`)
 with the size in space of the cell holding the point (its longest edge mapped by ``θ``), and
 returns a warning naming the cell size that would resolve it.
@@ -33,7 +33,7 @@ def unresolved_obstacle(points: Any, tol: float) -> str | None:
     :data:`RESOLVE_CELLS` cells, else None. Global (the same on every rank); collective.
 
     Args:
-        points: the solution's :class:`~shellobstacle.obstacle.points.ContactPoints`.
+        points: the solution's :class:`~shellobstacle.post.points.ContactPoints`.
         tol: the contact threshold (a point touches where ``g ≤ tol``).
     """
     problem = points.problem

@@ -20,8 +20,8 @@ import dolfinx.fem
 import numpy as np
 import ufl
 
-from shellobstacle.obstacle.points import ContactPoints
 from shellobstacle.post.contact import Postprocessor
+from shellobstacle.post.points import ContactPoints
 
 __all__ = ["contact_sides", "facing", "local_solution", "local_solution_text"]
 
@@ -56,7 +56,7 @@ def local_solution_text(summary: Mapping[str, Any]) -> str:
 
 def contact_sides(problem: Any, constraint: str = "penalty", tol_rel: float = 1e-12) -> dict:
     """The contact points on each side of the obstacle (:func:`facing`): those of
-    :func:`~shellobstacle.obstacle.points.constraint_points` where ``g(ζ) ≤ tol``, the
+    :func:`~shellobstacle.post.points.constraint_points` where ``g(ζ) ≤ tol``, the
     summary's contact set (:meth:`~shellobstacle.post.contact.Postprocessor.tolerance`).
 
     Returns:

@@ -13,12 +13,12 @@ stays 0 on them.
 
 **Residual.** A step does not assemble the residual form: ``R(ψ) = Kψ − L + (1/κ) Mᵀ min(g, 0)``
 from the stiffness matrix ``K`` and the penalty's point matrix ``M``
-(:class:`~shellobstacle.penalty.quadrature.QuadraturePenalty`, the operators
+(:class:`~shellobstacle.solvers.quadrature_penalty.QuadraturePenalty`, the operators
 :class:`~shellobstacle.solvers.newton.NewtonSolver` uses), which is the form's vector up to
 round-off (tested) for a fraction of the cost: a product with ``K``, one with the point
 matrix and one with its stored transpose. The mass matrix is factorized once by Cholesky
 (PETSc's own serially, MUMPS under MPI). A step costs a fraction of an assembly of the
-residual form (docs/performance.md).
+residual form (docs/perf/brezis-sibony.md).
 
 **Step and contraction.** ``R`` is piecewise linear: at every penalty quadrature point
 ``min(g, 0)`` is a piecewise-linear function of the affine gap ``g(ψ)``, so
@@ -62,7 +62,6 @@ import numpy as np
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.quadrature import QuadraturePenalty, penalty_hessian
 from shellobstacle.solvers.base import (
     ConvergenceError,
     UserOptions,
@@ -71,6 +70,7 @@ from shellobstacle.solvers.base import (
 )
 from shellobstacle.solvers.brezis_sibony_result import BrezisSibonyResult
 from shellobstacle.solvers.options import BrezisSibonyOptions
+from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty, penalty_hessian
 from shellobstacle.solvers.spectrum import extreme_eigenvalue
 
 __all__ = ["BrezisSibonySolver"]
@@ -142,8 +142,8 @@ class BrezisSibonySolver:
             self.M.setDiagonal(D)
             self.M.assemble()
         else:
-            # PETSc's own Cholesky serially, nested dissection: a solve at 1,152 dofs takes
-            # 52 µs, against 73 µs in the natural order and 106 µs with MUMPS
+            # PETSc's own Cholesky serially, nested dissection: on these small meshes it solves
+            # faster than in the natural order or by MUMPS (docs/perf/brezis-sibony.md)
             with self.user_options.applied():
                 if self.comm.size == 1:
                     self.ksp = direct_solver(self.M, "cholesky", "bs_mass", "petsc", ordering="nd")

@@ -43,7 +43,7 @@ class CoarseSpace:
         bcs: The homogeneous Dirichlet conditions of ``V``.
         ratio: About how many nodes of ``V`` per grid node (16: ``H ≈ 4h`` for P1).
         max_nodes: About the most grid nodes, whatever the mesh (the default, 10,000, makes
-            ``H ≈ 0.01`` on the unit square and halves the seed's time at 1.92 M dofs without
+            ``H ≈ 0.01`` on the unit square and keeps the seed cheap on large meshes without
             changing the zone; meshes under 160,000 nodes keep ``H ≈ 4h``).
         smooth: tensor-product quadratic B-splines (C¹) instead of the grid's P1 hat
             functions: for Koiter's ``K``, whose interior penalty makes the hats' kinks stiff.

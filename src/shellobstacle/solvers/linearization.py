@@ -37,7 +37,7 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.obstacle.singular import SingularGradientError
+from shellobstacle.models.singular import SingularGradientError
 from shellobstacle.solvers.methods.base import keeping
 from shellobstacle.solvers.result import MethodResult
 
@@ -368,7 +368,7 @@ class LinearizationError:
     def __init__(self, problem: Any) -> None:
         import dolfinx.fem
 
-        from shellobstacle.penalty.quadrature import quadrature_space
+        from shellobstacle.penalty.rule import quadrature_space
 
         self.comm = problem.mesh.comm
         Q = quadrature_space(problem)

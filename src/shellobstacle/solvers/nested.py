@@ -11,9 +11,9 @@ from the interpolated answer, linearized there.
 
 The interpolated start misses the contact zone's outer ring, where a plain Newton step pushes
 ζ_3 deep into the obstacle and the line search crawls; every level therefore relaxes ζ_3 after
-such a cut step (:mod:`~shellobstacle.solvers.normal_relaxation`). Measured on the paper's
-problem (docs/perf/multigrid.md): 6, 5, 8, 9 Newton steps on the finest mesh from 82k to
-5.2 M dofs instead of 12, 14, 16, 19 over the ladder, 1.07–1.31× faster with multigrid.
+such a cut step (:mod:`~shellobstacle.solvers.normal_relaxation`). The finest mesh then takes
+about half the Newton steps of the whole ladder, and the solve with multigrid is faster
+(docs/perf/multigrid.md).
 ``solver.nested_iteration = "auto"`` uses it with multigrid on one rank (:func:`nested_wanted`).
 """
 
@@ -60,9 +60,8 @@ def nested_wanted(problem: PenalizedProblem, options: NewtonOptions) -> bool:
     where the linear solver is multigrid (``"auto"`` resolved by
     :func:`~shellobstacle.mesh.memory.linear_solver_for`) and :func:`check_nested` passes.
 
-    Not on several ranks: the coarser levels' small solves gain nothing from them (on 2 ranks
-    at 1.93 M dofs nested iteration took 56.1 s against the plain continuation's 49.5 s;
-    serially 54.6 against 58.7 s, docs/perf/multigrid.md)."""
+    Not on several ranks: the coarser levels' small solves gain nothing from them, and there
+    nested iteration is slower than the plain continuation (docs/perf/multigrid.md)."""
     if options.nested_iteration != "auto":
         return options.nested_iteration == "on"
     if problem.mesh.comm.size > 1:
@@ -151,9 +150,9 @@ def _solve_level(
     A curved obstacle's gap is linearized once per level, at its start (ζ = 0 on the
     coarsest, the coarser answer interpolated on the others), and not settled there: a level
     only gives the next its start, and the finest mesh settles the gap by the passes of
-    :func:`~shellobstacle.solvers.linearization.solve_with`. On the cap on a ball at 1.93 M
-    dofs settling every level cost 5.6 s more for the same Newton steps on the finest mesh
-    and the same ζ (3.5e-13, docs/perf/multigrid.md)."""
+    :func:`~shellobstacle.solvers.linearization.solve_with`. Settling every level costs
+    more for the same Newton steps on the finest mesh and the same ζ
+    (docs/perf/multigrid.md)."""
     if level.linearized and k > 0:
         level.linearize()
         solver.refresh()

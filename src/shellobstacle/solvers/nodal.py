@@ -22,7 +22,7 @@ import numpy as np
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.obstacle.points import lumped_mass_p2
+from shellobstacle.post.points import lumped_mass_p2
 
 __all__ = ["NodalConstraint", "nodal_rotations"]
 

@@ -9,14 +9,14 @@ the obstacle, the exact line search cuts it to ``t`` of 10⁻³–10⁻¹, and t
 Minimizing ``J_κ`` over ζ_3 alone at the full step puts those points back where the penalty
 balances the load. That subproblem is strictly convex and piecewise quadratic like ``J_κ``,
 and its Jacobian ``K_33 + (1/κ) M_{A,3}ᵀ diag(1/D_A) M_{A,3}`` is mass-like: conjugate
-gradients with its diagonal take 20–30 iterations, and one of its Newton steps costs about a
-quarter of a whole Newton step (0.4–0.7 s at 1.93 M dofs); a relaxation takes 2–6.
+gradients with its diagonal take a few dozen iterations, and one of its Newton steps costs
+about a quarter of a whole Newton step; a relaxation takes a few of them.
 
 :class:`NormalRelaxation` solves it by the same semismooth Newton with the exact line search of
 :class:`~shellobstacle.solvers.system.PenalizedSystem`; :class:`~shellobstacle.solvers.newton.
 NewtonSolver` keeps the relaxed full step instead of the cut one when its energy is lower.
-Measured on the paper's problem (docs/perf/multigrid.md): from the coarser level's solution
-the finer level takes 5–9 Newton steps with it, 20–47 without (82k–1.31 M dofs).
+From the coarser level's solution the finer level then takes a few Newton steps, where
+without it the crawl takes several times as many (docs/perf/multigrid.md).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from petsc4py import PETSc
 import numpy as np
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.quadrature import penalty_factor
+from shellobstacle.solvers.quadrature_penalty import penalty_factor
 from shellobstacle.solvers.system import PenalizedSystem
 
 __all__ = ["RELAX_BELOW", "NormalRelaxation", "require_membrane"]

@@ -332,8 +332,8 @@ class ProximalGalerkinOptions:
     and Newton's linearization of ``e^φ`` from below overshoots) or where ``α̂`` times the
     contact pressure over ``P`` is large; a bounded ``α̂`` would leave the proximal point
     iteration sublinear. On ``examples/cylinder_koiter.toml`` (bending concentrates the contact
-    force at the rim of the contact zone) the authors' rule alone fails from 8k dofs, a
-    regrowth of 10 fails six times at 8k, 2 converges at 4k, 8k and 15k dofs.
+    force at the rim of the contact zone) the authors' rule alone fails on the finer meshes,
+    and a regrowth of 2 converges where 10 does not (docs/perf/peers.md).
 
     Attributes:
         tol: stop when ``‖u_k − u_{k−1}‖ ≤ tol ‖u_k‖`` (Euclidean norms of the nodal vectors).

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from shellobstacle.geometry.assumptions import Check
+    from shellobstacle.checks.assumptions import Check
     from shellobstacle.models.problem import PenalizedProblem
 
 __all__ = [
@@ -200,7 +200,7 @@ class SolveResult:
     @property
     def constraint(self) -> str:
         """Where the solution's constraint acts, and so where contact is measured
-        (:func:`~shellobstacle.obstacle.points.constraint_points`): ``"penalty"`` for a
+        (:func:`~shellobstacle.post.points.constraint_points`): ``"penalty"`` for a
         penalized method, ``"nodes"`` for an exact nodal one (κ = 0, as :attr:`solved_kappa`)."""
         return "nodes" if self.kappa == 0.0 else "penalty"
 

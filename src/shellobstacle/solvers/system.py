@@ -2,9 +2,9 @@
 
 ``J_κ(ζ) = ½ ζᵀKζ − f·ζ + (1/(2κ)) Σ_k D_k min(g_k, 0)²`` (docs/model.md §5): the membrane part
 is quadratic, with the stiffness ``K`` assembled once per mesh, and the penalty lives at its
-quadrature points (:class:`~shellobstacle.penalty.quadrature.QuadraturePenalty`). A residual is then
-one product with ``K`` and one with the point matrix ``M``, a Jacobian ``K`` plus a product
-over the active points only, and a line-search evaluation a sum over the points.
+quadrature points (:class:`~shellobstacle.solvers.quadrature_penalty.QuadraturePenalty`). A
+residual is then one product with ``K`` and one with the point matrix ``M``, a Jacobian ``K``
+plus a product over the active points only, and a line-search evaluation a sum over the points.
 
 :class:`PenalizedSystem` is the model that :class:`~shellobstacle.solvers.newton.NewtonSolver`
 steps on (the contact zone's condensed problem, :mod:`~shellobstacle.solvers.zone.reduced`,
@@ -26,13 +26,13 @@ import dolfinx.fem.petsc
 import numpy as np
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.quadrature import (
+from shellobstacle.solvers import libpetsc
+from shellobstacle.solvers.line_search import exact_step
+from shellobstacle.solvers.quadrature_penalty import (
     QuadraturePenalty,
     add_penalty_hessian,
     penalty_hessian,
 )
-from shellobstacle.solvers import libpetsc
-from shellobstacle.solvers.line_search import exact_step
 
 __all__ = ["PenalizedSystem"]
 

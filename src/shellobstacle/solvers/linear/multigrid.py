@@ -17,9 +17,9 @@ the V-cycle are symmetric, so the Krylov method is plain CG. Point-block Jacobi 
 The coarser levels' operators follow the Jacobian: at a Newton step where more than
 :data:`COARSE_UPDATE_SHARE` of their active points changed activity, the points that turned
 active are added to the penalty part's Galerkin products and those that turned inactive taken
-out, and the coarse level is factorized again. Kept over a κ, the operators cost the ellipsoid
-and the paraboloid three to five times the CG iterations at 0.5–1.9 M dofs: their first κ's
-active set moves over ten steps and more (docs/perf/multigrid.md). Chebyshev's bound of the
+out, and the coarse level is factorized again. Operators kept over a κ go stale where the
+first κ's active set moves over many steps (the ellipsoid, the paraboloid), and CG then takes
+several times the iterations (docs/perf/multigrid.md). Chebyshev's bound of the
 largest eigenvalue of ``D⁻¹A`` on each smoothed level, which PETSc would estimate (Lanczos,
 ten steps) at every set-up with a new matrix, is estimated once per solve (one κ), at its
 first Newton step, the same way (:func:`largest_eigenvalue`), and given to the smoothers with
@@ -33,16 +33,16 @@ Koiter's model (P2; the hybrid bending form's stiffness condensed onto ζ, with 
 of the two cells of each facet) takes the same multigrid on its ghosted meshes, whose
 refinements keep the children on their parent's rank
 (:func:`~shellobstacle.mesh.refinement.keep_ranks`), in W-cycles: the bending part is of
-fourth order, and with V-cycles the CG iterations per Newton step grew 1.65× and 1.36× as h
-halved on the cylindrical panel (9.0, 14.9, 20.3 at 58k–925k dofs), with W-cycles 9.0, 11.5,
-11.9 (docs/perf/multigrid.md). Its answers are the direct path's, in a third to a half of the
-memory. Without the levels it is refused (GAMG took 100–900 CG iterations per Newton step).
+fourth order: with V-cycles the CG iterations per Newton step grow as h halves on the
+cylindrical panel, with W-cycles they level off (docs/perf/multigrid.md). Its answers are the
+direct path's, in a third to a half of the memory. Without the levels it is refused (GAMG
+needs hundreds of CG iterations per Newton step there).
 
 A mesh without a known hierarchy (a mesh made elsewhere, or one gmsh mesh) falls back to
 algebraic multigrid (GAMG) on the whole system, with block size 3 and the constants of each
-component as its near-nullspace: set up at every Newton step, it is 1.5–1.9× slower than the
-direct path and the geometric V-cycle on the paper's problem at 0.3–1.3 M dofs
-(docs/performance.md). :attr:`MultigridStrategy.fallback` says so, and Newton's method passes
+component as its near-nullspace: set up at every Newton step, it is slower than both the
+direct path and the geometric V-cycle on the paper's problem (docs/perf/multigrid.md).
+:attr:`MultigridStrategy.fallback` says so, and Newton's method passes
 it on (a warning and the summary's ``linear_solver_used``).
 
 The Newton side (forcing terms, the seeded first step, the finished direction) is that of
@@ -64,7 +64,6 @@ from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.mesh.memory import multigrid_needs_levels
 from shellobstacle.messages import ConfigError
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.quadrature import penalty_factor
 from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.base import set_options, unique_prefix
 from shellobstacle.solvers.linear.iterative import (
@@ -72,6 +71,7 @@ from shellobstacle.solvers.linear.iterative import (
     KEPT_MIN_ITERATIONS,
     IterativeStrategy,
 )
+from shellobstacle.solvers.quadrature_penalty import penalty_factor
 from shellobstacle.solvers.system import PenalizedSystem
 
 __all__ = [
@@ -95,8 +95,8 @@ _LEVELS = {
 #: Chebyshev's interval as multiples of the estimated ``λ_max(D⁻¹A)`` (PETSc's default)
 CHEBYSHEV_INTERVAL = (0.1, 1.1)
 #: the coarser operators are made anew when more than this share of their active points
-#: changed activity (0: at any change; 5 % kept stale operators over the paraboloid's first
-#: κ at 1.94 M dofs for 75 % more CG iterations, docs/perf/multigrid.md)
+#: changed activity (0: at any change; a larger share keeps stale operators over a κ whose
+#: active set moves, for more CG iterations, docs/perf/multigrid.md)
 COARSE_UPDATE_SHARE = 0.0
 #: Lanczos steps of an estimate (PETSc's default)
 ESTIMATE_STEPS = 10
@@ -187,7 +187,7 @@ class MultigridStrategy(IterativeStrategy):
         ksp.setFromOptions()
         if transfers:
             # PCMG does not read its levels' options itself: the coarse level would be
-            # PETSc's own LU (four times MUMPS' Cholesky's time on gmsh's 21k dofs)
+            # PETSc's own LU, slower than MUMPS' Cholesky
             for level in range(self.levels):
                 pc.getMGSmoother(level).setFromOptions()
             self._estimators = self._make_estimators(prefix)

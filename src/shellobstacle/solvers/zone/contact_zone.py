@@ -20,9 +20,9 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.penalty.quadrature import QuadraturePenalty
 from shellobstacle.solvers.base import direct_solver, factorize
 from shellobstacle.solvers.mumps import in_blocks
+from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.graph import csr, dilate, dofs_of, inside, union
 from shellobstacle.solvers.zone.multipliers import HybridBlocks
@@ -96,7 +96,7 @@ class ContactZone:
         A zone too large is built again from the active points and ``hint`` alone once the
         zone they predict fits (a zone's dofs taken as proportional to the points it holds;
         a zone that fits is kept while it holds the active points: building one costs more
-        than the smaller zone saves, measured on Koiter's panel at 58k dofs).
+        than the smaller zone saves, docs/perf/koiter.md).
         """
         base = active if hint is None else active | hint
         if self.whole:

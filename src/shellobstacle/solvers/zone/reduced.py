@@ -31,9 +31,9 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.penalty.quadrature import QuadraturePenalty, gap_scale, penalty_hessian
 from shellobstacle.solvers.base import unique_prefix
 from shellobstacle.solvers.line_search import exact_step
+from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty, gap_scale, penalty_hessian
 from shellobstacle.solvers.system import PenalizedSystem, abs_row_sums, floor_of
 from shellobstacle.solvers.zone.condensation import Condensation
 

@@ -5,8 +5,8 @@
    column by column with GEMV, memory-bound, slower than a whole DGEMM of twice the flops;
    MUMPS calls it for the symmetric update of every front in an LDL^T factorization.
    Calls with N <= 2 NB, alpha = 0, K = 0 or arguments it does not know go to OpenBLAS' own
-   DGEMMT. Loaded by shellobstacle.blas (RTLD_GLOBAL, ahead of PETSc) and initialised with
-   the path of the OpenBLAS that PETSc links. */
+   DGEMMT (OpenBLAS issue 4921). Loaded by benchmarks/blocked_gemmt.py (RTLD_GLOBAL, ahead of
+   PETSc) and initialised with the path of the OpenBLAS that PETSc links. */
 #include <dlfcn.h>
 #include <stddef.h>
 

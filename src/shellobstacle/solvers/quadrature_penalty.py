@@ -24,15 +24,13 @@ from __future__ import annotations
 from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
 from petsc4py import PETSc
 
-import basix
-import basix.ufl
 import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 import ufl
 
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.rule import reference_rule
+from shellobstacle.penalty.rule import quadrature_space
 
 __all__ = [
     "SPARSE_ROWS",
@@ -41,28 +39,11 @@ __all__ = [
     "gap_scale",
     "penalty_factor",
     "penalty_hessian",
-    "penalty_rule",
-    "quadrature_space",
 ]
 
 #: a transpose product with values nonzero at most at this fraction of the points multiplies
 #: those rows of ``M`` only (:meth:`QuadraturePenalty.add_residual`)
 SPARSE_ROWS = 0.1
-
-
-def penalty_rule(problem: PenalizedProblem) -> tuple[np.ndarray, np.ndarray]:
-    """The reference points and weights of the problem's penalty rule
-    (:func:`~shellobstacle.penalty.rule.reference_rule`)."""
-    return reference_rule(problem.mesh.basix_cell(), problem.disc)
-
-
-def quadrature_space(problem: PenalizedProblem) -> dolfinx.fem.FunctionSpace:
-    """Scalar quadrature space whose points are those of the problem's penalty rule."""
-    points, weights = penalty_rule(problem)
-    element = basix.ufl.quadrature_element(
-        problem.mesh.basix_cell(), points=points, weights=weights
-    )
-    return dolfinx.fem.functionspace(problem.mesh, element)
 
 
 class QuadraturePenalty:

@@ -15,7 +15,7 @@ from mpi4py import MPI  # noqa: F401  (MPI before PETSc and DOLFINx)
 import dolfinx
 import numpy as np
 
-from shellobstacle.geometry.finiteness import Failure, first_failure, require_finite
+from shellobstacle.checks.finiteness import Failure, first_failure, require_finite
 from shellobstacle.geometry.surface import Geometry
 from shellobstacle.obstacle import Obstacle, from_spec
 from shellobstacle.spec import Shell
@@ -58,7 +58,7 @@ def sample_points(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
 
 CHUNK = 2**16
 """Points evaluated at a time: the geometry's temporaries stay small and are reused (at 2.6 M
-points at once they were ≈ 1 GB of fresh memory, slow to touch on some machines)."""
+points at once they would be ≈ 1 GB of fresh memory, slow to touch on some machines)."""
 
 Extreme = tuple[float, tuple[float, float]]
 
@@ -162,7 +162,7 @@ def check_assumptions(shell: Shell, mesh: dolfinx.mesh.Mesh) -> list[Check]:
 
     Raises:
         ExpressionError: θ, its derivatives or the load are not finite at a point of the mesh
-            (:mod:`shellobstacle.geometry.finiteness`): the assumptions are then meaningless.
+            (:mod:`shellobstacle.checks.finiteness`): the assumptions are then meaningless.
     """
     pts = sample_points(mesh)
     obstacle = from_spec(shell.obstacle, shell.material.epsilon)

@@ -35,7 +35,7 @@ import dolfinx.la
 import numpy as np
 import ufl
 
-from shellobstacle.penalty.quadrature import quadrature_space
+from shellobstacle.penalty.rule import quadrature_space
 
 __all__ = [
     "CONSTRAINTS",
