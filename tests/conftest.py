@@ -67,6 +67,7 @@ def shared_dir(tmp_path):
 #: would run on its own at the end)
 LONG_FIRST = (
     "test_docs.py",
+    "test_nonlinear_koiter.py",
     "test_manufactured.py",
     "test_adapt_experiment.py",
     "test_cli_fuzz.py",
