@@ -15,6 +15,7 @@ from hypothesis import settings
 
 from shellobstacle.compat import bootstrap
 from shellobstacle.geometry.surface import Surface
+from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.spec import Load, Material, Obstacle, Shell
 
 bootstrap()
@@ -52,6 +53,77 @@ def make_paper_shell(
         Obstacle(),
         model,
     )
+
+
+#: κ = h^1.5, the paper's coupling (docs/model.md §7)
+PENALTY = PenaltySpec(exponent=1.5)
+
+
+def square(comm=None, n: int = 24, half: float = 0.25):
+    """A structured mesh of ``[-half, half]²`` in ``n × n`` squares (the origin a vertex for
+    even ``n``), on ``comm`` (MPI.COMM_WORLD if None)."""
+    from mpi4py import MPI
+
+    import dolfinx
+
+    comm = MPI.COMM_WORLD if comm is None else comm
+    return dolfinx.mesh.create_rectangle(comm, [[-half, -half], [half, half]], [n, n])
+
+
+def ball(radius: float, side: str = "outside", **kw) -> Obstacle:
+    """The ball whose top touches the plane x3 = 0 at the origin."""
+    return Obstacle(kind="sphere", center=(0.0, 0.0, -radius), radius=radius, side=side, **kw)
+
+
+def solve_on(
+    obstacle: Obstacle,
+    method: str = "newton",
+    comm=None,
+    penalty: PenaltySpec | None = PENALTY,
+    discretization=None,
+    n: int = 24,
+    load: str | None = None,
+):
+    """The paper's shell over ``obstacle`` on :func:`square`, solved by ``method`` with
+    ``penalty`` (None: the exact problem), asserted converged; returns the result and its
+    contact figures."""
+    import dataclasses
+
+    from shellobstacle.api import solve
+    from shellobstacle.post.contact import Postprocessor
+
+    shell = dataclasses.replace(make_paper_shell(*([load] if load else [])), obstacle=obstacle)
+    r = solve(shell, square(comm, n), penalty, discretization, method=method)
+    assert r.converged, r.error
+    return r, Postprocessor(r.problem, r.constraint).contact()
+
+
+def owned_zeta(result):
+    """The owned dofs of a result's ζ (a copy)."""
+    V = result.problem.V
+    return result.problem.zeta.x.array[: V.dofmap.index_map.size_local * 3].copy()
+
+
+def global_max_abs(a) -> float:
+    """``max |a|`` over every rank."""
+    from mpi4py import MPI
+
+    import numpy as np
+
+    return MPI.COMM_WORLD.allreduce(float(np.max(np.abs(a), initial=0.0)), op=MPI.MAX)
+
+
+def displace_through_plane(problem) -> None:
+    """A smooth ζ, zero on :func:`square`'s boundary, that pushes the cap's top through the
+    plane (ζ_3 = −0.2 at the centre)."""
+    import numpy as np
+
+    def zeta(x: np.ndarray) -> np.ndarray:
+        b = (1 - 16 * x[0] ** 2) * (1 - 16 * x[1] ** 2)
+        return np.stack([0.3 * x[0] * x[1] * b, -0.2 * x[0] ** 2 * b, (-0.2 + x[1]) * b])
+
+    problem.zeta.interpolate(zeta)
+    problem.zeta.x.scatter_forward()
 
 
 @pytest.fixture

@@ -9,6 +9,7 @@ import dolfinx
 import numpy as np
 import pytest
 from conftest import make_paper_shell as paper_shell
+from conftest import square
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
@@ -24,11 +25,6 @@ from shellobstacle.spec import Discretization
 PULL_UP = "Piecewise(((2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 VERTEX = Discretization(penalty_quadrature="vertex")
 KKT_TOL = 1e-10
-
-
-def square(comm=MPI.COMM_WORLD, n: int = 24, half: float = 0.25) -> dolfinx.mesh.Mesh:
-    """A structured mesh of [-half, half]²."""
-    return dolfinx.mesh.create_rectangle(comm, [[-half, -half], [half, half]], [n, n])
 
 
 @pytest.fixture(scope="module")

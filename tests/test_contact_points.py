@@ -23,6 +23,8 @@ import dolfinx.la
 import numpy as np
 import pytest
 import ufl
+from conftest import displace_through_plane, square
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.api import solve
 from shellobstacle.models.problem import PenalizedProblem
@@ -30,8 +32,6 @@ from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor, contact_text
 from shellobstacle.post.points import NodePoints, QuadraturePoints
 from shellobstacle.spec import Discretization, Obstacle
-from tests.test_active_set import paper_shell, square
-from tests.test_obstacle import _displaced
 
 COMM = MPI.COMM_WORLD
 SMALL = Path(__file__).parents[1] / "examples" / "small.toml"
@@ -76,7 +76,7 @@ def test_contact_is_measured_where_the_constraint_acts_and_at_the_nodes(
     constraint acts there."""
     disc = Discretization(degree=degree, penalty_quadrature=rule)
     problem = PenalizedProblem(paper_shell(), square(COMM, 6), disc)
-    _displaced(problem)
+    displace_through_plane(problem)
     post = Postprocessor(problem, constraint)
     c = post.contact()
     assert (c["contact_points"], c["nodal_points"]) == (acting, nodal)

@@ -12,12 +12,12 @@ from mpi4py import MPI
 
 import numpy as np
 import pytest
+from conftest import ball, solve_on
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.obstacle import Sphere
 from shellobstacle.post.sides import facing
-from shellobstacle.spec import Obstacle
-from tests.test_active_set import paper_shell
-from tests.test_obstacle_kinds import VERTEX, _solve, ball
+from shellobstacle.spec import Discretization, Obstacle
 
 COMM = MPI.COMM_WORLD
 EXAMPLES = Path(__file__).parents[1] / "examples"
@@ -32,7 +32,7 @@ def test_a_ball_from_outside_is_a_local_solution_with_its_contact_on_the_near_si
     points (the summary's contact set) on the near side, serially and on 2 ranks."""
     nodal = method == "active-set"
     kw = {"penalty": None, "discretization": VERTEX} if nodal else {}
-    r, contact = _solve(ball(2.0), method, **kw)
+    r, contact = solve_on(ball(2.0), method, **kw)
     assert r.extra["local_solution"] is True
     assert "is not convex" in r.extra["local_solution_reason"]
     sides = r.extra["contact_sides"]
@@ -51,14 +51,17 @@ def test_a_ball_from_outside_is_a_local_solution_with_its_contact_on_the_near_si
     ids=["plane", "inside a ball"],
 )
 def test_a_convex_admissible_set_records_no_local_solution(obstacle: Obstacle) -> None:
-    r, contact = _solve(obstacle)
+    r, contact = solve_on(obstacle)
     assert contact["contact_area"] > 0
     assert "local_solution" not in r.extra and "contact_sides" not in r.extra
 
 
+VERTEX = Discretization(penalty_quadrature="vertex")
+
+
 def test_a_curved_g_of_unknown_convexity_is_a_local_solution() -> None:
     """A user's curved ``g`` (a paraboloid's graph, ``obstacle.convex`` None)."""
-    r, _ = _solve(Obstacle(kind="expression", g="x3 + x1**2 + x2**2"))
+    r, _ = solve_on(Obstacle(kind="expression", g="x3 + x1**2 + x2**2"))
     assert r.extra["local_solution"] is True
     assert "not known to be convex" in r.extra["local_solution_reason"]
     assert r.extra["contact_sides"]["near_points"] > 0

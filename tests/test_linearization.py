@@ -17,16 +17,19 @@ import dolfinx.fem.petsc
 import numpy as np
 import pytest
 import ufl
+from conftest import ball, global_max_abs, owned_zeta, solve_on, square
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.methods.base import MethodBase
 from shellobstacle.solvers.methods.newton import NewtonContinuation
 from shellobstacle.solvers.newton import NewtonSolver
 from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
-from tests.test_active_set import paper_shell, square
-from tests.test_obstacle_kinds import VERTEX, _max, _solve, _zeta, ball
+from shellobstacle.spec import Discretization
 
 COMM = MPI.COMM_WORLD
+
+VERTEX = Discretization(penalty_quadrature="vertex")
 
 
 def _csr(M) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -76,14 +79,16 @@ def built(monkeypatch) -> list[NewtonSolver]:
 def test_newton_keeps_its_solver_from_pass_to_pass(built, monkeypatch) -> None:
     """One Newton solver for all the passes on a ball, with the answer, the passes and the
     Newton steps of one solver built anew at every pass (the method keeping nothing)."""
-    kept, contact_kept = _solve(ball(10.0))
+    kept, contact_kept = solve_on(ball(10.0))
     assert len(built) == 1 and kept.extra["linearizations"] >= 2
     built.clear()
     monkeypatch.setattr(NewtonContinuation, "keeping", MethodBase.keeping)
-    anew, contact_anew = _solve(ball(10.0))
+    anew, contact_anew = solve_on(ball(10.0))
     assert len(built) == anew.extra["linearizations"] == kept.extra["linearizations"]
     assert kept.iterations == anew.iterations
-    assert _max(_zeta(kept) - _zeta(anew)) <= 1e-12 * _max(_zeta(anew))
+    assert global_max_abs(owned_zeta(kept) - owned_zeta(anew)) <= 1e-12 * global_max_abs(
+        owned_zeta(anew)
+    )
     assert contact_kept["contact_area"] == pytest.approx(contact_anew["contact_area"], rel=1e-12)
 
 
@@ -144,7 +149,7 @@ def test_the_passes_stop_on_the_curved_problems_residual() -> None:
     that stopped on the linearization's second-order error left 7.6e-9 after 2 passes."""
     from shellobstacle.solvers.linearization import RESIDUAL_RTOL, settled
 
-    r, _ = _solve(ball(2.0))
+    r, _ = solve_on(ball(2.0))
     passes = r.extra["linearization"]
     n = r.extra["linearizations"]
     for key in ("dzeta", "residual", "residual_target", "change"):
@@ -164,7 +169,7 @@ def test_the_exact_solvers_passes_stop_on_the_curved_kkt_conditions() -> None:
     the last meets the method's ``kkt_rtol``."""
     from shellobstacle.solvers.options import ActiveSetOptions
 
-    r, contact = _solve(ball(2.0), "active-set", penalty=None, discretization=VERTEX)
+    r, contact = solve_on(ball(2.0), "active-set", penalty=None, discretization=VERTEX)
     passes = r.extra["linearization"]
     assert "KKT" in passes["residual_of"]
     assert passes["residual"][0] > 1e-6  # the first pass: the gap linearized at ζ = 0
@@ -178,11 +183,13 @@ def test_aitkens_relaxation_shortens_the_passes_on_a_small_ball(monkeypatch) -> 
     Aitken's relaxation reaches the same answer in at most 13."""
     from shellobstacle.solvers import linearization
 
-    relaxed, _ = _solve(ball(0.035))
+    relaxed, _ = solve_on(ball(0.035))
     monkeypatch.setattr(linearization, "RELAXATION_BOUNDS", (1.0, 1.0))
-    plain, _ = _solve(ball(0.035))
+    plain, _ = solve_on(ball(0.035))
     assert relaxed.extra["linearizations"] <= 13
     assert plain.extra["linearizations"] >= relaxed.extra["linearizations"] + 4
     assert max(plain.extra["linearization"]["relaxation"]) == 1.0
     assert max(relaxed.extra["linearization"]["relaxation"]) > 1.0
-    assert _max(_zeta(relaxed) - _zeta(plain)) <= 1e-8 * _max(_zeta(plain))
+    assert global_max_abs(owned_zeta(relaxed) - owned_zeta(plain)) <= 1e-8 * global_max_abs(
+        owned_zeta(plain)
+    )

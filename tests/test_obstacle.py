@@ -13,6 +13,8 @@ import dolfinx.la
 import numpy as np
 import pytest
 import ufl
+from conftest import displace_through_plane
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.api import solve_config
 from shellobstacle.config.loader import load_config
@@ -22,24 +24,11 @@ from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.points import NodePoints, QuadraturePoints, constraint_points
 from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
 from shellobstacle.spec import Discretization
-from tests.test_active_set import paper_shell
 from tests.test_active_set_p2 import square
 
 COMM = MPI.COMM_WORLD
 PAPER = Path(__file__).parents[1] / "examples" / "paper.toml"
 KOITER_P2 = ["model.kind=koiter", "discretization.degree=2", "domain.h=0.06"]
-
-
-def _displaced(problem: PenalizedProblem) -> None:
-    """A smooth ζ, zero on the square's boundary, that pushes the cap's top through the plane
-    (ζ_3 = −0.2 at the centre)."""
-
-    def zeta(x: np.ndarray) -> np.ndarray:
-        b = (1 - 16 * x[0] ** 2) * (1 - 16 * x[1] ** 2)
-        return np.stack([0.3 * x[0] * x[1] * b, -0.2 * x[0] ** 2 * b, (-0.2 + x[1]) * b])
-
-    problem.zeta.interpolate(zeta)
-    problem.zeta.x.scatter_forward()
 
 
 def test_a_plane_needs_a_unit_normal() -> None:
@@ -53,7 +42,7 @@ def test_the_gap_at_points_is_the_ufl_gap_interpolated() -> None:
     """At the P2 nodes, ``at_points`` (NumPy) equals the UFL gap interpolated; at the penalty's
     Gauss points the interpolated UFL gap equals the penalty's ``g⁰ + Bζ``."""
     problem = PenalizedProblem(paper_shell(), square(6), Discretization(degree=2))
-    _displaced(problem)
+    displace_through_plane(problem)
     nodes = NodePoints(problem)
     g_ufl = nodes.gap()
     y = nodes.space.tabulate_dof_coordinates()[: nodes.n]
@@ -103,7 +92,7 @@ def test_the_indicator_carries_the_contact_area(constraint: str) -> None:
     with the vertices' weights ``m_i = Σ_k w_k √a(x_k) φ_i(x_k)`` is the contact area (as
     ``Σ_i φ_i = 1``), for the Gauss points and the P2 nodes; ``v`` is 1 inside the set."""
     problem = PenalizedProblem(paper_shell(), square(6), Discretization(degree=2))
-    _displaced(problem)
+    displace_through_plane(problem)
     post = Postprocessor(problem, constraint)
     area = post.contact()["contact_area"]
     n = post.P1.dofmap.index_map.size_local

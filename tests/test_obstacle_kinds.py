@@ -5,58 +5,24 @@ the exact solvers meet the curved constraint at the nodes."""
 
 from __future__ import annotations
 
-import dataclasses
-
 # isort: split
 from mpi4py import MPI
 
 import numpy as np
 import pytest
+from conftest import PENALTY, ball, global_max_abs, owned_zeta, solve_on
+from conftest import make_paper_shell as paper_shell
 
-from shellobstacle.api import solve
 from shellobstacle.obstacle import Sphere, from_spec
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.solvers.registry import METHODS
-from shellobstacle.solvers.result import SolveResult
 from shellobstacle.spec import Discretization, Obstacle
-from tests.test_active_set import paper_shell, square
 
 COMM = MPI.COMM_WORLD
-PENALTY = PenaltySpec(exponent=1.5)
 VERTEX = Discretization(penalty_quadrature="vertex")
 #: the paper's load widened to |y| < 0.15: five vertices of a 6 × 6 square touch (h ≈ 0.12)
 WIDE_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.15), (0, True))"
-
-
-def ball(radius: float, side: str = "outside", **kw) -> Obstacle:
-    """The ball whose top touches the plane x3 = 0 at the origin."""
-    return Obstacle(kind="sphere", center=(0.0, 0.0, -radius), radius=radius, side=side, **kw)
-
-
-def _solve(
-    obstacle: Obstacle,
-    method: str = "newton",
-    comm: MPI.Comm = COMM,
-    penalty: PenaltySpec | None = PENALTY,
-    discretization: Discretization | None = None,
-    n: int = 24,
-    load: str | None = None,
-) -> tuple[SolveResult, dict]:
-    shell = dataclasses.replace(paper_shell(*([load] if load else [])), obstacle=obstacle)
-    r = solve(shell, square(comm, n), penalty, discretization, method=method)
-    assert r.converged, r.error
-    return r, Postprocessor(r.problem, r.constraint).contact()
-
-
-def _zeta(r: SolveResult) -> np.ndarray:
-    """The owned dofs of ζ."""
-    V = r.problem.V
-    return r.problem.zeta.x.array[: V.dofmap.index_map.size_local * 3].copy()
-
-
-def _max(a: np.ndarray) -> float:
-    return COMM.allreduce(float(np.max(np.abs(a), initial=0.0)), op=MPI.MAX)
 
 
 @pytest.mark.parametrize("method", list(METHODS))
@@ -66,10 +32,10 @@ def test_a_plane_written_as_a_formula_is_the_plane(method: str) -> None:
     assert from_spec(expression).affine
     penalty, disc = (PENALTY, None) if METHODS[method].penalized else (None, VERTEX)
     kw = {"penalty": penalty, "discretization": disc, "n": 6, "load": WIDE_LOAD}
-    r_plane, c_plane = _solve(Obstacle(), method, **kw)
-    r_expr, c_expr = _solve(expression, method, **kw)
+    r_plane, c_plane = solve_on(Obstacle(), method, **kw)
+    r_expr, c_expr = solve_on(expression, method, **kw)
     assert not r_expr.problem.linearized
-    assert _max(_zeta(r_expr) - _zeta(r_plane)) <= 1e-14
+    assert global_max_abs(owned_zeta(r_expr) - owned_zeta(r_plane)) <= 1e-14
     assert c_expr["contact_area"] == pytest.approx(c_plane["contact_area"], rel=1e-12)
     assert c_plane["contact_area"] > 0
 
@@ -77,13 +43,13 @@ def test_a_plane_written_as_a_formula_is_the_plane(method: str) -> None:
 def test_a_large_ball_tends_to_the_plane_at_the_rate_one_over_r() -> None:
     """Within the contact region (radius ρ) the ball's surface is ``ρ²/(2R)`` below the plane,
     so ζ differs from the plane's by ``O(1/R)``: each tenfold R divides the difference by 10."""
-    zeta_plane = _zeta(_solve(Obstacle())[0])
+    zeta_plane = owned_zeta(solve_on(Obstacle())[0])
     errors = []
     for radius in (10.0, 100.0, 1000.0):
-        r, contact = _solve(ball(radius))
+        r, contact = solve_on(ball(radius))
         assert r.problem.linearized and r.extra["linearizations"] >= 2
         assert contact["contact_area"] > 0
-        errors.append(_max(_zeta(r) - zeta_plane))
+        errors.append(global_max_abs(owned_zeta(r) - zeta_plane))
     rates = np.log10(np.array(errors[:-1]) / np.array(errors[1:]))
     assert np.all(np.abs(rates - 1.0) < 0.02), (errors, rates)
 
@@ -96,22 +62,22 @@ def test_a_ball_too_large_for_the_stopping_test_settles_at_round_off() -> None:
     is the plane's to ``O(1/R)``."""
     from shellobstacle.solvers.linearization import DZETA_RTOL, RESIDUAL_RTOL
 
-    zeta_plane = _zeta(_solve(Obstacle(), n=12)[0])
-    r, _ = _solve(ball(1e5), n=12)
+    zeta_plane = owned_zeta(solve_on(Obstacle(), n=12)[0])
+    r, _ = solve_on(ball(1e5), n=12)
     passes = r.extra["linearization"]
     dzeta, residual = passes["dzeta"], passes["residual"]
     assert residual[-1] > RESIDUAL_RTOL and residual[-1] >= residual[-2]
     assert max(dzeta[-2:]) <= DZETA_RTOL
     assert r.extra["linearizations"] <= 4
-    assert _max(_zeta(r) - zeta_plane) < 1e-7
+    assert global_max_abs(owned_zeta(r) - zeta_plane) < 1e-7
 
 
 def test_the_lower_face_touches_about_epsilon_earlier() -> None:
     """The lower face θ − ε a_3 must stay above the plane: ζ_3 stops ε·(a_3·q) ≈ ε (a_3 ≈ e_3
     at the cap's top) higher."""
     epsilon = paper_shell().material.epsilon
-    middle = Postprocessor(_solve(Obstacle())[0].problem).zeta3_range()[0]
-    r, _ = _solve(Obstacle(contact_face="lower"))
+    middle = Postprocessor(solve_on(Obstacle())[0].problem).zeta3_range()[0]
+    r, _ = solve_on(Obstacle(contact_face="lower"))
     lower = Postprocessor(r.problem).zeta3_range()[0]
     assert lower - middle == pytest.approx(epsilon, rel=0.1)
 
@@ -119,11 +85,14 @@ def test_the_lower_face_touches_about_epsilon_earlier() -> None:
 def test_the_penalty_tends_to_the_exact_vi_on_a_ball_at_the_rate_kappa() -> None:
     """With the vertex penalty (the nodes' constraint, as the exact solver's), the penalized
     solution on a ball of radius 2 differs from active-set's by O(κ)."""
-    exact, exact_contact = _solve(ball(2.0), "active-set", penalty=None, discretization=VERTEX)
+    exact, exact_contact = solve_on(ball(2.0), "active-set", penalty=None, discretization=VERTEX)
     assert exact_contact["max_violation"] <= 1e-14  # the curved gap at the nodes, not its chord
-    z = _zeta(exact)
+    z = owned_zeta(exact)
     errors = [
-        _max(_zeta(_solve(ball(2.0), penalty=PenaltySpec(kappa=k), discretization=VERTEX)[0]) - z)
+        global_max_abs(
+            owned_zeta(solve_on(ball(2.0), penalty=PenaltySpec(kappa=k), discretization=VERTEX)[0])
+            - z
+        )
         for k in (1e-3, 1e-4, 1e-5)
     ]
     rates = np.log10(np.array(errors[:-1]) / np.array(errors[1:]))
@@ -153,7 +122,7 @@ def test_inside_and_outside_decide_convexity() -> None:
 @pytest.mark.parametrize("method", ["newton", "active-set"])
 def test_a_ball_on_two_ranks_equals_serial(method: str) -> None:
     penalty, disc = (PENALTY, None) if method == "newton" else (None, VERTEX)
-    results = [_solve(ball(2.0), method, comm, penalty, disc) for comm in (COMM, MPI.COMM_SELF)]
+    results = [solve_on(ball(2.0), method, comm, penalty, disc) for comm in (COMM, MPI.COMM_SELF)]
     (par, c_par), (ser, c_ser) = results
     assert par.extra["linearizations"] == ser.extra["linearizations"]
     for key in ("contact_area", "max_violation", "num_contact_nodes"):

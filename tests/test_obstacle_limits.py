@@ -10,10 +10,9 @@ import dataclasses
 # isort: split
 from mpi4py import MPI
 
-import dolfinx
 import numpy as np
 import pytest
-from conftest import make_paper_shell
+from conftest import make_paper_shell, square
 
 from shellobstacle.api import solve
 from shellobstacle.models.problem import PenalizedProblem
@@ -27,11 +26,6 @@ from shellobstacle.spec import Discretization, Obstacle
 COMM = MPI.COMM_WORLD
 
 
-def square(n: int, comm: MPI.Comm = COMM) -> dolfinx.mesh.Mesh:
-    """``[-0.25, 0.25]²`` in ``n × n`` squares (the origin a vertex for even ``n``)."""
-    return dolfinx.mesh.create_rectangle(comm, [[-0.25, -0.25], [0.25, 0.25]], [n, n])
-
-
 def on_ball(radius: float, centre_height: float | None = None) -> object:
     """The paper's cap over the ball of ``radius`` whose top is the plane x3 = 0's origin."""
     centre = (0.0, 0.0, -radius if centre_height is None else centre_height)
@@ -43,7 +37,7 @@ def on_ball(radius: float, centre_height: float | None = None) -> object:
 def test_a_point_at_the_balls_centre_is_an_error_that_names_it() -> None:
     """θ(0) + ζ̄₃ a³ at the ball's centre: ∇g is 0/0 there; linearizing there raises an error
     naming the centre and the point, while the reference shell (far from it) linearizes."""
-    problem = PenalizedProblem(on_ball(0.04, centre_height=-0.05), square(8), Discretization())
+    problem = PenalizedProblem(on_ball(0.04, centre_height=-0.05), square(n=8), Discretization())
     problem.linearize()  # the undeformed shell: 0.2 above the centre
     # θ₃(0) = 0.15 and a³ = e₃ at the origin: ζ₃ = −0.2 puts the origin at the centre
     problem.zeta.x.array.reshape(-1, 3)[:, 2] = -0.2
@@ -59,7 +53,7 @@ def test_a_point_on_the_cylinders_axis_is_an_error_on_every_rank() -> None:
         make_paper_shell(),
         obstacle=Obstacle(kind="cylinder", point=(0, 0, -0.05), axis=(1, 0, 0), radius=0.04),
     )
-    problem = PenalizedProblem(shell, square(8), Discretization())
+    problem = PenalizedProblem(shell, square(n=8), Discretization())
     problem.zeta.x.array.reshape(-1, 3)[:, 2] = -0.2
     with pytest.raises(SingularGradientError, match="cylinder's axis"):
         problem.linearize()
@@ -85,7 +79,7 @@ def test_a_ball_of_few_cells_is_warned_about_and_a_resolved_one_is_not() -> None
     and the cell size 0.07/4 that would resolve it; on cells half as large (4.7 cells) and for
     the ball of radius 2, no warning. Serially and on 2 ranks (a global verdict)."""
     penalty = PenaltySpec(exponent=1.5)
-    coarse = solve(on_ball(0.07), square(24), penalty)
+    coarse = solve(on_ball(0.07), square(n=24), penalty)
     points = QuadraturePoints(coarse.problem)
     warning = unresolved_obstacle(points, 1e-12)
     assert warning is not None
@@ -93,9 +87,9 @@ def test_a_ball_of_few_cells_is_warned_about_and_a_resolved_one_is_not() -> None
     assert f"at most {0.07 / RESOLVE_CELLS:.3g}" in warning
     # the vertices do not touch: nothing to judge there
     assert unresolved_obstacle(NodePoints(coarse.problem), 1e-12) is None
-    fine = solve(on_ball(0.07), square(48), penalty)
+    fine = solve(on_ball(0.07), square(n=48), penalty)
     assert unresolved_obstacle(QuadraturePoints(fine.problem), 1e-12) is None
-    large = solve(on_ball(2.0), square(24), penalty)
+    large = solve(on_ball(2.0), square(n=24), penalty)
     assert unresolved_obstacle(QuadraturePoints(large.problem), 1e-12) is None
 
 
@@ -105,7 +99,7 @@ def test_a_solve_that_reaches_the_centre_fails_with_the_error_as_its_message() -
     from shellobstacle.solvers.linearization import solve_with
     from shellobstacle.solvers.result import MethodResult
 
-    problem = PenalizedProblem(on_ball(0.04, centre_height=-0.05), square(8), Discretization())
+    problem = PenalizedProblem(on_ball(0.04, centre_height=-0.05), square(n=8), Discretization())
 
     class ThroughTheCentre:
         def solve(self, problem, h, kappas, options, say, progress=None) -> MethodResult:
