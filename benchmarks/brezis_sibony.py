@@ -25,7 +25,7 @@ from shellobstacle.config.loader import load_config
 from shellobstacle.experiments.common import fit_rate
 from shellobstacle.experiments.solvers import compare_solvers, write_solver_comparison
 from shellobstacle.mesh.domains import DomainSpec
-from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions
+from shellobstacle.solvers.brezis_sibony.iteration import BrezisSibonyOptions
 
 PAPER = Path(__file__).resolve().parents[1] / "src/shellobstacle/configs/paper.toml"
 

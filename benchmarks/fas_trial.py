@@ -5,7 +5,7 @@ The levels are those of ``solver.linear_solver = "multigrid"``: gmsh's mesh and 
 refinements (:func:`~shellobstacle.mesh.hierarchy.coarser_meshes`), with the same transfers
 (:func:`~shellobstacle.mesh.hierarchy.prolongation`). On every level a
 :class:`~shellobstacle.models.problem.PenalizedProblem` at the **same** κ and its
-:class:`~shellobstacle.solvers.system.PenalizedSystem` give the nonlinear operator
+:class:`~shellobstacle.solvers.newton.system.PenalizedSystem` give the nonlinear operator
 ``R_l(ζ) = K_l ζ − f_l + (1/κ) M_lᵀ min(g_l, 0)`` (the level's own Gauss points).
 
 One FAS V-cycle on level ``l`` (coarsest ``0``):
@@ -92,8 +92,8 @@ from shellobstacle.penalty.kappa import kappa_on_mesh
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.solvers import libpetsc
 from shellobstacle.solvers.linear.multigrid import CHEBYSHEV_INTERVAL, largest_eigenvalue
+from shellobstacle.solvers.newton.system import PenalizedSystem
 from shellobstacle.solvers.quadrature_penalty import rows_of
-from shellobstacle.solvers.system import PenalizedSystem
 
 PAPER = "examples/paper.toml"
 

@@ -24,9 +24,9 @@ from shellobstacle.config.loader import load_config
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear.multigrid import MultigridStrategy
-from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonSolver
 
 
 def main() -> None:

@@ -41,9 +41,9 @@ from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.solvers.base import direct_solver
-from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.nested import interpolate
-from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.nested import interpolate
+from shellobstacle.solvers.newton.solver import NewtonSolver
 
 
 def count(mask: np.ndarray, comm: MPI.Comm) -> int:

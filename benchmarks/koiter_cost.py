@@ -65,8 +65,8 @@ def solve(shell, mesh, degree: int, bending: str | None) -> dict:
     from shellobstacle.mesh.measures import mesh_size
     from shellobstacle.models.problem import PenalizedProblem
     from shellobstacle.penalty.spec import PenaltySpec
-    from shellobstacle.solvers.continuation import continuation
-    from shellobstacle.solvers.newton import NewtonSolver
+    from shellobstacle.solvers.newton.continuation import continuation
+    from shellobstacle.solvers.newton.solver import NewtonSolver
     from shellobstacle.spec import Discretization
 
     kappas = PenaltySpec(exponent=1.5).ladder(mesh_size(mesh))

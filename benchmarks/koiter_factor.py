@@ -44,8 +44,8 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
 
     from shellobstacle.models.problem import PenalizedProblem
     from shellobstacle.solvers.base import direct_solver, factorize
-    from shellobstacle.solvers.mumps import in_blocks
     from shellobstacle.solvers.zone.multipliers import HybridBlocks
+    from shellobstacle.solvers.zone.mumps import in_blocks
     from shellobstacle.spec import Discretization
 
     out = []

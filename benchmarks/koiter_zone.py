@@ -29,8 +29,8 @@ def rows(h: float, orderings: list[int]) -> list[dict]:
     from shellobstacle.models.problem import PenalizedProblem
     from shellobstacle.penalty.spec import PenaltySpec
     from shellobstacle.solvers.base import direct_solver, factorize
-    from shellobstacle.solvers.continuation import continuation
-    from shellobstacle.solvers.newton import NewtonSolver
+    from shellobstacle.solvers.newton.continuation import continuation
+    from shellobstacle.solvers.newton.solver import NewtonSolver
     from shellobstacle.solvers.zone.condensation import Condensation
     from shellobstacle.solvers.zone.multipliers import HybridBlocks
     from shellobstacle.spec import Discretization

@@ -29,8 +29,8 @@ from shellobstacle.io.paraview import write_paraview
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.plotting import plot_cross_section
-from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonSolver
 
 
 def main() -> None:

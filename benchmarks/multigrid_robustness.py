@@ -27,9 +27,9 @@ from record import PAPER, emit, timed_mesh
 
 from shellobstacle.config.loader import load_config
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.solvers.continuation import continuation
 from shellobstacle.solvers.linear.multigrid import SMOOTHERS, MultigridStrategy
-from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonSolver
 
 
 def main() -> None:

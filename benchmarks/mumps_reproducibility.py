@@ -25,8 +25,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parents[1]))
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
-from tests.test_newton import paper_shell, square
+from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
+from tests.solvers.test_newton import paper_shell, square
 
 
 def main() -> None:

@@ -29,7 +29,7 @@ from shellobstacle.config.loader import load_config
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.solvers.quadrature_penalty import penalty_rule
 from shellobstacle.spec import Discretization
 

@@ -57,8 +57,8 @@ from shellobstacle.experiments.common import fit_rate
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError
-from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonSolver
 from shellobstacle.solvers.options import (
     ActiveSetOptions,
     ProximalGalerkinOptions,

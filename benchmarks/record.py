@@ -35,7 +35,7 @@ from shellobstacle.solvers.linear import LinearStrategy
 from shellobstacle.solvers.linear.direct import DirectStrategy
 from shellobstacle.solvers.linear.iterative import IterativeStrategy
 from shellobstacle.solvers.linear.zone import ZoneStrategy
-from shellobstacle.solvers.newton import NewtonOptions
+from shellobstacle.solvers.newton.solver import NewtonOptions
 
 
 def petsc_blas() -> str:

@@ -21,8 +21,8 @@ import matplotlib.pyplot as plt
 from shellobstacle import Discretization, exact_solution, load_config, make_mesh
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import DifferenceNorms
-from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.newton import NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonSolver
 
 # examples/ of the repository: beside the script's folder (or a notebook's working folder)
 HERE = (Path(__file__).parent if "__file__" in globals() else Path.cwd()).resolve()

@@ -3,7 +3,8 @@ the paper's problem data shared by the tests; hypothesis made deterministic.
 
 Hypothesis draws the same examples on every run (profile ``deterministic``, the default), so
 that a random example can never fail CI by chance; ``HYPOTHESIS_PROFILE=random`` draws new
-ones and ten times as many (``HYPOTHESIS_PROFILE=random ./run test tests/test_config_fuzz.py``).
+ones and ten times as many
+(``HYPOTHESIS_PROFILE=random ./run test tests/config/test_config_fuzz.py``).
 """
 
 from __future__ import annotations

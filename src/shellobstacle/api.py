@@ -115,7 +115,7 @@ def solve(
             ``ProximalGalerkinOptions``); None: ``options`` if they are its type (Newton's),
             else its defaults.
         newton_progress: called as ``(iteration, relative residual)`` after every Newton
-            iteration (see :func:`~shellobstacle.solvers.continuation.continuation`).
+            iteration (see :func:`~shellobstacle.solvers.newton.continuation.continuation`).
         adapt: :class:`~shellobstacle.adapt.options.AdaptOptions`: solve on the mesh and its
             adaptive refinements (:func:`~shellobstacle.adapt.loop.adaptive_solve`); the
             result holds the last mesh's solution and, in ``extra["adapt"]``, every level.
@@ -237,13 +237,13 @@ def exact_solution(
 
     Returns:
         ``(zeta, result)``: a Function in the P1 vector space of ``mesh`` and the
-        :class:`~shellobstacle.solvers.active_set.ActiveSetResult` (KKT measures, the
+        :class:`~shellobstacle.solvers.vi.active_set.ActiveSetResult` (KKT measures, the
         multiplier and the contact pressure).
 
     Raises:
         ConvergenceError: the active set did not settle or the KKT conditions do not hold.
     """
-    from shellobstacle.solvers.active_set import ActiveSetSolver
+    from shellobstacle.solvers.vi.active_set import ActiveSetSolver
 
     disc = dataclasses.replace(
         discretization or Discretization(), penalty_quadrature="vertex", degree=1

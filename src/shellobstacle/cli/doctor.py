@@ -98,7 +98,7 @@ def report(installed: str) -> tuple[list[str], list[str]]:
 
     from shellobstacle import dependencies
     from shellobstacle.io.records import versions
-    from shellobstacle.solvers.mumps import selected_inverse_available
+    from shellobstacle.solvers.zone.mumps import selected_inverse_available
 
     v = versions()
     config = numpy_blas_config()

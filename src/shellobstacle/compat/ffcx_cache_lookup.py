@@ -7,7 +7,7 @@ at every hit, a cost that grows without bound. Fixed by FFCx pull request #887 (
 FFCx's main after 0.11.0: the module is found by its file name), in no release yet.
 :func:`locate_jit_modules_by_path` does the same for FFCx 0.11 (:data:`AFFECTED`) and nothing
 for any other release; drop this module when the FFCx pin moves past 0.11.
-``tests/test_jit_cache.py`` checks that FFCx 0.11's own lookup lists the folder and that the
+``tests/io/test_jit_cache.py`` checks that FFCx 0.11's own lookup lists the folder and that the
 replacement does not.
 """
 

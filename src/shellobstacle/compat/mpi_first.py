@@ -7,7 +7,7 @@ refuses a broken environment, a foreign petsc4py or both scalar variants install
 message that says what to uninstall). No upstream issue asks for another behaviour, and no
 release changes it: this applies wherever the wheel is installed (0.11.0.post0 today).
 ``import dolfinx`` first fails with ``libmpi.so.12: cannot open shared object file``
-(``tests/test_readme_commands.py`` checks that it still does, and that the start-up file of
+(``tests/cli/test_readme_commands.py`` checks that it still does, and that the start-up file of
 :mod:`.startup` makes it work). Other DOLFINx installs (conda-forge, Docker, source builds)
 have no such package and need nothing.
 """

@@ -52,8 +52,8 @@ from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import vm_norm
 from shellobstacle.post.sections import line_tree, mesh_extent
 from shellobstacle.progress import phase
-from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = [

@@ -39,8 +39,8 @@ from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import CrossSection
 from shellobstacle.post.validity import assess
 from shellobstacle.progress import phase
-from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.spec import Discretization, Load, Shell
 
 __all__ = [

@@ -38,8 +38,8 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.progress import phase
-from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = [

@@ -36,8 +36,8 @@ from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.progress import phase
-from shellobstacle.solvers.continuation import predict
-from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.continuation import predict
+from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = [

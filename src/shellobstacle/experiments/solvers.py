@@ -42,9 +42,9 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
 from shellobstacle.progress import note, phase
-from shellobstacle.solvers.brezis_sibony import BrezisSibonyOptions, BrezisSibonySolver
-from shellobstacle.solvers.continuation import continuation
-from shellobstacle.solvers.newton import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.brezis_sibony.iteration import BrezisSibonyOptions, BrezisSibonySolver
+from shellobstacle.solvers.newton.continuation import continuation
+from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = ["COLUMNS", "DEFAULT_SIZES", "compare_solvers", "write_solver_comparison"]

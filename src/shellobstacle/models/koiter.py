@@ -45,7 +45,7 @@ Tensor2 = list[list[Any]]
 DEFAULT_INTERIOR_PENALTY = 8.0
 """``σ`` of the facet penalty for P2 with ``h_F`` the mean diameter of the facet's cells:
 the value of the DOLFINx biharmonic demo. The solutions change by less than the
-discretization error between σ = 8 and σ = 32 (tests/test_koiter.py)."""
+discretization error between σ = 8 and σ = 32 (tests/models/test_koiter.py)."""
 
 
 def change_of_curvature(

@@ -247,7 +247,7 @@ def factorize(
     ranks). On INFOG(1) = −8 or −9 the analysis and factorization are made again with
     ICNTL(14) doubled, up to ``attempts`` times (setting it on the existing factor does not
     take); any other failure raises. ``prepare(pc)`` runs before every attempt (e.g.
-    :func:`~shellobstacle.solvers.mumps.in_blocks`); what it returns is kept until the
+    :func:`~shellobstacle.solvers.zone.mumps.in_blocks`); what it returns is kept until the
     attempt is over.
 
     Raises:

@@ -278,7 +278,7 @@ class CurvedResidual:
       ``g(ζ)`` and ``c(ζ)`` at the nodes (feasibility ``max {g}^- / max |g(θ)|``,
       complementarity ``max |λ g| / (max λ · max |g(θ)|)``, stationarity
       ``‖Kζ − f − c(ζ)ᵀλ‖ / ‖f‖``, the multiplier's sign), as the solver's own
-      (:class:`~shellobstacle.solvers.nodal_qp.NodalResult`); accepted at the method's
+      (:class:`~shellobstacle.solvers.vi.nodal_qp.NodalResult`); accepted at the method's
       ``kkt_rtol``.
     """
 
@@ -329,7 +329,7 @@ class CurvedResidual:
 
     def _kkt(self, multiplier: Any) -> float:
         """The largest relative KKT measure with the curved gap at the nodes."""
-        from shellobstacle.solvers.nodal import NodalConstraint
+        from shellobstacle.solvers.vi.nodal import NodalConstraint
 
         problem = self.problem
         nodal = NodalConstraint(problem)  # at ζ̄ = ζ: g(ζ) and c(ζ) at the nodes

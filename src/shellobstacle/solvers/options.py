@@ -69,7 +69,8 @@ def check_petsc_options(values: Mapping[str, Any]) -> None:
 
 @dataclass(frozen=True)
 class NewtonOptions:
-    """Stopping rules and linear strategy of :class:`~shellobstacle.solvers.newton.NewtonSolver`.
+    """Stopping rules and linear strategy of
+    :class:`~shellobstacle.solvers.newton.solver.NewtonSolver`.
 
     Attributes:
         rtol: stop when ``‖R(ζ)‖ ≤ rtol ‖R(0)‖`` (``R(0) = −`` load vector).
@@ -103,14 +104,14 @@ class NewtonOptions:
             solver's forcing terms, and CG preconditioned by a kept factorization).
         nested_iteration: ``"on"``: solve the κ ladder on the coarsest level of the mesh's
             refinements, then every finer level at the last κ only, each from the coarser
-            level's solution (:mod:`~shellobstacle.solvers.nested`; the membrane model on a
+            level's solution (:mod:`~shellobstacle.solvers.newton.nested`; the membrane model on a
             refined mesh; a curved obstacle's gap is linearized at each level's start); the
             finest level's result is that of the last κ.
             ``"auto"`` (the default): on one rank wherever the linear solver is multigrid and
-            the problem allows it (:func:`~shellobstacle.solvers.nested.nested_wanted`); with
+            the problem allows it (:func:`~shellobstacle.solvers.newton.nested.nested_wanted`); with
             the direct path's contact zone, whose steps are not relaxed, it is slower.
         normal_relaxation: after a Newton step that the line search cuts below ``t = 0.5``, try
-            the full step with ζ_3 relaxed (:mod:`~shellobstacle.solvers.normal_relaxation`;
+            the full step with ζ_3 relaxed (:mod:`~shellobstacle.solvers.newton.normal_relaxation`;
             the membrane model only). Nested iteration turns it on; not a config key.
         petsc_options: PETSc options for the method's solvers (:data:`PETSC_OPTIONS_HELP`).
     """
@@ -148,7 +149,7 @@ class NewtonOptions:
 @dataclass(frozen=True)
 class ActiveSetOptions:
     """Path-following schedule, limits and acceptance tolerance of the exact solver
-    (:class:`~shellobstacle.solvers.active_set.ActiveSetSolver`).
+    (:class:`~shellobstacle.solvers.vi.active_set.ActiveSetSolver`).
 
     Attributes:
         max_iterations: give up (and raise) after this many linear solves in total.
@@ -193,7 +194,7 @@ class ActiveSetOptions:
 @dataclass(frozen=True)
 class BrezisSibonyOptions:
     """Step, mass matrix, start and stopping rules of the Brezis–Sibony iteration
-    (:class:`~shellobstacle.solvers.brezis_sibony.BrezisSibonySolver`).
+    (:class:`~shellobstacle.solvers.brezis_sibony.iteration.BrezisSibonySolver`).
 
     Attributes:
         xi: ``Ξ`` of (38), the step being ``τ = Ξ h⁴``; ``None`` chooses
@@ -257,7 +258,7 @@ class BrezisSibonyOptions:
 @dataclass(frozen=True)
 class SnesVIOptions:
     """PETSc's VI Newton on the nodal problem
-    (:class:`~shellobstacle.solvers.snes_vi.SnesVISolver`).
+    (:class:`~shellobstacle.solvers.vi.snes_vi.SnesVISolver`).
 
     Attributes:
         vi_type: ``"rsls"`` (reduced space: Newton on the unknowns off their bounds,
@@ -319,7 +320,7 @@ class SnesVIOptions:
 @dataclass(frozen=True)
 class ProximalGalerkinOptions:
     """The latent-variable proximal point method on the nodal problem
-    (:class:`~shellobstacle.solvers.proximal_galerkin.ProximalGalerkinSolver`).
+    (:class:`~shellobstacle.solvers.vi.proximal_galerkin.ProximalGalerkinSolver`).
 
     The proximal parameter is ``α_k = α̂_k / P`` with ``P`` the largest nodal load pressure
     (``|f_i| / m_i``), so that ``α̂`` is dimensionless (a node pressed by the full load

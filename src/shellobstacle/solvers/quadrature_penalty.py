@@ -16,7 +16,7 @@ the penalty and its first two derivatives are
 exactly the values the UFL forms of :class:`~shellobstacle.models.problem.PenalizedProblem`
 assemble with the same rule. The membrane part of ``J_κ`` is quadratic, so Newton needs
 the membrane stiffness ``K`` once per mesh, and an exact line search needs only vector
-operations at the quadrature points (:mod:`shellobstacle.solvers.newton`).
+operations at the quadrature points (:mod:`shellobstacle.solvers.newton.solver`).
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 The Brezis–Sibony step and its contraction bound need the smallest eigenvalue of the
 stiffness and the largest of the all-active Jacobian, both against the mass matrix
-(:mod:`~shellobstacle.solvers.brezis_sibony`).
+(:mod:`~shellobstacle.solvers.brezis_sibony.iteration`).
 """
 
 from __future__ import annotations

@@ -1,7 +1,7 @@
 """How a Newton direction is solved: linear strategies behind one small interface.
 
 A strategy solves the Newton equation ``J δ = −R(ζ)`` of a
-:class:`~shellobstacle.solvers.system.PenalizedSystem` into its ``dz``:
+:class:`~shellobstacle.solvers.newton.system.PenalizedSystem` into its ``dz``:
 
 * :class:`~.zone.ZoneStrategy` (the default): exact solves condensed onto a contact zone,
   and steps on the zone's own condensed problem while the active points stay inside it;
@@ -25,8 +25,8 @@ from petsc4py import PETSc
 
 import numpy as np
 
+from shellobstacle.solvers.newton.system import PenalizedSystem
 from shellobstacle.solvers.options import NewtonOptions
-from shellobstacle.solvers.system import PenalizedSystem
 
 __all__ = ["LinearSolveError", "LinearStrategy", "make_strategy"]
 
@@ -40,7 +40,7 @@ class LinearSolveError(RuntimeError):
 
 
 class LinearStrategy(Protocol):
-    """What :class:`~shellobstacle.solvers.newton.NewtonSolver` asks of a linear strategy."""
+    """What :class:`~shellobstacle.solvers.newton.solver.NewtonSolver` asks of a linear strategy."""
 
     #: whether the continuation's Euler predictor may use :meth:`tangent`
     predicts: bool

@@ -18,7 +18,7 @@ import numpy as np
 
 from shellobstacle.solvers.base import factorization_pc, unique_prefix
 from shellobstacle.solvers.linear import LinearSolveError, active_changes
-from shellobstacle.solvers.system import PenalizedSystem
+from shellobstacle.solvers.newton.system import PenalizedSystem
 
 __all__ = ["REUSE_MAX_ITERATIONS", "DirectStrategy"]
 

@@ -39,8 +39,8 @@ import numpy as np
 
 from shellobstacle.solvers.base import set_options, unique_prefix
 from shellobstacle.solvers.linear import LinearSolveError
-from shellobstacle.solvers.seeds import coarse_penetration
-from shellobstacle.solvers.system import PenalizedSystem
+from shellobstacle.solvers.newton.seeds import coarse_penetration
+from shellobstacle.solvers.newton.system import PenalizedSystem
 
 __all__ = [
     "KEPT_ITERATION_FACTOR",
@@ -86,7 +86,7 @@ class IterativeStrategy:
         forcing: ``"eisenstat-walker"`` (inexact Newton) or ``"fixed"`` (every direction to
             ``rtol``: the iterations per step then measure the preconditioner alone).
         seed: take a solve's first step from an iterate without contact towards the seeded
-            model (:mod:`~shellobstacle.solvers.seeds`).
+            model (:mod:`~shellobstacle.solvers.newton.seeds`).
         finish: continue a direction whose full step keeps the active set to Newton's
             stopping threshold, the others solved to ``η_max = 0.1`` (False: Eisenstat–Walker's
             terms; ``"eisenstat-walker"`` forcing only).

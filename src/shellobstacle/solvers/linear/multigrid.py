@@ -71,8 +71,8 @@ from shellobstacle.solvers.linear.iterative import (
     KEPT_MIN_ITERATIONS,
     IterativeStrategy,
 )
+from shellobstacle.solvers.newton.system import PenalizedSystem
 from shellobstacle.solvers.quadrature_penalty import penalty_factor
-from shellobstacle.solvers.system import PenalizedSystem
 
 __all__ = [
     "CHEBYSHEV_INTERVAL",
@@ -111,7 +111,7 @@ class MultigridStrategy(IterativeStrategy):
         rtol: the smallest forcing term (and the tolerance of every solve with ``"fixed"``).
         forcing: ``"eisenstat-walker"`` or ``"fixed"`` (every direction to ``rtol``).
         seed: take a solve's first step from an iterate without contact towards the seeded
-            model (:mod:`~shellobstacle.solvers.seeds`).
+            model (:mod:`~shellobstacle.solvers.newton.seeds`).
         smoother: :data:`SMOOTHERS`, the preconditioner of the levels' Chebyshev iteration.
         levels: the most mesh levels to use (None: all the hierarchy has).
         finish: continue a direction that keeps the active set to Newton's threshold

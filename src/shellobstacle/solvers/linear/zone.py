@@ -7,7 +7,7 @@ Newton's steps are taken on the zone's own condensed problem
 complement; a full step (no zone yet, a zone too large, or an active point outside it) is
 solved exactly through the zone, and its penetration helps place the next zone. A solve that
 starts without contact builds its first zone where a coarse-grid step penetrates
-(:mod:`~shellobstacle.solvers.seeds`), before any factorization of ``K``.
+(:mod:`~shellobstacle.solvers.newton.seeds`), before any factorization of ``K``.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ import dolfinx
 import numpy as np
 
 from shellobstacle.solvers.linear.direct import REUSE_MAX_ITERATIONS
-from shellobstacle.solvers.mumps import selected_inverse_available
-from shellobstacle.solvers.seeds import coarse_penetration
-from shellobstacle.solvers.system import PenalizedSystem
+from shellobstacle.solvers.newton.seeds import coarse_penetration
+from shellobstacle.solvers.newton.system import PenalizedSystem
 from shellobstacle.solvers.zone.contact_zone import ContactZone
+from shellobstacle.solvers.zone.mumps import selected_inverse_available
 from shellobstacle.solvers.zone.reduced import ZoneModel
 
 __all__ = ["ZONE_MAX_FRACTION", "ZoneStrategy", "zone_available"]

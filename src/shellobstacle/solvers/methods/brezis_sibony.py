@@ -14,7 +14,8 @@ __all__ = ["BrezisSibonyMethod"]
 
 
 class BrezisSibonyMethod(MethodBase):
-    """:class:`~shellobstacle.solvers.brezis_sibony.BrezisSibonySolver` at the last κ of the
+    """:class:`~shellobstacle.solvers.brezis_sibony.iteration.BrezisSibonySolver` at the last κ of
+    the
     ladder (no continuation); reaching its iteration cap is reported, not raised."""
 
     name = "brezis-sibony"
@@ -47,7 +48,7 @@ class BrezisSibonyMethod(MethodBase):
         newton_progress: Any = None,
     ) -> MethodResult:
         """The iteration (38) at ``kappas[-1]`` from ``options.start``."""
-        from shellobstacle.solvers.brezis_sibony import BrezisSibonySolver
+        from shellobstacle.solvers.brezis_sibony.iteration import BrezisSibonySolver
 
         kappa = kappas[-1]
         say(

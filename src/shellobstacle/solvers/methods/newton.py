@@ -18,12 +18,12 @@ __all__ = ["NewtonContinuation"]
 
 class NewtonContinuation(MethodBase):
     """Newton's method at each κ of the ladder, warm-started from the previous κ
-    (:func:`~shellobstacle.solvers.continuation.continuation`).
+    (:func:`~shellobstacle.solvers.newton.continuation.continuation`).
 
     Inside :meth:`keeping` its solver of a problem is kept from one solve to the next and
     refreshed for the problem's new linearized gap
-    (:meth:`~shellobstacle.solvers.newton.NewtonSolver.refresh`) instead of built again.
-    Nested iteration (:mod:`~shellobstacle.solvers.nested`), where asked for, runs on the
+    (:meth:`~shellobstacle.solvers.newton.solver.NewtonSolver.refresh`) instead of built again.
+    Nested iteration (:mod:`~shellobstacle.solvers.newton.nested`), where asked for, runs on the
     first solve only: a curved obstacle's later passes go on from the finest mesh's answer.
     """
 
@@ -66,9 +66,9 @@ class NewtonContinuation(MethodBase):
         """The continuation over ``kappas``; a κ that fails ends it, reported in the result
         with the earlier κ's steps and the failed one's."""
         from shellobstacle.progress import phase
-        from shellobstacle.solvers.continuation import KappaStep, continuation
-        from shellobstacle.solvers.nested import nested_start, nested_wanted
-        from shellobstacle.solvers.newton import NewtonResult, NewtonSolver
+        from shellobstacle.solvers.newton.continuation import KappaStep, continuation
+        from shellobstacle.solvers.newton.nested import nested_start, nested_wanted
+        from shellobstacle.solvers.newton.solver import NewtonResult, NewtonSolver
 
         asked = options or NewtonOptions()  # (None: the defaults, whose "auto" may nest)
         kept = self._kept.get(problem)  # a later pass inside keeping(): its solver, no nesting

@@ -32,7 +32,7 @@ class NodalMethod(MethodBase):
 
     def solver(self, problem: Any, options: Any = None) -> Any:
         """The solver of this method on ``problem`` (its ``solve()`` returns a
-        :class:`~shellobstacle.solvers.nodal_qp.NodalResult`)."""
+        :class:`~shellobstacle.solvers.vi.nodal_qp.NodalResult`)."""
         raise NotImplementedError
 
     def solve(
@@ -85,8 +85,8 @@ class ActiveSetMethod(NodalMethod):
     }
 
     def solver(self, problem: Any, options: ActiveSetOptions | None = None) -> Any:
-        """:class:`~shellobstacle.solvers.active_set.ActiveSetSolver` on ``problem``."""
-        from shellobstacle.solvers.active_set import ActiveSetSolver
+        """:class:`~shellobstacle.solvers.vi.active_set.ActiveSetSolver` on ``problem``."""
+        from shellobstacle.solvers.vi.active_set import ActiveSetSolver
 
         return ActiveSetSolver(problem, options)
 
@@ -108,8 +108,8 @@ class SnesVIMethod(NodalMethod):
     }
 
     def solver(self, problem: Any, options: SnesVIOptions | None = None) -> Any:
-        """:class:`~shellobstacle.solvers.snes_vi.SnesVISolver` on ``problem``."""
-        from shellobstacle.solvers.snes_vi import SnesVISolver
+        """:class:`~shellobstacle.solvers.vi.snes_vi.SnesVISolver` on ``problem``."""
+        from shellobstacle.solvers.vi.snes_vi import SnesVISolver
 
         return SnesVISolver(problem, options)
 
@@ -139,8 +139,8 @@ class ProximalGalerkinMethod(NodalMethod):
         return super().options_from(values)
 
     def solver(self, problem: Any, options: ProximalGalerkinOptions | None = None) -> Any:
-        """:class:`~shellobstacle.solvers.proximal_galerkin.ProximalGalerkinSolver` on
+        """:class:`~shellobstacle.solvers.vi.proximal_galerkin.ProximalGalerkinSolver` on
         ``problem``."""
-        from shellobstacle.solvers.proximal_galerkin import ProximalGalerkinSolver
+        from shellobstacle.solvers.vi.proximal_galerkin import ProximalGalerkinSolver
 
         return ProximalGalerkinSolver(problem, options)

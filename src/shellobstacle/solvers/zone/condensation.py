@@ -10,7 +10,7 @@ every active point and the rest ``I``:
 ``K_II`` depends neither on κ nor on the active set: it is factorized once per zone. ``T`` is
 nonzero only on the dofs ``Γ ⊂ Z`` coupled to ``I`` and needs only the entries of ``K_II⁻¹`` on
 the dofs ``I' ⊂ I`` coupled to ``Z``: ``T = K_ΓI' [K_II⁻¹]_{I'I'} K_I'Γ``, from MUMPS' selected
-inverse entries (:func:`~shellobstacle.solvers.mumps.inverse_block`). A Newton step then
+inverse entries (:func:`~shellobstacle.solvers.zone.mumps.inverse_block`). A Newton step then
 factorizes only ``S`` (the zone's sparse matrix plus a dense ``|Γ|×|Γ|`` block, a few
 thousand dofs; on several ranks by all of them together) and solves
 
@@ -34,10 +34,10 @@ from petsc4py import PETSc
 
 import numpy as np
 
-from shellobstacle.solvers.mumps import ReplicatedFactor
 from shellobstacle.solvers.zone.graph import union, unique
 from shellobstacle.solvers.zone.interior import InteriorFactor
 from shellobstacle.solvers.zone.multipliers import HybridBlocks, penalty_entries
+from shellobstacle.solvers.zone.mumps import ReplicatedFactor
 
 __all__ = ["Condensation"]
 

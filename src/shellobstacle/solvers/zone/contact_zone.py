@@ -21,11 +21,11 @@ from petsc4py import PETSc
 import numpy as np
 
 from shellobstacle.solvers.base import direct_solver, factorize
-from shellobstacle.solvers.mumps import in_blocks
 from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.graph import csr, dilate, dofs_of, inside, union
 from shellobstacle.solvers.zone.multipliers import HybridBlocks
+from shellobstacle.solvers.zone.mumps import in_blocks
 from shellobstacle.solvers.zone.reduced import ZoneProblem
 
 __all__ = ["DILATION", "ContactZone"]

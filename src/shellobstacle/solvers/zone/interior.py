@@ -8,7 +8,7 @@ from petsc4py import PETSc
 import numpy as np
 
 from shellobstacle.solvers.base import direct_solver, factorize
-from shellobstacle.solvers.mumps import in_blocks, inverse_block
+from shellobstacle.solvers.zone.mumps import in_blocks, inverse_block
 
 __all__ = ["InteriorFactor"]
 
@@ -21,7 +21,7 @@ class InteriorFactor:
         isI: the owned rows of ``I``.
         factorization: MUMPS ``"lu"`` or ``"cholesky"``.
         blocks: sizes of the blocks of consecutive rows of ``K_II`` that MUMPS orders as one
-            node each (:func:`~shellobstacle.solvers.mumps.in_blocks`), or None:
+            node each (:func:`~shellobstacle.solvers.zone.mumps.in_blocks`), or None:
             those of ``K``'s block size.
     """
 

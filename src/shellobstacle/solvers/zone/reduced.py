@@ -32,9 +32,9 @@ from petsc4py import PETSc
 import numpy as np
 
 from shellobstacle.solvers.base import unique_prefix
-from shellobstacle.solvers.line_search import exact_step
+from shellobstacle.solvers.newton.line_search import exact_step
+from shellobstacle.solvers.newton.system import PenalizedSystem, abs_row_sums, floor_of
 from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty, gap_scale, penalty_hessian
-from shellobstacle.solvers.system import PenalizedSystem, abs_row_sums, floor_of
 from shellobstacle.solvers.zone.condensation import Condensation
 
 __all__ = ["ZoneModel", "ZoneProblem"]
@@ -233,7 +233,7 @@ class ZoneModel:
         problem: the zone's problem.
         system: the whole problem (its ``ζ`` is gathered now, completed by :meth:`complete`).
         seed: the zone's points to start from as active (a solve from an iterate without
-            contact: :mod:`~shellobstacle.solvers.seeds`), or None.
+            contact: :mod:`~shellobstacle.solvers.newton.seeds`), or None.
         budget: CG iterations allowed with a kept factorization of ``S``.
         rtol: CG's relative tolerance.
     """
