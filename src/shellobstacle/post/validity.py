@@ -22,6 +22,16 @@ over itself. Scale-free measures, computed after every solve:
 ``orientation``
     ``min a_3 · (ã_1 ∧ ã_2) / √a`` with the deformed tangent vectors ``ã_α = a_α + ∂_α U``,
     ``U = ζ_i a^i``: 1 for no deformation, ``≤ 0`` where the deformed surface folds over.
+``nonlinearity``
+    ``E(N) / E(ζ)``: the elastic energy of the quadratic strain ``N_αβ = ½ ∂_αU·∂_βU`` that the
+    linear strain ``γ_αβ`` leaves out of the Green–Lagrange strain ``½(ã_α·ã_β − a_αβ)``
+    (``U = ζ_i a^i``, ``ã_α = a_α + ∂_αU``), weighed as the membrane energy
+    ``½ ε ∫ a^{αβστ} N_στ N_αβ √a dy``, against the elastic energy of the solution. It grows
+    like the load squared. Beyond :data:`NONLINEARITY` the linear kinematics are not credible:
+    on the clamped plate of docs/model.md §11 (deflections of 0.3 thickness and more) the
+    linear deflection is then more than 5 % too large against the Föppl–von Kármán plate's.
+    A warning, not a violation: the command line's exit status stays 0 while the
+    configuration cannot select geometrically nonlinear kinematics.
 ``penalty_ratio``
     the penetration against ``κ max(√a |p|) / ε``, the penetration at which the penalty force
     ``(ε/κ) {g}^-`` balances the load at a point (docs/model.md §4): how many times the largest
@@ -46,7 +56,9 @@ import dolfinx.fem
 import numpy as np
 import ufl
 
-__all__ = ["THRESHOLDS", "Validity", "assess"]
+from shellobstacle.models.membrane import elastic_product
+
+__all__ = ["NONLINEARITY", "THRESHOLDS", "Validity", "assess"]
 
 #: Largest accepted value of each measure (``orientation``: smallest accepted value).
 THRESHOLDS: dict[str, float] = {
@@ -54,6 +66,10 @@ THRESHOLDS: dict[str, float] = {
     "displacement": 0.25,
     "orientation": 0.0,
 }
+#: Largest ``nonlinearity`` for which the linear kinematics are credible: on the clamped plate
+#: of docs/model.md §11 (ν = 0.3) the linear centre deflection is 5 % above the Föppl–von
+#: Kármán plate's where the measure is 0.035 (linear deflection 0.33 thickness).
+NONLINEARITY = 0.035
 #: Smallest displacement (of the shell's size) a loaded solution may have: a few hundred times
 #: the double-precision round-off of θ's coordinates.
 TRIVIAL = 1e-13
@@ -83,6 +99,12 @@ class Validity:
     penalty_ratio: float | None
     thresholds: dict[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
     loaded: bool = True  # the load is not zero everywhere (else ζ = 0 is the solution)
+    nonlinearity: float = 0.0
+
+    @property
+    def beyond_linear_kinematics(self) -> bool:
+        """The neglected quadratic strain is not small (``nonlinearity > NONLINEARITY``)."""
+        return self.nonlinearity > NONLINEARITY
 
     @property
     def violations(self) -> list[str]:
@@ -115,6 +137,15 @@ class Validity:
             else:
                 what = f"{name} {getattr(self, name):.3g} > {t[name]:g} "
             lines.append("outside the model's validity: " + what + _EXPLAIN[name])
+        if self.beyond_linear_kinematics:
+            scale = (NONLINEARITY / self.nonlinearity) ** 0.5
+            lines.append(
+                f"beyond linear kinematics: nonlinearity {self.nonlinearity:.3g} > "
+                f"{NONLINEARITY:g} (the energy of the quadratic strain ½∂U·∂U the linear model "
+                "neglects, against the solution's elastic energy; it grows like the load "
+                f"squared): the displacement is credible for loads up to about {scale:.2g} "
+                "times this one (docs/model.md §11)"
+            )
         return lines
 
     def as_dict(self) -> dict[str, Any]:
@@ -128,6 +159,9 @@ class Validity:
             "thresholds": dict(self.thresholds),
             "loaded": self.loaded,
             "violations": self.violations,
+            "nonlinearity": self.nonlinearity,
+            "nonlinearity_threshold": NONLINEARITY,
+            "beyond_linear_kinematics": self.beyond_linear_kinematics,
         }
 
 
@@ -171,7 +205,23 @@ def assess(post: Any, kappa: float) -> Validity:
         eps = float(problem.shell.material.epsilon)
         ratio = violation / (kappa * pmax / eps)
     displacement = umax / size if size > 0 else float("inf")
-    return Validity(penetration, displacement, omin, ratio, loaded=pmax > 0)
+    return Validity(
+        penetration, displacement, omin, ratio, loaded=pmax > 0, nonlinearity=nonlinearity(problem)
+    )
+
+
+def nonlinearity(problem: Any) -> float:
+    """The ``nonlinearity`` of the module docstring at ``problem``'s current ``ζ`` (0 where the
+    solution has no elastic energy)."""
+    G, zeta, material = problem.G, problem.zeta, problem.shell.material
+    dU = [ufl.as_vector(G.cartesian([zeta[i] for i in range(3)])).dx(al) for al in range(2)]
+    N = [[0.5 * ufl.dot(dU[al], dU[be]) for be in range(2)] for al in range(2)]
+    density = elastic_product(G, material.lam, material.mu, N, N)
+    form = dolfinx.fem.form(0.5 * material.epsilon * density * G.sqrt_a * problem.dx)
+    neglected = problem.mesh.comm.allreduce(dolfinx.fem.assemble_scalar(form))
+    problem.update_multiplier()  # the hybrid form's energy holds at ζ once t is t(ζ)
+    elastic = problem.scalar("elastic_energy")
+    return float(neglected / elastic) if elastic > 0 else 0.0
 
 
 def _cell_values(expr: Any, space: dolfinx.fem.FunctionSpace, mesh: dolfinx.mesh.Mesh):
