@@ -84,7 +84,7 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 
-from shellobstacle.api import make_mesh, solve
+from shellobstacle.api import make_mesh, solve_problem
 from shellobstacle.config.loader import load_config
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.models.problem import PenalizedProblem
@@ -510,7 +510,9 @@ def solve_package(cfg, mesh, linear_solver: str) -> dict:
     """The package's own continuation on ``mesh``."""
     options = dataclasses.replace(cfg.solver, linear_solver=linear_solver)
     c0 = time.process_time()
-    result = solve(cfg.shell, mesh, cfg.penalty, cfg.discretization, options, force=True)
+    result = solve_problem(
+        cfg.shell, mesh, cfg.penalty, cfg.discretization, options=options, force=True
+    )
     cpu = time.process_time() - c0
     newton = [s.iterations for s in result.steps]
     krylov = [n for s in result.steps for n in s.record.linear_iterations]

@@ -38,11 +38,11 @@ from mpi4py import MPI
 
 import numpy as np
 
-from shellobstacle.api import solve_config
+from shellobstacle.api import solve
 from shellobstacle.config.loader import load_config
 from shellobstacle.mesh.domains import coarsening_steps
 from shellobstacle.post.contact import Postprocessor
-from shellobstacle.solvers.options import LINEAR_SOLVERS
+from shellobstacle.solvers.newton.options import LINEAR_SOLVERS
 
 PAPER = "examples/paper.toml"
 
@@ -71,7 +71,7 @@ def run(
     )
     load = os.getloadavg()[0]
     t0, c0 = time.perf_counter(), time.process_time()
-    result = solve_config(cfg, force=force)
+    result = solve(cfg, force=force)
     seconds, cpu = time.perf_counter() - t0, time.process_time() - c0
     area = Postprocessor(result.problem).contact()["contact_area"]
     newton = [s.iterations for s in result.steps]

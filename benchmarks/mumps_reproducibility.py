@@ -23,10 +23,12 @@ from petsc4py import PETSc
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).parents[1]))
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
+from conftest import make_paper_shell as paper_shell
+from conftest import square
+
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
-from tests.solvers.test_newton import paper_shell, square
 
 
 def main() -> None:

@@ -16,7 +16,7 @@ import statistics
 import time
 from pathlib import Path
 
-from shellobstacle.api import solve_config
+from shellobstacle.api import solve
 from shellobstacle.config.loader import load_config
 from shellobstacle.post.contact import Postprocessor
 
@@ -25,7 +25,7 @@ EXAMPLES = Path(__file__).parents[1] / "examples"
 
 def one(path: Path, overrides: list[str]) -> tuple[float, str]:
     t = time.perf_counter()
-    r = solve_config(load_config(path, overrides))
+    r = solve(load_config(path, overrides))
     seconds = time.perf_counter() - t
     assert r.converged, r.error
     area = Postprocessor(r.problem, r.constraint).contact()["contact_area"]

@@ -28,7 +28,7 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 
-from shellobstacle.api import solve
+from shellobstacle.api import solve_problem
 from shellobstacle.geometry.surface import Surface
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor
@@ -63,7 +63,7 @@ PAPER_PENALTY = PenaltySpec(exponent=1.5)
 def run(shell: Shell, n: int, penalty=PAPER_PENALTY, disc=None, method="newton"):
     """Solve; ``(ζ at the vertices (n+1)² × 3, result, contact, seconds)``."""
     t = time.perf_counter()
-    r = solve(shell, square(n), penalty, disc, method=method)
+    r = solve_problem(shell, square(n), penalty, disc, method=method)
     seconds = time.perf_counter() - t
     assert r.converged, r.error
     V = r.problem.V

@@ -59,7 +59,7 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.newton.continuation import continuation
 from shellobstacle.solvers.newton.solver import NewtonSolver
-from shellobstacle.solvers.options import (
+from shellobstacle.solvers.vi.options import (
     ActiveSetOptions,
     ProximalGalerkinOptions,
     SnesVIOptions,

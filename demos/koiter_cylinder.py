@@ -9,6 +9,7 @@
 import matplotlib.pyplot as plt
 
 from shellobstacle import (
+    Config,
     Discretization,
     DomainSpec,
     Load,
@@ -18,7 +19,6 @@ from shellobstacle import (
     Surface,
     solve,
 )
-from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.sections import cross_section
 
 panel = Surface.from_strings(["y1", "y2", "sqrt(1 - y1**2) - 0.9"])  # 0.1 above x3 = 0
@@ -28,13 +28,13 @@ domain = DomainSpec("rectangle", corners=((-0.3, -0.4), (0.3, 0.4)), h=0.02)
 
 def press(epsilon: float):
     shell = Shell(panel, Material(epsilon, lam=0.4, mu=0.3), pressure, model="koiter")
-    result = solve(shell, domain, PenaltySpec(exponent=3.0), Discretization(degree=2))
+    result = solve(Config(shell, domain, Discretization(degree=2), PenaltySpec(exponent=3.0)))
     assert result.converged
     return result
 
 
 results = {epsilon: press(epsilon) for epsilon in (0.01, 0.02)}
-thin, thick = (Postprocessor(r.problem).summary() for r in results.values())
+thin, thick = (r.post.summary() for r in results.values())
 print(f"ε = 0.01: contact area {thin['contact_area']:.4e}, lowest ζ_3 {thin['zeta3_min']:.4f}")
 print(f"ε = 0.02: contact area {thick['contact_area']:.4e}, lowest ζ_3 {thick['zeta3_min']:.4f}")
 # -

@@ -6,18 +6,18 @@
 # elliptic on ω, or one that already crosses the plane.
 
 # +
-from shellobstacle import DomainSpec, Load, Material, PenaltySpec, Shell, Surface, solve
-from shellobstacle.post.contact import Postprocessor
+from shellobstacle import Config, DomainSpec, Load, Material, PenaltySpec, Shell, Surface, solve
 
 shell = Shell(
     Surface.from_strings(["y1", "y2", "0.3 - 0.8*y1**2 - 0.5*y2**2"]),
     Material(epsilon=1e-3, lam=0.4, mu=0.012),
     Load(("0", "0", "-5e-5*exp(-100*r**2)")),
 )
-result = solve(shell, DomainSpec("disk", radius=0.5, h=0.04), PenaltySpec(kappa=1e-8))
+domain = DomainSpec("disk", radius=0.5, h=0.04)
+result = solve(Config(shell, domain, penalty=PenaltySpec(kappa=1e-8)))
 print(f"converged {result.converged}, Newton steps {result.iterations}")
 # -
 
 # +
-summary = Postprocessor(result.problem).summary()
+summary = result.post.summary()
 print(f"contact area {summary['contact_area']:.4e}, lowest ζ_3 {summary['zeta3_min']:.4e}")

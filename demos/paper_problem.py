@@ -11,8 +11,7 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 
-from shellobstacle import load_config, solve_config
-from shellobstacle.post.contact import Postprocessor
+from shellobstacle import load_config, solve
 from shellobstacle.post.sections import cross_section
 
 # examples/ of the repository: beside the script's folder (or a notebook's working folder)
@@ -22,11 +21,11 @@ cfg = load_config(EXAMPLES / "paper.toml", ["domain.h=0.04"])
 print(cfg.shell.surface.description)
 # -
 
-# `solve_config` meshes ω, checks the assumptions (ellipticity of θ, the reference shell
+# `solve` meshes ω, checks the assumptions (ellipticity of θ, the reference shell
 # above the plane, the load's regularity) and runs the continuation in κ.
 
 # +
-result = solve_config(cfg)
+result = solve(cfg)
 for check in result.checks:
     print(f"{check.name:34s} {check.quantity} = {check.value:.3g} ({check.requirement})")
 print(f"h = {result.h:.4f}, κ = {result.kappa:.3e}, Newton steps {result.iterations}")
@@ -35,7 +34,7 @@ print(f"h = {result.h:.4f}, κ = {result.kappa:.3e}, Newton steps {result.iterat
 # The contact region: where the deformed shell touches the plane (to the penalty's
 # tolerance), its area on the surface (with `√a dy`) and projected onto ω.
 
-summary = Postprocessor(result.problem).summary()
+summary = result.post.summary()
 for key in ("contact_area", "contact_area_projected", "max_violation", "zeta3_min"):
     print(f"{key:24s} {summary[key]:.4e}")
 

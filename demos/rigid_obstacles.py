@@ -9,8 +9,17 @@
 # +
 import dataclasses
 
-from shellobstacle import DomainSpec, Load, Material, Obstacle, PenaltySpec, Shell, Surface, solve
-from shellobstacle.post.contact import Postprocessor
+from shellobstacle import (
+    Config,
+    DomainSpec,
+    Load,
+    Material,
+    Obstacle,
+    PenaltySpec,
+    Shell,
+    Surface,
+    solve,
+)
 
 load = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
 cap = Shell(Surface.spherical_cap(1.0, 0.85), Material(1e-3, 0.4, 0.012), Load(("0", "0", load)))
@@ -31,9 +40,9 @@ cases = {
 print(f"{'obstacle':20s} {'passes':>6s} {'Newton':>6s} {'contact area':>12s} {'min ζ_3':>10s}")
 rows = {}
 for name, obstacle in cases.items():
-    result = solve(dataclasses.replace(cap, obstacle=obstacle), domain, penalty)
-    post = Postprocessor(result.problem, result.constraint)
-    area, lowest = post.contact()["contact_area"], post.zeta3_range()[0]
+    shell = dataclasses.replace(cap, obstacle=obstacle)
+    result = solve(Config(shell, domain, penalty=penalty))
+    area, lowest = result.contact.area, result.post.zeta3_range()[0]
     rows[name] = (result, area, lowest)
     passes = result.extra.get("linearizations", "-")
     print(f"{name:20s} {passes!s:>6s} {result.iterations:6d} {area:12.4e} {lowest:10.5f}")

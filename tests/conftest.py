@@ -1,5 +1,7 @@
 """Test configuration: the DOLFINx wheel's environment is checked once, as the command does;
-the paper's problem data shared by the tests; hypothesis made deterministic.
+the paper's problem data and the meshes, solves and linear algebra shared by the tests
+(imported as ``from conftest import ...``: a test module never imports another); hypothesis
+made deterministic.
 
 Hypothesis draws the same examples on every run (profile ``deterministic``, the default), so
 that a random example can never fail CI by chance; ``HYPOTHESIS_PROFILE=random`` draws new
@@ -17,7 +19,7 @@ from hypothesis import settings
 from shellobstacle.compat import bootstrap
 from shellobstacle.geometry.surface import Surface
 from shellobstacle.penalty.spec import PenaltySpec
-from shellobstacle.spec import Load, Material, Obstacle, Shell
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
 bootstrap()
 
@@ -60,15 +62,77 @@ def make_paper_shell(
 PENALTY = PenaltySpec(exponent=1.5)
 
 
+#: the constraint at the mesh's vertices (the nodal problem of the exact solvers)
+VERTEX = Discretization(penalty_quadrature="vertex")
+#: the relative KKT residuals an exact solver reaches (round-off)
+KKT_TOL = 1e-10
+
+
 def square(comm=None, n: int = 24, half: float = 0.25):
     """A structured mesh of ``[-half, half]²`` in ``n × n`` squares (the origin a vertex for
-    even ``n``), on ``comm`` (MPI.COMM_WORLD if None)."""
+    even ``n``), on ``comm`` (MPI.COMM_WORLD if None), ghosted by one layer of cells across
+    the ranks' facets (DOLFINx's default; Koiter's facet terms need both cells)."""
     from mpi4py import MPI
 
     import dolfinx
 
     comm = MPI.COMM_WORLD if comm is None else comm
     return dolfinx.mesh.create_rectangle(comm, [[-half, -half], [half, half]], [n, n])
+
+
+def disk(refinements: int):
+    """The paper's disk: gmsh's mesh at h = 0.08 refined uniformly ``refinements`` times."""
+    from shellobstacle.mesh.domains import DomainSpec
+    from shellobstacle.mesh.meshing import create_mesh
+
+    return create_mesh(DomainSpec(kind="disk", radius=0.5, h=0.08, refinements=refinements))
+
+
+def ladder(mesh) -> list[float]:
+    """κ = h^0.5, h, h^1.5: the paper's continuation to κ = h^1.5 (:data:`PENALTY`'s)."""
+    from shellobstacle.mesh.measures import mesh_size
+
+    return PENALTY.ladder(mesh_size(mesh))
+
+
+def cap_on_square(half: float, n: int, degree: int = 1, kappa: float = 1e-3):
+    """The paper's shell on :func:`square` (``[-half, half]²``, ``n × n`` squares), compiled at
+    ``κ``: the vertex penalty for P1, Gauss points for P2, quadrature degree 4 (the small
+    problem of the output tests: ParaView files, 3D pictures)."""
+    from shellobstacle.models.problem import PenalizedProblem
+
+    quadrature = "vertex" if degree == 1 else "gauss"
+    disc = Discretization(degree=degree, penalty_quadrature=quadrature, quadrature_degree=4)
+    return PenalizedProblem(make_paper_shell(), square(n=n, half=half), disc, kappa=kappa)
+
+
+def lu_solve(A, b):
+    """``A⁻¹ b`` by MUMPS's LU: the reference of the tests of other linear solves."""
+    from petsc4py import PETSc
+
+    ksp = PETSc.KSP().create(A.getComm())
+    ksp.setOperators(A)
+    ksp.setType("preonly")
+    ksp.getPC().setType("lu")
+    ksp.getPC().setFactorSolverType("mumps")
+    x = b.duplicate()
+    ksp.solve(b, x)
+    ksp.destroy()
+    return x
+
+
+def without_petsc_function(monkeypatch: pytest.MonkeyPatch, name: str) -> None:
+    """Make the symbol lookup of PETSc's C function ``name`` fail, as in a PETSc without it."""
+    from shellobstacle.solvers import libpetsc
+
+    lookup = libpetsc._lookup
+
+    def failing(wanted: str):
+        if wanted == name:
+            raise AttributeError(f"undefined symbol: {name}")
+        return lookup(wanted)
+
+    monkeypatch.setattr(libpetsc, "_lookup", failing)
 
 
 def ball(radius: float, side: str = "outside", **kw) -> Obstacle:
@@ -90,11 +154,11 @@ def solve_on(
     contact figures."""
     import dataclasses
 
-    from shellobstacle.api import solve
+    from shellobstacle.api import solve_problem
     from shellobstacle.post.contact import Postprocessor
 
     shell = dataclasses.replace(make_paper_shell(*([load] if load else [])), obstacle=obstacle)
-    r = solve(shell, square(comm, n), penalty, discretization, method=method)
+    r = solve_problem(shell, square(comm, n), penalty, discretization, method=method)
     assert r.converged, r.error
     return r, Postprocessor(r.problem, r.constraint).contact()
 

@@ -1,8 +1,11 @@
 """One solve of the obstacle problem: mesh → checks → compile → the solver asked for.
 
-This is what ``shellobstacle solve`` runs, and the Python API's entry point. The method is
-taken by name from :data:`~shellobstacle.solvers.registry.METHODS`: Newton's continuation in
-κ (the default), the paper's Brezis–Sibony iteration at the target κ, or the exact nodal
+:func:`solve` takes a configuration (a :class:`~shellobstacle.config.loader.Config`, a TOML
+file or a mapping shaped like one) and overrides of its sections: it is what ``shellobstacle
+solve`` runs, and the Python API's entry point. :func:`solve_problem` is the same solve for
+code that holds the objects already (a mesh, a shell, the options). The method is taken by
+name from :data:`~shellobstacle.solvers.registry.METHODS`: Newton's continuation in κ (the
+default), the paper's Brezis–Sibony iteration at the target κ, or the exact nodal
 variational inequality (κ = 0, :func:`exact_solution`) by the active-set solver or by one of
 its peers (PETSc's VI Newton, proximal Galerkin).
 """
@@ -10,17 +13,20 @@ its peers (PETSc's VI Newton, proximal Galerkin).
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 import warnings
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 
 import dolfinx
 
 from shellobstacle.checks.assumptions import check_assumptions, require
-from shellobstacle.config.loader import Config, ConfigError
+from shellobstacle.config.loader import Config, ConfigError, as_config
+from shellobstacle.config.validated import require_penalty
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.measures import mesh_size, num_cells_global
 from shellobstacle.mesh.meshing import create_mesh
@@ -29,11 +35,16 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.kappa import kappa_on_mesh
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.progress import phase
+from shellobstacle.solvers.auto import estimated_linear_solver, resolve, takes_linear_solver
 from shellobstacle.solvers.linearization import solve_with
-from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS, options_for
 from shellobstacle.solvers.result import SolveResult
 from shellobstacle.spec import Discretization, Shell
+
+if TYPE_CHECKING:
+    from shellobstacle.adapt.options import AdaptOptions
+    from shellobstacle.solvers.vi.active_set import ActiveSetResult
+    from shellobstacle.solvers.vi.options import ActiveSetOptions
 
 __all__ = [
     "METHODS",
@@ -42,27 +53,24 @@ __all__ = [
     "make_mesh",
     "nodal_solver",
     "solve",
-    "solve_config",
+    "solve_problem",
 ]
 
-Progress = Callable[[str], Any]
+log = logging.getLogger(__name__)
 
 
-def make_mesh(
-    domain: DomainSpec, ghosted: bool = False, progress: Progress | None = None
-) -> dolfinx.mesh.Mesh:
+def make_mesh(domain: DomainSpec, ghosted: bool = False) -> dolfinx.mesh.Mesh:
     """Mesh ω (``ghosted``: with facet-sharing ghost cells in parallel, which Koiter's facet
     terms read); a bad domain description becomes a :class:`ConfigError` naming it.
-    ``progress`` gets the mesh obtained: its h (the largest cell diameter) beside the size
-    asked for (gmsh's target is not the largest cell diameter)."""
+    Logs the mesh obtained: its h (the largest cell diameter) beside the size asked for
+    (gmsh's target is not the largest cell diameter). Collective."""
     try:
         size = "" if domain.h is None else f" (h = {domain.h:g})"
         with phase(f"meshing the {domain.kind}{size}"):
             mesh = create_mesh(domain, ghosted=ghosted)
     except (ValueError, FileNotFoundError) as err:
         raise ConfigError(f"[domain]: {err}") from None
-    if progress is not None:
-        progress(_obtained(domain, mesh))
+    log.info(_obtained(domain, mesh))  # (computed on every rank: collective)
     return mesh
 
 
@@ -82,19 +90,65 @@ def _obtained(domain: DomainSpec, mesh: dolfinx.mesh.Mesh) -> str:
 
 
 def solve(
+    spec: Config | str | Path | Mapping[str, Any], *, force: bool = False, **overrides: Any
+) -> SolveResult:
+    """Solve the obstacle problem a configuration describes.
+
+    Example::
+
+        result = solve("examples/paper.toml", domain={"h": 0.02}, solver={"method": "active-set"})
+        result.contact.area, result.validity.warnings()
+
+    Args:
+        spec: a validated :class:`~shellobstacle.config.loader.Config` (read by
+            :func:`~shellobstacle.config.loader.load_config`, or built in Python:
+            ``Config(shell, DomainSpec("disk", h=0.02), penalty=PenaltySpec(exponent=1.5))``),
+            the path of a TOML config file, or a mapping shaped like one.
+        force: proceed (with a warning) when the theory's assumptions fail, and mesh even
+            when the mesh looks too large for this machine.
+        overrides: sections of the config, each a mapping of its keys
+            (``domain={"h": 0.02}``), applied and validated as ``--set domain.h=0.02`` is
+            (the same checks and messages). ``solver`` may instead be an options object,
+            an instance of a method's ``options_type`` (``NewtonOptions(rtol=1e-8)``,
+            ``ActiveSetOptions(…)``): it chooses that method and is the one set of options
+            it solves with.
+
+    Returns:
+        The :class:`SolveResult`: ``zeta``, ``contact``, ``validity``, ``timings``, ….
+
+    Raises:
+        ConfigError: a spec or an override the configuration refuses, in one line naming it
+            and the fix.
+        AssumptionError, ResourceError, ExpressionError: as :func:`solve_problem`.
+    """
+    config = as_config(spec, overrides)
+    return solve_problem(
+        config.shell,
+        config.domain,
+        config.penalty,
+        config.discretization,
+        method=config.method,
+        options=config.options,
+        force=force,
+        adapt=config.adapt,
+    )
+
+
+def solve_problem(
     shell: Shell,
     domain: DomainSpec | dolfinx.mesh.Mesh,
     penalty: PenaltySpec | None,
     discretization: Discretization | None = None,
-    options: NewtonOptions | None = None,
-    force: bool = False,
-    progress: Progress | None = None,
+    *,
     method: str = "newton",
-    method_options: Any = None,
-    newton_progress: Callable[[int, float], Any] | None = None,
-    adapt: Any = None,
+    options: Any = None,
+    force: bool = False,
+    adapt: AdaptOptions | None = None,
 ) -> SolveResult:
-    """Solve the obstacle problem for the shell on a domain (or a ready mesh).
+    """Solve the obstacle problem for the shell on a domain (or a ready mesh): :func:`solve`
+    for code that holds the objects (a mesh, the options) rather than a configuration.
+
+    Progress (the mesh obtained, each κ solved) is logged to the ``shellobstacle`` logger.
 
     Args:
         shell: surface, material, load and obstacle.
@@ -102,25 +156,22 @@ def solve(
         penalty: κ (or ``h^exponent``) and whether to continue from larger κ; None (unused)
             for the methods of the nodal problem (κ = 0: not ``penalized``).
         discretization: element degree, boundary condition of ζ_3, penalty quadrature.
-        options: Newton tolerances and linear solver.
-        force: proceed (with a warning) when the theory's assumptions fail, and mesh even
-            when the mesh looks too large for this machine (:mod:`shellobstacle.mesh.resources`).
-        progress: called with one-line progress messages.
         method: a key of :data:`~shellobstacle.solvers.registry.METHODS`: ``"newton"``
             (continuation in κ), ``"brezis-sibony"`` (the iteration (38) at the target κ), or
             the exact nodal VI (κ = 0) by ``"active-set"``, ``"snes-vi"`` (PETSc's VI Newton)
             or ``"proximal-galerkin"``.
-        method_options: the options of that method, of its ``options_type``
-            (``BrezisSibonyOptions``, ``ActiveSetOptions``, ``SnesVIOptions``,
-            ``ProximalGalerkinOptions``); None: ``options`` if they are its type (Newton's),
-            else its defaults.
-        newton_progress: called as ``(iteration, relative residual)`` after every Newton
-            iteration (see :func:`~shellobstacle.solvers.newton.continuation.continuation`).
+        options: the options of that method, an instance of its ``options_type``
+            (``NewtonOptions``, ``BrezisSibonyOptions``, ``ActiveSetOptions``,
+            ``SnesVIOptions``, ``ProximalGalerkinOptions``); None: its defaults.
+        force: proceed (with a warning) when the theory's assumptions fail, and mesh even
+            when the mesh looks too large for this machine (:mod:`shellobstacle.mesh.resources`).
         adapt: :class:`~shellobstacle.adapt.options.AdaptOptions`: solve on the mesh and its
             adaptive refinements (:func:`~shellobstacle.adapt.loop.adaptive_solve`); the
             result holds the last mesh's solution and, in ``extra["adapt"]``, every level.
 
     Raises:
+        ConfigError: an unknown method, or a penalized one without ``penalty``.
+        TypeError: ``options`` are not of the method's ``options_type``.
         AssumptionError: the data violate docs/model.md §3 (unless ``force``).
         ResourceError: the mesh would not fit in this machine's memory (unless ``force``).
         ExpressionError: θ, its derivatives or the load are not finite at a point of the mesh
@@ -129,19 +180,18 @@ def solve(
     if method not in METHODS:
         raise ConfigError(not_one_of("solver.method", method, METHODS.keys()))
     chosen = METHODS[method]
-    if penalty is None and chosen.penalized:
-        raise ConfigError(f"solver.method = {method!r} needs a penalty (kappa or exponent)")
-    say = progress or (lambda _msg: None)
+    require_penalty(method, penalty)
+    opts = options_for(chosen, options)
     timings: dict[str, float] = {}
     t = time.perf_counter()
     if isinstance(domain, DomainSpec):
         if not force:
-            from shellobstacle.mesh.resources import linear_solver_of, require_fits
+            from shellobstacle.mesh.resources import require_fits
 
             degree = (discretization or Discretization()).degree
-            linear = linear_solver_of(method, options)
+            linear = estimated_linear_solver(chosen, opts, domain, shell.model, degree)
             require_fits(domain, shell.model, degree, linear_solver=linear)
-        mesh = make_mesh(domain, shell.model == "koiter" or adapt is not None, say)
+        mesh = make_mesh(domain, shell.model == "koiter" or adapt is not None)
     else:
         mesh = domain
     h = mesh_size(mesh)
@@ -164,9 +214,8 @@ def solve(
         from shellobstacle.adapt.loop import solve_adaptively
 
         return solve_adaptively(
-            mesh, shell, discretization, penalty, adapt, options, method, method_options,
-            say, newton_progress, checks, timings,
-        )  # fmt: skip
+            mesh, shell, discretization, penalty, adapt, None, method, opts, checks, timings
+        )
     t = time.perf_counter()
     kappas = kappa_on_mesh(penalty, mesh).ladder
     problem = PenalizedProblem(
@@ -176,10 +225,12 @@ def solve(
     target = kappas[-1] if chosen.penalized else 0.0
     result = SolveResult(problem, h, target, [], checks, timings, method=method)
     t = time.perf_counter()
-    done = solve_with(
-        chosen, problem, h, kappas, options_for(chosen, method_options, options), say,
-        newton_progress,
-    )  # fmt: skip
+    if takes_linear_solver(chosen):  # every "auto" resolved once, from the problem
+        resolution = resolve(problem, opts or chosen.options_type())
+        opts, result.extra["choices"] = resolution.options, resolution.record()
+        if resolution.said():
+            log.info(resolution.said())
+    done = solve_with(chosen, problem, h, kappas, opts)
     result.steps, result.converged, result.error = done.steps, done.converged, done.error
     result.extra.update(done.extra)
     timings.update(done.timings)
@@ -197,34 +248,12 @@ def nodal_solver(problem: PenalizedProblem, method: str, options: Any = None) ->
     return chosen.solver(problem, options)
 
 
-def solve_config(
-    config: Config,
-    force: bool = False,
-    progress: Progress | None = None,
-    newton_progress: Callable[[int, float], Any] | None = None,
-) -> SolveResult:
-    """:func:`solve` with everything taken from a validated :class:`Config`."""
-    return solve(
-        config.shell,
-        config.domain,
-        config.penalty,
-        config.discretization,
-        config.solver,
-        force=force,
-        progress=progress,
-        method=config.method,
-        method_options=config.method_options,
-        newton_progress=newton_progress,
-        adapt=config.adapt,
-    )
-
-
 def exact_solution(
     shell: Shell,
     mesh: dolfinx.mesh.Mesh,
     discretization: Discretization | None = None,
-    options: Any = None,
-) -> tuple[dolfinx.fem.Function, Any]:
+    options: ActiveSetOptions | None = None,
+) -> tuple[dolfinx.fem.Function, ActiveSetResult]:
     """The exact solution ``ζ^h`` of the discrete variational inequality (κ = 0) on ``mesh``,
     with the constraint ``g ≥ 0`` at the vertices and P1 elements (docs/model.md §5).
 

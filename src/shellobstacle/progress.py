@@ -12,7 +12,10 @@ phases with their elapsed times, refreshed four times a second::
 (one line on the terminal, cut at its width).
 
 Anywhere else (a log file, a pipe, CI, pytest, ``-q``, ranks other than 0) nothing is shown,
-and a phase costs a list append: library calls and scripts print nothing of it.
+and a phase costs a list append and a clock reading, no communication of its own (the
+command line's Ctrl-C handling may add a meeting point, :func:`set_meeting_point`): library
+calls and scripts print nothing of it. The lines above the status are the records of the
+``shellobstacle`` logger, printed by the command line (:mod:`shellobstacle.cli.reporter`).
 """
 
 from __future__ import annotations

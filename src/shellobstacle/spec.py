@@ -26,10 +26,12 @@ from shellobstacle.obstacle.shapes import CONTACT_FACES, SHAPES, checked, declar
 
 __all__ = [
     "BENDING_FORMS",
+    "EDGE_CONDITIONS",
     "MODELS",
     "PENALTY_QUADRATURES",
     "TRANSVERSE",
     "Discretization",
+    "Edge",
     "Load",
     "Material",
     "Obstacle",
@@ -180,24 +182,98 @@ class Obstacle:
         return ("kind", *self.parameters, "contact_face")
 
 
+EDGE_CONDITIONS = ("clamped", "simply-supported", "free", "symmetry")
+
+
+@dataclass(frozen=True)
+class Edge:
+    """A part of the boundary γ and its condition (docs/model.md §9;
+    :mod:`~shellobstacle.models.edges` finds its facets on a mesh).
+
+    The part is the boundary facets whose midpoint satisfies ``where``, a condition in
+    ``y1, y2, r`` in SymPy syntax (``"y1 < -0.499"``, ``"And(y1 > 0, y2 > 0)"``), or the facets
+    of the gmsh physical curve ``tag`` of a ``domain.kind = "file"`` mesh. ``condition``:
+    ``"clamped"`` (ζ = 0 and ∂_ν ζ_3 = 0), ``"simply-supported"`` (ζ = 0), ``"free"`` (nothing)
+    or ``"symmetry"`` (on a line y_α = c about which θ is symmetric: ζ_α = 0 and
+    ∂_ν ζ_3 = 0). Facets that no edge selects are clamped.
+    """
+
+    condition: str = field(metadata={"choices": EDGE_CONDITIONS})
+    where: str | None = None
+    tag: int | None = None
+
+    def __post_init__(self) -> None:
+        if self.condition not in EDGE_CONDITIONS:
+            raise ValueError(not_one_of("edge.condition", self.condition, EDGE_CONDITIONS))
+        if (self.where is None) == (self.tag is None):
+            raise ValueError(
+                "an [[edge]] needs where = '<condition in y1, y2>' or tag = <gmsh physical "
+                f"curve>, exactly one of them; got where = {self.where!r}, tag = {self.tag!r}"
+            )
+        if self.tag is not None:
+            integer(self.tag, "edge.tag")
+            if self.tag < 1:
+                raise ValueError(f"edge.tag must be a gmsh physical tag >= 1, got {self.tag}")
+        if self.where is not None:
+            self.predicate()
+
+    def predicate(self) -> sp.Expr:
+        """``where`` as a SymPy expression in ``y1, y2``: 1 where it holds, else 0."""
+        return _parse_where(self.where)
+
+    def __str__(self) -> str:
+        part = f"where = {self.where!r}" if self.where is not None else f"tag = {self.tag}"
+        return f"[[edge]] {part} ({self.condition})"
+
+
+@functools.lru_cache(maxsize=32)
+def _parse_where(text: str) -> sp.Expr:
+    """Parse a condition with the expressions' parser, as the indicator
+    ``Piecewise((1, condition), (0, True))``; its errors quote ``text``."""
+    names = {"y1": y1, "y2": y2, "r": sp.sqrt(y1**2 + y2**2)}
+    wrapped = f"Piecewise((1, {text}), (0, True))" if isinstance(text, str) else text
+    try:
+        return parse(wrapped, names, "edge.where")
+    except ValueError as err:
+        if "must be a Boolean" in str(err):
+            raise ValueError(
+                f"edge.where must be a condition on the facet's midpoint such as "
+                f"'y1 < -0.499', got {text!r}"
+            ) from None
+        raise type(err)(str(err).replace(repr(wrapped), repr(text))) from None
+
+
 MODELS = ("membrane", "koiter")
 
 
 @dataclass(frozen=True)
 class Shell:
-    """Everything physical: the middle surface, the material, the load, the obstacle, and the
+    """Everything physical: the middle surface, the material, the load, the obstacle, the
     shell model: ``"membrane"`` (docs/model.md §2–4, elliptic surfaces) or ``"koiter"`` (§8, the
-    membrane energy plus bending; any immersed thin shell)."""
+    membrane energy plus bending; any immersed thin shell), and the conditions on parts of γ
+    (:class:`Edge`; γ is clamped where none is given). The edges are the shell's, not the
+    discretization's: which edges are supported is part of the physical problem, as the load
+    is, and a mesh only locates them."""
 
     surface: Surface
     material: Material
     load: Load
     obstacle: Obstacle = field(default_factory=Obstacle)
     model: str = field(default="membrane", metadata={"choices": MODELS})
+    edges: tuple[Edge, ...] = ()
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise ValueError(not_one_of("model.kind", self.model, MODELS))
+        object.__setattr__(self, "edges", tuple(self.edges))
+        for edge in self.edges:
+            if not isinstance(edge, Edge):
+                raise ValueError(f"Shell.edges holds Edge objects, got {edge!r}")
+            if self.model == "membrane" and edge.condition != "clamped":
+                raise ValueError(
+                    f"{edge}: the membrane model needs ζ_α = 0 on all of γ (its energy controls "
+                    "ζ_α in H¹₀ only): remove the edge or set model.kind = 'koiter'"
+                )
 
     def load_expressions(self) -> tuple[sp.Expr, sp.Expr, sp.Expr]:
         """``p^{i,ε}`` as SymPy expressions (see :meth:`Load.expressions`)."""

@@ -1,4 +1,5 @@
-"""The command line: solve, check, config errors, result folders (issue: core)."""
+"""The command line: solve, check, the methods' reports, result folders (its errors:
+test_command_line_errors.py)."""
 
 from __future__ import annotations
 
@@ -9,11 +10,11 @@ from pathlib import Path
 from mpi4py import MPI
 
 import pytest
+from cli_helpers import SMALL, run, write_config
 
 from shellobstacle.cli.main import main
 from shellobstacle.io.records import process_environment
 
-SMALL = Path(__file__).parents[2] / "examples" / "small.toml"
 #: for the tests whose subject is not the 3D picture (tests/post/test_pictures.py)
 NO_PICTURES = ["--set", "output.pictures=false"]
 pytestmark = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
@@ -53,16 +54,6 @@ def test_solve_writes_a_complete_result_folder(tmp_path: Path) -> None:
     assert (out / "surface.bp").is_dir()
     assert "pass" in (out / "checks.txt").read_text()
     assert "Newton steps" in (out / "log.txt").read_text()
-
-
-def test_results_are_never_overwritten(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
-    """A non-empty -o is refused without --overwrite; the earlier summary survives."""
-    out = tmp_path / "run"
-    out.mkdir()
-    (out / "summary.json").write_text("{}")
-    assert main(["solve", str(SMALL), "-o", str(out), "-q"]) == 2
-    assert "already holds results" in capsys.readouterr().err
-    assert (out / "summary.json").read_text() == "{}"
 
 
 def test_default_folder_is_new_each_time(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -128,34 +119,6 @@ def test_force_proceeds_and_records_the_warning(tmp_path: Path) -> None:
     elliptic = next(c for c in summary["checks"] if c["name"] == "elliptic")
     assert not elliptic["passed"] and elliptic["value"] < 0
     assert any("elliptic" in w for w in summary["warnings"])
-
-
-@pytest.mark.parametrize(
-    ("override", "message"),
-    [
-        ("domain.hh=0.1", "did you mean 'h'"),
-        ("material.epsilon=-1", "epsilon must be > 0"),
-        ("penalty.kappa=0", "--set penalty.kappa=0: penalty.kappa must be > 0"),
-        ('load.p=["0", "0", "import os"]', "load.p[3]"),
-        ("obstacle.q=[0, 0, 0]", "nonzero normal"),
-        ("discretization.degree=3", "degree must be 1 or 2"),
-        ("surface.kind=sphere", "did you mean 'spherical_cap'"),
-    ],
-)
-def test_config_errors_exit_2_with_a_message(
-    override: str, message: str, capsys: pytest.CaptureFixture
-) -> None:
-    """User errors give exit code 2 and one clear line, no traceback."""
-    assert main(["check", str(SMALL), "--set", override]) == 2
-    err = capsys.readouterr().err
-    assert message in err
-    assert "Traceback" not in err
-
-
-def test_missing_config_file(capsys: pytest.CaptureFixture) -> None:
-    """A config path that does not exist is named in the error."""
-    assert main(["solve", "no-such-file.toml"]) == 2
-    assert "no-such-file.toml" in capsys.readouterr().err
 
 
 def test_version(capsys: pytest.CaptureFixture) -> None:
@@ -304,3 +267,36 @@ def test_the_first_line_with_h_names_the_target_too(tmp_path: Path) -> None:
     assert main(args) == 0
     with_h = [line for line in (load / "log.txt").read_text().splitlines() if "h = " in line]
     assert re.search(r"h = [0-9.]+ \(target 0\.1\), \d+ cells", with_h[0]), with_h
+
+
+def test_zero_load_solves_to_zero(capsys, tmp_path) -> None:
+    changes = {"load.p": ["0", "0", "0"], "output": {"paraview": False, "figures": False}}
+    out = tmp_path / "out"
+    code, _, err = run(capsys, "solve", str(write_config(tmp_path, changes)), "-o", str(out))
+    assert code == 0, err
+    assert "Traceback" not in err
+
+
+def test_brezis_sibony_log_states_one_kappa(tmp_path) -> None:
+    out = tmp_path / "bs"
+    sets = ["solver.method=brezis-sibony", "output.paraview=false", "output.figures=false"]
+    args = ["solve", str(write_config(tmp_path)), "-o", str(out), "-q"]
+    assert main(args + [a for s in sets for a in ("--set", s)]) == 0
+    log = (out / "log.txt").read_text()
+    assert "solving for 1 value of κ" in log and "by Brezis–Sibony" in log
+    assert "value(s) of κ" not in log
+    summary = json.loads((out / "summary.json").read_text())
+    assert len(summary["continuation"]) == 1
+
+
+def test_active_set_with_the_defaults(tmp_path) -> None:
+    """No discretization.penalty_quadrature needed: the exact solver's constraint is nodal."""
+    out = tmp_path / "exact"
+    sets = ["solver.method=active-set", "output.paraview=false", "output.figures=false"]
+    args = ["solve", str(write_config(tmp_path)), "-o", str(out), "-q"]
+    assert main(args + [a for s in sets for a in ("--set", s)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["method"] == "active-set" and summary["kappa"] == 0.0
+    assert max(summary["continuation"][0]["kkt_relative"].values()) < 1e-10
+    resolved = tomllib.loads((out / "config.toml").read_text())
+    assert resolved["discretization"]["penalty_quadrature"] == "vertex"

@@ -58,7 +58,7 @@ class Accepted(BaseException):
 
 #: the functions that start the work once everything is checked (module, name)
 WORK = [
-    ("shellobstacle.api", "solve_config"),
+    ("shellobstacle.api", "solve"),
     ("shellobstacle.api", "make_mesh"),
     ("shellobstacle.experiments.reproduce", "reproduce"),
     ("shellobstacle.experiments.penalty", "run_penalty"),

@@ -2,20 +2,25 @@
 
 ``experiment koiter-limit examples/paper.toml`` passes the memory check with room for the
 estimate's error; a script may ``import dolfinx`` before ``shellobstacle`` in the environment
-``./run setup`` makes; ``.gitignore`` covers the folders the commands make by default.
+``./run setup`` makes; ``.gitignore`` covers the folders the commands make by default; the
+README's config and field names are those of ``examples/paper.toml`` (the packaged one) and of
+the files written.
 """
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 from mpi4py import MPI
 
 import pytest
+from cli_helpers import EXAMPLES
 
 from shellobstacle.cli.main import main
 from shellobstacle.compat import PTH_NAME, install_pth
@@ -157,3 +162,30 @@ def test_property_tests_are_deterministic_in_the_readme_command() -> None:
             timeout=120,
         )
         assert done.stdout.strip() == expected, done.stderr[-500:]
+
+
+def test_examples_are_files_and_paper_toml_is_the_packaged_one() -> None:
+    from shellobstacle.experiments.reproduce import PAPER_CONFIG
+
+    assert [p.name for p in EXAMPLES.iterdir() if p.is_symlink()] == []
+    assert (EXAMPLES / "paper.toml").read_bytes() == PAPER_CONFIG.read_bytes()
+
+
+def test_readme_config_matches_examples_paper_toml() -> None:
+    """Every key of the README's config block has the value of ``examples/paper.toml``."""
+    readme = (ROOT / "README.md").read_text()
+    block = re.search(r"```toml\n(.*?)```", readme, re.S).group(1)
+    shown = tomllib.loads(block)
+    paper = tomllib.loads((EXAMPLES / "paper.toml").read_text())
+    for section, keys in shown.items():
+        for key, value in keys.items():
+            assert paper[section][key] == value, f"README [{section}] {key} = {value!r}"
+
+
+def test_readme_paraview_field_names_are_the_written_ones() -> None:
+    readme = (ROOT / "README.md").read_text()
+    paragraph = readme[readme.index("**ParaView**") :].split("\n\n")[0]
+    source = (ROOT / "src" / "shellobstacle" / "post" / "contact.py").read_text()
+    for name in ("gap", "contact", "U"):
+        assert f"`{name}`" in paragraph
+        assert f'name="{name}"' in source

@@ -2,8 +2,9 @@
 builds the same objects as the API's dataclasses constructed with their defaults.
 
 The fields are found by introspection, so a new field of an options class fails here until
-the schema sets it (:func:`shellobstacle.config.keys.bound`, ``SOLVER_FIELDS``) or it is listed as
-one the config does not expose (``API_ONLY``).
+the schema sets it (:func:`shellobstacle.config.keys.bound`) or it is listed as one the config
+does not expose (``API_ONLY``); a method's options declare their keys on their fields
+(:func:`shellobstacle.solvers.options.option`), and every declared key is in ``[solver]``.
 """
 
 from __future__ import annotations
@@ -18,13 +19,15 @@ from typing import Any
 import pytest
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config.keys import METHOD_OPTIONS, REQUIRED
+from shellobstacle.config.keys import REQUIRED
 from shellobstacle.config.loader import parse_config
 from shellobstacle.config.schema import SCHEMA, reference_text
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.obstacle.shapes import SHAPES, example
 from shellobstacle.penalty.spec import PenaltySpec
-from shellobstacle.solvers.options import BrezisSibonyOptions, NewtonOptions
+from shellobstacle.solvers.brezis_sibony.options import BrezisSibonyOptions
+from shellobstacle.solvers.newton.options import NewtonOptions
+from shellobstacle.solvers.options import config_keys
 from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
@@ -38,48 +41,17 @@ MINIMAL: dict[str, Any] = {
 
 #: fields of the API's dataclasses that no config key sets (the config keeps their defaults)
 API_ONLY: dict[type, set[str]] = {
-    METHOD_OPTIONS["newton"]: {"atol", "floor_factor", "linear_rtol", "normal_relaxation"},
-    METHOD_OPTIONS["active-set"]: {
-        "gamma_initial",
-        "gamma_factor",
-        "gamma_max",
-        "max_stage_iterations",
-        "max_pdas_iterations",
-        "kkt_rtol",
-        "warm_start",
-    },
-    METHOD_OPTIONS["brezis-sibony"]: {
-        "safety",
-        "rtol_residual",
-        "progress_every",
-        "history_stride",
-        "tail",
-        "estimate_spectrum",
-        "eigen_tol",
-        "eigen_max_iterations",
-        "divergence_factor",
-    },
-    METHOD_OPTIONS["snes-vi"]: {"atol", "kkt_rtol", "warm_start", "scaling"},
-    METHOD_OPTIONS["proximal-galerkin"]: {
-        "alpha_initial",
-        "alpha_base",
-        "alpha_exponent",
-        "max_newton_iterations",
-        "max_rejections",
-        "regrowth",
-        "linear_system",
-        "kkt_rtol",
-        "warm_start",
-    },
     Discretization: set(),
     AdaptOptions: set(),
     PenaltySpec: set(),
     DomainSpec: {"kind"},  # required, its choices in the schema
     Obstacle: set(),
     Load: {"p"},  # required
-    Shell: {"surface", "material", "load", "obstacle"},  # sections, not keys
+    Shell: {"surface", "material", "load", "obstacle", "edges"},  # sections, not keys
     Material: {"epsilon", "lam", "mu"},  # required
 }
+#: the options class of each method that takes options
+METHOD_OPTIONS = {name: m.options_type for name, m in METHODS.items() if m.options_type}
 #: keys with a default that set no field of the API (application-level choices)
 CONFIG_ONLY = {"solver.method", "output.paraview", "output.figures", "output.pictures"}
 
@@ -149,10 +121,11 @@ def test_every_field_is_set_by_a_key_or_declared_api_only() -> None:
     """A new field must be bound to a config key (its default then comes from the field) or
     be listed in API_ONLY; a stale API_ONLY entry fails too."""
     bound: dict[type, set[str]] = {cls: set() for cls in API_ONLY}
-    for keys in SCHEMA.values():
+    for section, keys in SCHEMA.items():
         for key in keys.values():
             for cls, name in key.fields.values():
-                bound.setdefault(cls, set()).add(name)
+                if section != "solver":
+                    bound.setdefault(cls, set()).add(name)
     for cls, names in bound.items():
         fields = {f.name for f in dataclasses.fields(cls)}
         assert names <= fields, (cls.__name__, names - fields)
@@ -160,6 +133,23 @@ def test_every_field_is_set_by_a_key_or_declared_api_only() -> None:
         assert not missing, f"{cls.__name__}: fields neither in the schema nor API_ONLY: {missing}"
         stale = API_ONLY.get(cls, set()) & names
         assert not stale, f"{cls.__name__}: API_ONLY names fields the schema sets: {stale}"
+
+
+@pytest.mark.parametrize("method", list(METHOD_OPTIONS))
+def test_every_declared_option_is_a_solver_key(method: str) -> None:
+    """The ``[solver]`` keys that set a field of a method's options are exactly the fields
+    its options declare with ``option``; the others are the API's alone."""
+    cls = METHOD_OPTIONS[method]
+    declared = {key: f.name for key, f in config_keys(cls).items()}
+    in_schema = {
+        name: key.fields[method][1]
+        for name, key in SCHEMA["solver"].items()
+        if method in key.fields
+    }
+    assert in_schema == declared
+    assert all(
+        key.fields[method][0] is cls for key in SCHEMA["solver"].values() if method in key.fields
+    )
 
 
 def test_every_default_of_the_schema_is_a_fields() -> None:

@@ -21,7 +21,10 @@ from shellobstacle.mesh import memory, resources
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.mesh.resources import estimate, mesh_vertices
-from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.solvers import auto
+from shellobstacle.solvers.auto import estimated_linear_solver
+from shellobstacle.solvers.newton.options import NewtonOptions
+from shellobstacle.solvers.registry import METHODS
 
 EXAMPLES = Path(__file__).parents[2] / "examples"
 PAPER, KOITER = str(EXAMPLES / "paper.toml"), str(EXAMPLES / "cylinder_koiter.toml")
@@ -157,26 +160,20 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
 ) -> None:
     """The paper's h = 0.0006 (7.7 M dofs) on a 24 GiB machine: refused for the direct solver
     (3.5 kB per dof), with multigrid named as fitting (2.2 kB per dof, measured 2.0–2.1); with
-    multigrid the estimate passes, ``"auto"`` (the default) stands for multigrid there, and a
-    method that factorizes is estimated as direct. Koiter's model likewise (13 and 5 kB per
-    dof), its multigrid named with the refinement it needs."""
+    multigrid the estimate passes, ``"auto"`` (the default) is estimated as the multigrid it
+    stands for there (a refined mesh from 1 M dofs), and a method that factorizes as direct.
+    Koiter's model likewise (13 and 5 kB per dof), its multigrid named with the refinement it
+    needs; its ``"auto"`` is the direct path, refused with multigrid named."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setattr(memory, "machine_memory", lambda: 24 * 2.0**30)
     big = DomainSpec("disk", 0.0006)
     est = resources.estimate(big)
     assert est is not None and 7.0e6 < est.dofs < 8.5e6
     assert NewtonOptions().linear_solver == "auto"
-    assert memory.linear_solver_for("auto", est.dofs, "membrane", 1) == "multigrid"
-    assert memory.linear_solver_for("auto", 0.9e6, "membrane", 1) == "direct"
-    assert memory.linear_solver_for("auto", 1.1e6, "membrane", 1) == "multigrid"  # faster
-    assert memory.linear_solver_for("auto", 1.1e6, "membrane", 1, levels=False) == "direct"
-    assert memory.linear_solver_for("auto", 1.1e6, "koiter", 2) == "direct"
-    # Koiter's multigrid (not O(N): taken where only it fits, on a refined mesh)
-    assert memory.linear_solver_for("auto", 3e6, "koiter", 2) == "multigrid"
-    assert memory.linear_solver_for("auto", 3e6, "koiter", 2, levels=False) == "direct"
-    assert memory.linear_solver_for("auto", est.dofs, "membrane", 2) == "direct"
-    assert memory.linear_solver_for("iterative", est.dofs, "membrane", 1) == "iterative"
-    chosen = resources.require_fits(big, linear_solver="auto")
+    newton, active_set = METHODS["newton"], METHODS["active-set"]
+    assert estimated_linear_solver(newton, None, big, "membrane", 1) == "multigrid"
+    assert estimated_linear_solver(newton, None, big, "membrane", 2) == "direct"
+    chosen = resources.require_fits(big, linear_solver="multigrid")
     assert chosen == resources.estimate(big, linear_solver="multigrid")
     args = ["solve", PAPER, "-q", "--set", "domain.h=0.0006"]
     args += ["--set", 'solver.linear_solver="direct"']
@@ -184,34 +181,33 @@ def test_a_mesh_too_large_for_the_direct_solver_names_multigrid(
     err = capsys.readouterr().err
     assert 'solver.linear_solver = "multigrid" (about 1' in err, err
     assert len(err.strip().splitlines()) == 1 and list(tmp_path.iterdir()) == []
-    assert resources.require_fits(big, linear_solver="multigrid") is not None
     options = NewtonOptions(linear_solver="multigrid")
-    assert resources.linear_solver_of("newton", options) == "multigrid"
-    assert resources.linear_solver_of("brezis-sibony", options) == "direct"
+    assert estimated_linear_solver(newton, options, big, "membrane", 1) == "multigrid"
+    assert estimated_linear_solver(METHODS["brezis-sibony"], None, big, "membrane", 1) == "direct"
+    linear = estimated_linear_solver(active_set, None, big, "membrane", 1)
     with pytest.raises(resources.ResourceError, match="multigrid"):
-        resources.require_fits(big, linear_solver=resources.linear_solver_of("active-set", None))
+        resources.require_fits(big, linear_solver=linear)
     # Koiter's model: multigrid fits in its 5 kB per dof, on a refined mesh only (named)
     panel = DomainSpec("rectangle", 1 / 450, corners=((0.0, 0.0), (1.0, 1.0)))
     with pytest.raises(resources.ResourceError, match=r"with domain\.refinements >= 1 \(about"):
         resources.require_fits(panel, "koiter", 2)
     refined = DomainSpec("rectangle", 1 / 225, corners=((0.0, 0.0), (1.0, 1.0)), refinements=1)
+    assert estimated_linear_solver(newton, None, refined, "koiter", 2) == "direct"
     with pytest.raises(resources.ResourceError, match=r'"multigrid" \(about'):
         resources.require_fits(refined, "koiter", 2)
-    assert resources.require_fits(refined, "koiter", 2, linear_solver="auto") is not None
+    assert resources.require_fits(refined, "koiter", 2, linear_solver="multigrid") is not None
 
 
 @pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")
 @pytest.mark.parametrize(
-    ("gib", "from_dofs", "refinements", "expected", "reason"),
+    ("from_dofs", "refinements", "expected", "reason"),
     [
-        (24.0, 1.5e6, 0, "direct", ""),
-        (0.42, 1.5e6, 0, "multigrid", "the direct path's memory estimate does not fit"),
-        (24.0, 1e4, 1, "multigrid", "from 0.01 M dofs on a refined mesh it is the faster"),
-        (24.0, 1e4, 0, "direct", ""),
+        (1.5e6, 1, "direct", "below 1.5 M dofs the direct path is as fast"),
+        (1e4, 1, "multigrid", "from 0.01 M dofs on a refined mesh it is the faster"),
+        (1e4, 0, "direct", "the mesh has no coarser levels for multigrid"),
     ],
 )
-def test_auto_takes_multigrid_where_it_is_faster_or_only_it_fits(
-    gib: float,
+def test_auto_takes_multigrid_where_it_is_faster(
     from_dofs: float,
     refinements: int,
     expected: str,
@@ -221,16 +217,13 @@ def test_auto_takes_multigrid_where_it_is_faster_or_only_it_fits(
     capsys,
 ) -> None:
     """``solver.linear_solver = "auto"`` (the default) solves the paper's problem at about 21k
-    dofs by the direct path on a large machine and by multigrid on one where only multigrid's
-    estimate fits (0.42 GiB: the direct path's 0.37 GB is more than 80 % of it, multigrid's
-    0.35 GB is not), or from ``MULTIGRID_FROM_DOFS`` dofs (lowered here) on a mesh with
-    coarser levels (gmsh's mesh refined once), not on one without; summary.json says which,
-    and the progress says why when it is multigrid."""
+    dofs by the direct path below ``MULTIGRID_FROM_DOFS`` dofs, by multigrid from them
+    (lowered here) on a mesh with coarser levels (gmsh's mesh refined once), not on one without;
+    summary.json says which and why, and the progress says why when it is multigrid."""
     import json
 
     monkeypatch.chdir(tmp_path)
-    monkeypatch.setattr(memory, "machine_memory", lambda: gib * 2.0**30)
-    monkeypatch.setattr(memory, "MULTIGRID_FROM_DOFS", from_dofs)
+    monkeypatch.setattr(auto, "MULTIGRID_FROM_DOFS", from_dofs)
     h = 0.0115 * 2**refinements
     est = resources.estimate(DomainSpec("disk", h, radius=0.5, refinements=refinements))
     assert est is not None and 2.0e4 < est.dofs < 3.5e4, est
@@ -241,6 +234,8 @@ def test_auto_takes_multigrid_where_it_is_faster_or_only_it_fits(
     assert main(args) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["converged"] and summary["linear_solver"] == expected
+    choice = {"asked": "auto", "chosen": expected, "reason": reason}
+    assert summary["choices"]["linear_solver"] == choice
     printed = capsys.readouterr()
     said = f'linear solver: multigrid ("auto": {reason}'
     assert (said in printed.out + printed.err) == (expected == "multigrid")

@@ -10,10 +10,12 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from cli_helpers import BASE, changed
 
 from shellobstacle.config.loader import ConfigError, load_config, parse_config
+from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.penalty.spec import PenaltySpec
-from shellobstacle.spec import Discretization, Load, Material, Obstacle
+from shellobstacle.spec import Discretization, Load, Material, Obstacle, Shell
 
 EXAMPLES = Path(__file__).parents[2] / "examples"
 PAPER = str(EXAMPLES / "paper.toml")
@@ -91,3 +93,48 @@ def test_a_result_folders_config_holds_only_the_keys_its_obstacle_reads() -> Non
     assert "q" not in cfg.resolved["obstacle"]
     again = parse_config({k: dict(v) for k, v in cfg.resolved.items()}, "config.toml")
     assert again.shell.obstacle == cfg.shell.obstacle
+
+
+def config_message(changes: dict[str, Any]) -> str:
+    """The ConfigError of ``BASE`` with ``changes``, without its ``c.toml: `` prefix."""
+    with pytest.raises(ConfigError) as info:
+        parse_config(changed(changes), "c.toml")
+    text = str(info.value)
+    assert text.startswith("c.toml: "), text
+    return text.removeprefix("c.toml: ")
+
+
+@pytest.mark.parametrize(
+    ("make", "changes"),
+    [
+        (lambda: PenaltySpec(kappa=0.0), {"penalty": {"kappa": 0.0}}),
+        (lambda: PenaltySpec(kappa=-1e-6), {"penalty": {"kappa": -1e-6}}),
+        (lambda: PenaltySpec(exponent=0.0), {"penalty": {"exponent": 0.0}}),
+        (lambda: PenaltySpec(exponent=25.0), {"penalty": {"exponent": 25.0}}),
+        (
+            lambda: PenaltySpec(kappa=1e-6, exponent=1.5),
+            {"penalty": {"kappa": 1e-6, "exponent": 1.5}},
+        ),
+        (lambda: PenaltySpec(), {"penalty": {}}),
+        (lambda: DomainSpec("square", h=0.1), {"domain.kind": "square"}),
+        (lambda: DomainSpec("disk", h=0.0), {"domain.h": 0.0}),
+        (lambda: DomainSpec("disk", h=-0.1), {"domain.h": -0.1}),
+        (lambda: DomainSpec("disk"), {"domain": {"kind": "disk", "radius": 0.5}}),
+        (lambda: DomainSpec("disk", h=0.1, refinements=9), {"domain.refinements": 9}),
+        (lambda: DomainSpec("disk", h=2.0), {"domain.h": 2.0}),
+        (lambda: DomainSpec("disk", h=0.1, radius=-0.5), {"domain.radius": -0.5}),
+        (lambda: Discretization(transverse="fixed"), {"discretization": {"transverse": "fixed"}}),
+        (lambda: Discretization(degree=3), {"discretization": {"degree": 3}}),
+    ],
+)
+def test_api_raises_the_configs_message(make, changes) -> None:
+    with pytest.raises(ValueError) as info:
+        make()
+    assert str(info.value) == config_message(changes)
+
+
+def test_api_model_kind_is_validated() -> None:
+    cfg = parse_config(BASE)
+    with pytest.raises(ValueError) as info:
+        Shell(cfg.shell.surface, cfg.shell.material, cfg.shell.load, model="plate")
+    assert str(info.value) == config_message({"model": {"kind": "plate"}})

@@ -42,7 +42,7 @@ PAUSED_SOLVE = textwrap.dedent(
             print("solving", flush=True)
         time.sleep(600)
 
-    pipeline.solve_config = paused
+    pipeline.solve = paused
     sys.exit(main(sys.argv[1:]))
     """
 )

@@ -26,12 +26,12 @@ import dolfinx.fem
 import dolfinx.mesh
 import numpy as np
 import pytest
+from conftest import cap_on_square
 
 from shellobstacle.io.paraview import write_paraview
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.solvers.newton.solver import NewtonSolver
 from shellobstacle.solvers.vi.active_set import ActiveSetSolver
-from tests.cap_on_square import cap_on_square
 
 COMM = MPI.COMM_WORLD
 HALF, N = 0.25, 12

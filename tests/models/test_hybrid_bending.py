@@ -13,7 +13,7 @@ import dolfinx
 import numpy as np
 import pytest
 import ufl
-from conftest import make_paper_shell
+from conftest import lu_solve, make_paper_shell, without_petsc_function
 
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.meshing import create_mesh
@@ -27,7 +27,6 @@ from shellobstacle.solvers.newton.solver import NewtonSolver
 from shellobstacle.solvers.zone.condensation import Condensation
 from shellobstacle.solvers.zone.contact_zone import ContactZone
 from shellobstacle.spec import Discretization
-from tests.solvers.test_contact_zone import _without, lu_solve
 
 COMM = MPI.COMM_WORLD
 
@@ -208,7 +207,7 @@ def test_without_mumps_variable_blocks_the_same_steps_and_solution(
     runs = []
     for blocks in (True, False):
         if not blocks:
-            _without(monkeypatch, "MatMumpsSetBlk")
+            without_petsc_function(monkeypatch, "MatMumpsSetBlk")
         problem, solver, steps = koiter_solved(COMM, 0.05)
         assert (solver.zone.cond.F_I.F.getMumpsIcntl(15) == 1) == blocks
         runs.append(([s.newton.iterations for s in steps], problem.zeta.x.petsc_vec.copy()))

@@ -8,6 +8,8 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 import pytest
+from conftest import make_paper_shell as paper_shell
+from conftest import square
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers import quadrature_penalty as quadrature
@@ -16,7 +18,6 @@ from shellobstacle.solvers.newton.continuation import continuation
 from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
 from shellobstacle.spec import Discretization
-from tests.solvers.test_newton import paper_shell, square
 
 KAPPA = 1e-3
 

@@ -26,7 +26,7 @@ import ufl
 from conftest import displace_through_plane, square
 from conftest import make_paper_shell as paper_shell
 
-from shellobstacle.api import solve
+from shellobstacle.api import solve_problem
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor, contact_text
@@ -44,7 +44,7 @@ NODAL = ("contact_area_nodal", "contact_area_nodal_projected", "max_violation_no
 def _solve(obstacle: Obstacle):
     """The paper's cap on ``obstacle`` over a 12 × 12 square: P1, Gauss penalty, κ = h^1.5."""
     shell = dataclasses.replace(paper_shell(), obstacle=obstacle)
-    r = solve(shell, square(COMM, 12), PenaltySpec(exponent=1.5), Discretization(degree=1))
+    r = solve_problem(shell, square(COMM, 12), PenaltySpec(exponent=1.5), Discretization(degree=1))
     assert r.converged, r.error
     return r
 
@@ -53,7 +53,7 @@ def _solve(obstacle: Obstacle):
 def small_ball():
     r = _solve(SMALL_BALL)
     post = Postprocessor(r.problem, r.constraint)
-    return {"contact": post.contact(), "validity": r.validity(post), "scale": post.gap_scale}
+    return {"contact": post.contact(), "validity": r.validity, "scale": post.gap_scale}
 
 
 @pytest.mark.mpi

@@ -12,12 +12,12 @@ from mpi4py import MPI
 
 import numpy as np
 import pytest
-from conftest import ball, solve_on
+from conftest import VERTEX, ball, solve_on
 from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.obstacle import Sphere
 from shellobstacle.post.sides import facing
-from shellobstacle.spec import Discretization, Obstacle
+from shellobstacle.spec import Obstacle
 
 COMM = MPI.COMM_WORLD
 EXAMPLES = Path(__file__).parents[2] / "examples"
@@ -54,9 +54,6 @@ def test_a_convex_admissible_set_records_no_local_solution(obstacle: Obstacle) -
     r, contact = solve_on(obstacle)
     assert contact["contact_area"] > 0
     assert "local_solution" not in r.extra and "contact_sides" not in r.extra
-
-
-VERTEX = Discretization(penalty_quadrature="vertex")
 
 
 def test_a_curved_g_of_unknown_convexity_is_a_local_solution() -> None:

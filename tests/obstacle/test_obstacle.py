@@ -13,10 +13,10 @@ import dolfinx.la
 import numpy as np
 import pytest
 import ufl
-from conftest import displace_through_plane
+from conftest import displace_through_plane, square
 from conftest import make_paper_shell as paper_shell
 
-from shellobstacle.api import solve_config
+from shellobstacle.api import solve
 from shellobstacle.config.loader import load_config
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.obstacle import Plane, from_spec
@@ -24,7 +24,6 @@ from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.points import NodePoints, QuadraturePoints, constraint_points
 from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
 from shellobstacle.spec import Discretization
-from tests.solvers.test_active_set_p2 import square
 
 COMM = MPI.COMM_WORLD
 PAPER = Path(__file__).parents[2] / "examples" / "paper.toml"
@@ -41,7 +40,7 @@ def test_a_plane_needs_a_unit_normal() -> None:
 def test_the_gap_at_points_is_the_ufl_gap_interpolated() -> None:
     """At the P2 nodes, ``at_points`` (NumPy) equals the UFL gap interpolated; at the penalty's
     Gauss points the interpolated UFL gap equals the penalty's ``g⁰ + Bζ``."""
-    problem = PenalizedProblem(paper_shell(), square(6), Discretization(degree=2))
+    problem = PenalizedProblem(paper_shell(), square(n=6), Discretization(degree=2))
     displace_through_plane(problem)
     nodes = NodePoints(problem)
     g_ufl = nodes.gap()
@@ -91,7 +90,7 @@ def test_the_indicator_carries_the_contact_area(constraint: str) -> None:
     """The points' contact flags lumped onto the vertices keep their weight: ``Σ_i v_i m_i``
     with the vertices' weights ``m_i = Σ_k w_k √a(x_k) φ_i(x_k)`` is the contact area (as
     ``Σ_i φ_i = 1``), for the Gauss points and the P2 nodes; ``v`` is 1 inside the set."""
-    problem = PenalizedProblem(paper_shell(), square(6), Discretization(degree=2))
+    problem = PenalizedProblem(paper_shell(), square(n=6), Discretization(degree=2))
     displace_through_plane(problem)
     post = Postprocessor(problem, constraint)
     area = post.contact()["contact_area"]
@@ -104,7 +103,7 @@ def test_the_indicator_carries_the_contact_area(constraint: str) -> None:
 
 
 def test_a_misspelled_constraint_is_refused() -> None:
-    problem = PenalizedProblem(paper_shell(), square(2), Discretization(degree=1))
+    problem = PenalizedProblem(paper_shell(), square(n=2), Discretization(degree=1))
     with pytest.raises(ValueError, match="constraint must be one of"):
         constraint_points(problem, "gauss")
 
@@ -113,7 +112,7 @@ def test_a_misspelled_constraint_is_refused() -> None:
 def koiter_p2():
     """Koiter's P2 on the paper's problem at h = 0.06: the default penalty path (Gauss points,
     κ = h^1.5) and the exact nodal solution (active-set)."""
-    penalty = solve_config(load_config(PAPER, KOITER_P2), force=True)
+    penalty = solve(load_config(PAPER, KOITER_P2), force=True)
     post = Postprocessor(penalty.problem)
     measured = {
         "penalty": post.summary(),
@@ -122,7 +121,7 @@ def koiter_p2():
     }
     with pytest.warns(UserWarning, match="solves the nodal constraint exactly"):
         config = load_config(PAPER, [*KOITER_P2, "solver.method=active-set"])
-    exact = solve_config(config, force=True)
+    exact = solve(config, force=True)
     measured["exact"] = Postprocessor(exact.problem, "nodes").summary()
     return measured
 

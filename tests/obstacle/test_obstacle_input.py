@@ -1,12 +1,12 @@
-"""Bad ``[obstacle]`` input: one line, exit 2, naming the key and the fix (issue: any rigid
-obstacle)."""
+"""Bad ``[obstacle]`` input: one line, exit 2, naming the key and the fix; an obstacle the
+reference shell does not lie beside fails ``check`` with the fix named."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
-from cli_helpers import assert_user_error, run
+from cli_helpers import assert_user_error, check_row, run
 
 from shellobstacle.spec import Obstacle
 
@@ -93,3 +93,30 @@ def test_the_api_refuses_what_the_config_refuses() -> None:
         Obstacle(kind="expression")
     with pytest.raises(ValueError, match=r"obstacle\.axis"):
         Obstacle(kind="cylinder", point=(0, 0, 0), axis=(0, 0, 0), radius=1.0)
+
+
+@pytest.mark.parametrize("g", ["log(x3 - 1)", "exp(10000*x3)"])
+def test_a_g_not_finite_on_the_reference_shell_says_so(capsys, g: str) -> None:
+    """NaN (``log`` of a negative number) or infinite (an overflow where the cap is high; its
+    minimum is finite) at the reference shell: the row fails as not finite, and the fix names
+    ``obstacle.g``."""
+    code, out, err = run(capsys, "check", PAPER, *COARSE, *EXPRESSION, "--set", f'obstacle.g="{g}"')
+    assert code == 2, err
+    assert "FAIL (g(θ) finite)" in check_row(out, "admissible reference"), out
+    assert "no finite value or gradient" in out and "change obstacle.g" in out, out
+
+
+@pytest.mark.parametrize(
+    ("sets", "fix"),
+    [
+        # the cap (top at 0.15) wholly inside the ball of radius 2 about the origin
+        (["obstacle.center=[0, 0, 0]", "obstacle.radius=2"], "obstacle.side = 'inside'"),
+        # the example's ball below the cap, asked to hold the shell inside it
+        (['obstacle.side="inside"'], "obstacle.side = 'outside'"),
+    ],
+)
+def test_a_shell_on_the_wrong_side_of_a_ball_names_the_side(capsys, sets, fix) -> None:
+    args = [a for s in sets for a in ("--set", s)]
+    code, out, err = run(capsys, "check", BALL, *COARSE, *args)
+    assert code == 2 and "FAIL" in check_row(out, "admissible reference"), err
+    assert "admissible reference: the reference shell lies wholly" in out and fix in out, out

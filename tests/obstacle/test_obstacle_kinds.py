@@ -10,17 +10,16 @@ from mpi4py import MPI
 
 import numpy as np
 import pytest
-from conftest import PENALTY, ball, global_max_abs, owned_zeta, solve_on
+from conftest import PENALTY, VERTEX, ball, global_max_abs, owned_zeta, solve_on
 from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.obstacle import Sphere, from_spec
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.solvers.registry import METHODS
-from shellobstacle.spec import Discretization, Obstacle
+from shellobstacle.spec import Obstacle
 
 COMM = MPI.COMM_WORLD
-VERTEX = Discretization(penalty_quadrature="vertex")
 #: the paper's load widened to |y| < 0.15: five vertices of a 6 × 6 square touch (h ≈ 0.12)
 WIDE_LOAD = "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.15), (0, True))"
 

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from conftest import make_paper_shell, square
 
-from shellobstacle.api import solve
+from shellobstacle.api import solve_problem
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.models.singular import SingularGradientError
 from shellobstacle.obstacle import Cylinder, ExpressionObstacle, Sphere
@@ -79,7 +79,7 @@ def test_a_ball_of_few_cells_is_warned_about_and_a_resolved_one_is_not() -> None
     and the cell size 0.07/4 that would resolve it; on cells half as large (4.7 cells) and for
     the ball of radius 2, no warning. Serially and on 2 ranks (a global verdict)."""
     penalty = PenaltySpec(exponent=1.5)
-    coarse = solve(on_ball(0.07), square(n=24), penalty)
+    coarse = solve_problem(on_ball(0.07), square(n=24), penalty)
     points = QuadraturePoints(coarse.problem)
     warning = unresolved_obstacle(points, 1e-12)
     assert warning is not None
@@ -87,9 +87,9 @@ def test_a_ball_of_few_cells_is_warned_about_and_a_resolved_one_is_not() -> None
     assert f"at most {0.07 / RESOLVE_CELLS:.3g}" in warning
     # the vertices do not touch: nothing to judge there
     assert unresolved_obstacle(NodePoints(coarse.problem), 1e-12) is None
-    fine = solve(on_ball(0.07), square(n=48), penalty)
+    fine = solve_problem(on_ball(0.07), square(n=48), penalty)
     assert unresolved_obstacle(QuadraturePoints(fine.problem), 1e-12) is None
-    large = solve(on_ball(2.0), square(n=24), penalty)
+    large = solve_problem(on_ball(2.0), square(n=24), penalty)
     assert unresolved_obstacle(QuadraturePoints(large.problem), 1e-12) is None
 
 
@@ -102,11 +102,11 @@ def test_a_solve_that_reaches_the_centre_fails_with_the_error_as_its_message() -
     problem = PenalizedProblem(on_ball(0.04, centre_height=-0.05), square(n=8), Discretization())
 
     class ThroughTheCentre:
-        def solve(self, problem, h, kappas, options, say, progress=None) -> MethodResult:
+        def solve(self, problem, h, kappas, options) -> MethodResult:
             problem.zeta.x.array.reshape(-1, 3)[:, 2] = -0.2
             return MethodResult()
 
     problem.set_kappa(1e-3)
-    result = solve_with(ThroughTheCentre(), problem, 0.1, [1e-3], None, lambda line: None)
+    result = solve_with(ThroughTheCentre(), problem, 0.1, [1e-3], None)
     assert not result.converged
     assert "ball's centre" in result.error and "deformed shell" in result.error

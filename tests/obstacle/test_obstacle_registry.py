@@ -128,11 +128,11 @@ def test_a_registered_shape_solves_as_its_formula(paraboloid) -> None:
     """Through the API: the same ζ and contact as ``g`` written as an expression."""
     from mpi4py import MPI
 
-    from shellobstacle.api import solve_config
+    from shellobstacle.api import solve
     from shellobstacle.post.contact import Postprocessor
     from shellobstacle.post.pictures import describe
 
-    shape, formula = (solve_config(_config(text)) for text in (PARABOLOID, FORMULA))
+    shape, formula = (solve(_config(text)) for text in (PARABOLOID, FORMULA))
     assert shape.converged and formula.converged
     assert isinstance(shape.problem.obstacle, Paraboloid) and shape.problem.linearized
     assert describe(shape.problem.obstacle) == "the paraboloid x3 = 0 − 0.2(x1² + x2²)"

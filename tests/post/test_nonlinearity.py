@@ -20,7 +20,7 @@ from foppl_von_karman import (
     linear_deflection,
 )
 
-from shellobstacle.api import solve
+from shellobstacle.api import solve_problem
 from shellobstacle.cli.main import EXIT_OK, main
 from shellobstacle.geometry.surface import Surface
 from shellobstacle.mesh.domains import DomainSpec
@@ -42,8 +42,8 @@ def plate_validity(factor: float, comm: MPI.Comm = MPI.COMM_WORLD):
         "koiter",
     )
     domain = DomainSpec(kind="disk", h=0.1, radius=PLATE_R)
-    result = solve(shell, domain, PenaltySpec(kappa=1e-6), Discretization(degree=2))
-    return result.validity()
+    result = solve_problem(shell, domain, PenaltySpec(kappa=1e-6), Discretization(degree=2))
+    return result.validity
 
 
 @pytest.fixture(scope="module")

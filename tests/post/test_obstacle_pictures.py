@@ -16,8 +16,10 @@ from mpi4py import MPI
 import matplotlib.image
 import numpy as np
 import pytest
+from conftest import make_paper_shell as paper_shell
+from conftest import square
 
-from shellobstacle.api import solve
+from shellobstacle.api import solve_problem
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.obstacle import Cylinder, ExpressionObstacle, Sphere
 from shellobstacle.penalty.spec import PenaltySpec
@@ -27,7 +29,6 @@ from shellobstacle.post.obstacle_shape import onto, profile_below
 from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import CrossSection, cross_section
 from shellobstacle.spec import Obstacle
-from tests.solvers.test_active_set import paper_shell, square
 
 COMM = MPI.COMM_WORLD
 BALL = Obstacle(kind="sphere", center=(0.0, 0.0, -2.0), radius=2.0, side="outside")
@@ -40,7 +41,7 @@ pytestmark = pytest.mark.skipif(COMM.size > 1, reason="serial: samples and drawi
 def ball() -> PenalizedProblem:
     """The paper's cap on the 24 × 24 square pressed onto the ball of radius 2 (κ = h^1.5)."""
     shell = dataclasses.replace(paper_shell(), obstacle=BALL)
-    r = solve(shell, square(COMM), PenaltySpec(exponent=1.5))
+    r = solve_problem(shell, square(COMM), PenaltySpec(exponent=1.5))
     assert r.converged, r.error
     return r.problem
 

@@ -25,12 +25,12 @@ import matplotlib.image
 import numpy as np
 import pytest
 import ufl
+from conftest import cap_on_square
 
 from shellobstacle.post import pictures
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.render3d import plane_frame
 from shellobstacle.solvers.newton.solver import NewtonSolver
-from tests.cap_on_square import cap_on_square
 
 COMM = MPI.COMM_WORLD
 HALF, N = 0.25, 16

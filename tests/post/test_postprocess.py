@@ -20,7 +20,7 @@ import dolfinx.mesh
 import numpy as np
 import pytest
 import ufl
-from conftest import PAPER_LOAD, make_paper_shell
+from conftest import PAPER_LOAD, make_paper_shell, square
 
 from shellobstacle.geometry.surface import dot
 from shellobstacle.io.paraview import SurfaceMesh, write_paraview
@@ -40,12 +40,6 @@ SIGNED_LOAD = f"s*{PAPER_LOAD}"
 KAPPAS = (1e-2, 1e-3, 1e-4)
 
 
-def _square(n: int = N) -> dolfinx.mesh.Mesh:
-    return dolfinx.mesh.create_rectangle(
-        COMM, [np.array([-HALF, -HALF]), np.array([HALF, HALF])], [n, n]
-    )
-
-
 def _shell(load: str = SIGNED_LOAD, **parameters: float) -> Shell:
     return make_paper_shell(load, parameters=parameters)
 
@@ -59,7 +53,7 @@ def _shared_dir(tmp_path: Path) -> Path:
 def paper():
     """The paper's problem pushed onto the plane, solved for κ = 1e-2, 1e-3, 1e-4 (continuation)."""
     disc = Discretization(degree=1, penalty_quadrature="vertex", quadrature_degree=4)
-    problem = PenalizedProblem(_shell(s=1.0), _square(), disc)
+    problem = PenalizedProblem(_shell(s=1.0), square(COMM, N, HALF), disc)
     post = Postprocessor(problem)
     solver = NewtonSolver(problem)
     contacts = {}
@@ -158,7 +152,7 @@ def test_lumped_masses_sum_to_the_areas(paper):
 def test_nodal_gap_and_cartesian_displacement_are_exact_at_the_nodes():
     """For a known ζ (P2), g and U at the nodes equal the NumPy geometry's values."""
     disc = Discretization(degree=2, quadrature_degree=6)
-    problem = PenalizedProblem(_shell(load="0"), _square(8), disc)
+    problem = PenalizedProblem(_shell(load="0"), square(COMM, 8, HALF), disc)
     post = Postprocessor(problem)
 
     def zeta_exact(x):

@@ -145,11 +145,11 @@ def test_a_load_sweep_names_the_values_outside_the_validity(tmp_path: Path) -> N
 
 @pytest.mark.mpi
 def test_the_python_api_measures_a_solve() -> None:
-    """SolveResult.validity(): the paper's problem inside, the crushing load outside."""
-    from shellobstacle.api import solve_config
+    """SolveResult.validity: the paper's problem inside, the crushing load outside."""
+    from shellobstacle.api import solve
 
-    inside = solve_config(load_config(SMALL, ["domain.h=0.06"])).validity()
-    outside = solve_config(load_config(SMALL, ["domain.h=0.06", CRUSHING])).validity()
+    inside = solve(load_config(SMALL, ["domain.h=0.06"])).validity
+    outside = solve(load_config(SMALL, ["domain.h=0.06", CRUSHING])).validity
     assert inside.valid and [w.split(":")[0] for w in inside.warnings()] == [
         "beyond linear kinematics"
     ]
@@ -220,11 +220,11 @@ def test_lame_constants_beyond_double_precision_are_refused(shared_dir) -> None:
 @pytest.mark.mpi
 def test_an_unloaded_shell_at_rest_is_valid() -> None:
     """p = 0: ζ = 0 is the solution, not a trivial one."""
-    from shellobstacle.api import solve_config
+    from shellobstacle.api import solve
     from shellobstacle.solvers.newton.solver import ZERO_LOAD
 
     cfg = load_config(SMALL, ["domain.h=0.08", "load.p=['0', '0', '0']"])
-    result = solve_config(cfg)
-    validity = result.validity()
+    result = solve(cfg)
+    validity = result.validity
     assert not validity.loaded and validity.displacement == 0.0 and validity.valid
     assert {(step.iterations, step.reason) for step in result.steps} == {(0, ZERO_LOAD)}

@@ -8,8 +8,8 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 import pytest
+from conftest import KKT_TOL, VERTEX, square
 from conftest import make_paper_shell as paper_shell
-from conftest import square
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
@@ -17,14 +17,12 @@ from shellobstacle.post.norms import l2_norm, vm_norm
 from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.newton.continuation import continuation
 from shellobstacle.solvers.newton.solver import NewtonSolver
-from shellobstacle.solvers.options import ActiveSetOptions
 from shellobstacle.solvers.vi.active_set import ActiveSetResult, ActiveSetSolver
 from shellobstacle.solvers.vi.nodal import nodal_rotations
+from shellobstacle.solvers.vi.options import ActiveSetOptions
 from shellobstacle.spec import Discretization
 
 PULL_UP = "Piecewise(((2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.06), (0, True))"
-VERTEX = Discretization(penalty_quadrature="vertex")
-KKT_TOL = 1e-10
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,8 @@ import dolfinx
 import numpy as np
 import pytest
 import ufl
+from conftest import KKT_TOL, square
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import l2_norm, vm_norm
@@ -19,22 +21,13 @@ from shellobstacle.solvers.newton.continuation import continuation
 from shellobstacle.solvers.newton.solver import NewtonSolver
 from shellobstacle.solvers.vi.active_set import ActiveSetSolver
 from shellobstacle.spec import Discretization
-from tests.solvers.test_active_set import KKT_TOL, paper_shell
 
 P2 = Discretization(degree=2)
 
 
-def square(n: int, comm: MPI.Comm = MPI.COMM_WORLD) -> dolfinx.mesh.Mesh:
-    """[-0.25, 0.25]², ghosted by one layer (Koiter's facet terms need both cells)."""
-    return dolfinx.mesh.create_rectangle(
-        comm, [[-0.25, -0.25], [0.25, 0.25]], [n, n],
-        ghost_mode=dolfinx.mesh.GhostMode.shared_facet,
-    )  # fmt: skip
-
-
 def solved(model: str, n: int, comm: MPI.Comm = MPI.COMM_WORLD, disc: Discretization = P2):
     shell = dataclasses.replace(paper_shell(), model=model)
-    problem = PenalizedProblem(shell, square(n, comm), disc)
+    problem = PenalizedProblem(shell, square(comm, n), disc)
     return problem, ActiveSetSolver(problem).solve()
 
 
@@ -55,7 +48,7 @@ def test_kkt_at_the_p2_nodes(model: str) -> None:
 
 def test_lumped_masses_are_positive_and_sum_to_the_area() -> None:
     """Vertices 1/12 and midpoints 1/4 of each cell's ∫√a dy: positive, total ∫_ω √a dy."""
-    problem = PenalizedProblem(paper_shell(), square(8), P2)
+    problem = PenalizedProblem(paper_shell(), square(n=8), P2)
     S, _ = problem.V.sub(0).collapse()
     m = lumped_mass_p2(S, problem.G.sqrt_a)
     n = S.dofmap.index_map.size_local

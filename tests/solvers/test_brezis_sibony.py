@@ -12,7 +12,8 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 import pytest
-from test_newton import paper_shell, square
+from conftest import make_paper_shell as paper_shell
+from conftest import square
 
 from shellobstacle.experiments.solvers import compare_solvers, write_solver_comparison
 from shellobstacle.mesh.measures import mesh_size

@@ -9,13 +9,13 @@ from petsc4py import PETSc
 import dolfinx.fem.petsc
 import numpy as np
 import pytest
+from conftest import lu_solve, square
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton.coarse_space import CoarseSpace, _quadratic_bsplines
 from shellobstacle.solvers.newton.solver import NewtonSolver
 from shellobstacle.spec import Discretization
-from tests.solvers.test_contact_zone import lu_solve
-from tests.solvers.test_newton import paper_shell, square
 
 
 def galerkin_residual(coarse: CoarseSpace, K: PETSc.Mat, f: PETSc.Vec) -> tuple[PETSc.Vec, float]:
@@ -124,9 +124,7 @@ def test_koiter_first_step_is_seeded_by_the_bsplines() -> None:
     predicts the contact, so no full Jacobian is factorized first (P1 hats predict none)."""
     import dataclasses
 
-    from tests.solvers.test_active_set_p2 import square as ghosted_square
-
-    mesh = ghosted_square(16)
+    mesh = square(n=16)
     problem = PenalizedProblem(
         dataclasses.replace(paper_shell(), model="koiter"), mesh, Discretization(degree=2)
     )

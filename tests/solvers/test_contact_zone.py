@@ -6,6 +6,8 @@ from petsc4py import PETSc
 
 import numpy as np
 import pytest
+from conftest import lu_solve, square, without_petsc_function
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.linear.direct import DirectStrategy
@@ -13,7 +15,6 @@ from shellobstacle.solvers.linear.zone import ZoneStrategy
 from shellobstacle.solvers.newton.continuation import continuation, predict
 from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.solvers.zone.reduced import ZoneModel
-from tests.solvers.test_newton import paper_shell, square
 
 KAPPAS = [1e-2, 1e-3, 1e-4]
 
@@ -26,18 +27,6 @@ def solved(
     steps = continuation(problem, solver, KAPPAS, predictor=False)
     assert all(s.converged for s in steps)
     return problem, solver, steps
-
-
-def lu_solve(A: PETSc.Mat, b: PETSc.Vec) -> PETSc.Vec:
-    ksp = PETSc.KSP().create(A.getComm())
-    ksp.setOperators(A)
-    ksp.setType("preonly")
-    ksp.getPC().setType("lu")
-    ksp.getPC().setFactorSolverType("mumps")
-    x = b.duplicate()
-    ksp.solve(b, x)
-    ksp.destroy()
-    return x
 
 
 @pytest.mark.mpi
@@ -195,20 +184,6 @@ def test_zone_max_fraction_is_checked() -> None:
         ZoneStrategy(max_fraction=0.0)
 
 
-def _without(monkeypatch: pytest.MonkeyPatch, name: str) -> None:
-    """Make the symbol lookup of PETSc's C function ``name`` fail, as in a PETSc without it."""
-    from shellobstacle.solvers import libpetsc
-
-    lookup = libpetsc._lookup
-
-    def failing(wanted: str):
-        if wanted == name:
-            raise AttributeError(f"undefined symbol: {name}")
-        return lookup(wanted)
-
-    monkeypatch.setattr(libpetsc, "_lookup", failing)
-
-
 def test_petscs_mumps_functions_are_found_through_petsc4py() -> None:
     """Every function of ``SIGNATURES`` is reached in the libpetsc petsc4py runs on; a name
     PETSc lacks is reported missing and gives no function (the real lookup, nothing patched)."""
@@ -233,7 +208,7 @@ def test_without_mumps_selected_inverses_the_solver_warns_and_falls_back(
     zone_solver = NewtonSolver(zone_problem, NewtonOptions())
     assert zone_solver.zone is not None
     continuation(zone_problem, zone_solver, [1e-2], predictor=False)
-    _without(monkeypatch, "MatMumpsGetInverse")
+    without_petsc_function(monkeypatch, "MatMumpsGetInverse")
     problem = PenalizedProblem(paper_shell(), square(n=8))
     with pytest.warns(RuntimeWarning, match="selected inverse entries are not reachable"):
         solver = NewtonSolver(problem, NewtonOptions())
@@ -386,7 +361,7 @@ def test_a_zone_too_large_is_built_again_once_the_contact_shrinks(
     the answer of the path without a zone."""
     from pathlib import Path
 
-    from shellobstacle.api import solve_config
+    from shellobstacle.api import solve
     from shellobstacle.config.loader import load_config
     from shellobstacle.post.contact import Postprocessor
     from shellobstacle.solvers.zone.contact_zone import ContactZone
@@ -403,7 +378,7 @@ def test_a_zone_too_large_is_built_again_once_the_contact_shrinks(
     runs = []
     for zone in ("true", "false"):
         cfg = load_config(config, ["domain.h=0.05", f"solver.contact_zone={zone}"])
-        result = solve_config(cfg)
+        result = solve(cfg)
         assert result.converged
         area = Postprocessor(result.problem).contact()["contact_area"]
         runs.append((result.problem.zeta.x.petsc_vec.copy(), area))

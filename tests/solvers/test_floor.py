@@ -6,12 +6,12 @@ import dataclasses
 
 import numpy as np
 import pytest
+from conftest import make_paper_shell as paper_shell
+from conftest import square
 
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton.solver import NewtonSolver
 from shellobstacle.spec import Discretization
-from tests.solvers.test_active_set import paper_shell
-from tests.solvers.test_active_set_p2 import square
 
 
 @pytest.mark.mpi
@@ -20,7 +20,7 @@ def test_elastic_rounding_is_u_times_abs_K_abs_zeta(model: str) -> None:
     """The row-sum estimate ``(Σ_j |K_ij|) |ζ_i|`` of ``|K||ζ|`` at a solution is within 2 %
     of the product itself, and the floor of Newton's stopping rule contains it."""
     shell = dataclasses.replace(paper_shell(), model=model)
-    problem = PenalizedProblem(shell, square(16), Discretization(degree=2))
+    problem = PenalizedProblem(shell, square(n=16), Discretization(degree=2))
     problem.set_kappa((0.5 / 16) ** 1.5)
     solver = NewtonSolver(problem)
     solver.solve()
@@ -53,8 +53,6 @@ def test_the_zone_floor_counts_the_rounding_of_its_own_products(
     from shellobstacle.solvers.linear.zone import ZoneStrategy
     from shellobstacle.solvers.newton.solver import NewtonOptions
     from shellobstacle.solvers.zone.reduced import ZoneModel
-    from tests.solvers.test_newton import paper_shell as membrane_shell
-    from tests.solvers.test_newton import square as p1_square
 
     seen: list[tuple[float, float, float]] = []
     floor = ZoneModel.floor
@@ -68,7 +66,7 @@ def test_the_zone_floor_counts_the_rounding_of_its_own_products(
         seen.append((value, exact, self.system.elastic_rounding()))
         return value
 
-    problem = PenalizedProblem(membrane_shell(), p1_square(n=32))
+    problem = PenalizedProblem(paper_shell(), square(n=32))
     problem.set_kappa(1e-2)
     # floor_factor ≈ 0 leaves only the rounding terms in the floor
     solver = NewtonSolver(problem, NewtonOptions(floor_factor=1e-30), ZoneStrategy(seed=True))
@@ -91,7 +89,7 @@ def test_abs_row_sums_are_the_rows_absolute_sums(kind: str) -> None:
 
     from shellobstacle.solvers.newton.system import ROW_SUM_ABS_TYPES, abs_row_sums
 
-    problem = PenalizedProblem(paper_shell(), square(8), Discretization(degree=1))
+    problem = PenalizedProblem(paper_shell(), square(n=8), Discretization(degree=1))
     K = problem.stiffness()
     A = K if kind == "aij" else K.convert(PETSc.Mat.Type.BAIJ)
     assert (A.getType() in ROW_SUM_ABS_TYPES) == (kind == "aij")

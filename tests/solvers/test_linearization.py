@@ -17,7 +17,7 @@ import dolfinx.fem.petsc
 import numpy as np
 import pytest
 import ufl
-from conftest import ball, global_max_abs, owned_zeta, solve_on, square
+from conftest import VERTEX, ball, global_max_abs, owned_zeta, solve_on, square
 from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.models.problem import PenalizedProblem
@@ -25,11 +25,8 @@ from shellobstacle.solvers.methods.base import MethodBase
 from shellobstacle.solvers.methods.newton import NewtonContinuation
 from shellobstacle.solvers.newton.solver import NewtonSolver
 from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty
-from shellobstacle.spec import Discretization
 
 COMM = MPI.COMM_WORLD
-
-VERTEX = Discretization(penalty_quadrature="vertex")
 
 
 def _csr(M) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -167,7 +164,7 @@ def test_the_exact_solvers_passes_stop_on_the_curved_kkt_conditions() -> None:
     """active-set on the ball of radius 2 (the vertex constraint): each pass records the
     largest relative KKT measure with the curved gap and its derivative at the nodes, and
     the last meets the method's ``kkt_rtol``."""
-    from shellobstacle.solvers.options import ActiveSetOptions
+    from shellobstacle.solvers.vi.options import ActiveSetOptions
 
     r, contact = solve_on(ball(2.0), "active-set", penalty=None, discretization=VERTEX)
     passes = r.extra["linearization"]

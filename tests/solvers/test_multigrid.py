@@ -11,13 +11,13 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 import pytest
+from conftest import disk, ladder
 from conftest import make_paper_shell as paper_shell
 
-from shellobstacle.api import make_mesh, solve
+from shellobstacle.api import make_mesh, solve_problem
 from shellobstacle.config.loader import load_config
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
-from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.messages import ConfigError
 from shellobstacle.models.problem import PenalizedProblem
@@ -30,17 +30,6 @@ from shellobstacle.solvers.newton.continuation import continuation
 from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 
 KOITER = Path(__file__).parents[2] / "examples" / "cylinder_koiter.toml"
-
-
-def disk(refinements: int) -> dolfinx.mesh.Mesh:
-    """The paper's disk: gmsh's mesh at h = 0.08 refined uniformly ``refinements`` times."""
-    return create_mesh(DomainSpec(kind="disk", radius=0.5, h=0.08, refinements=refinements))
-
-
-def ladder(mesh: dolfinx.mesh.Mesh) -> list[float]:
-    """κ = h^0.5, h, h^1.5: the paper's continuation to κ = h^1.5."""
-    h = mesh_size(mesh)
-    return [h**0.5, h, h**1.5]
 
 
 def direct_and_multigrid(
@@ -98,7 +87,7 @@ def test_multigrid_gives_the_direct_solution_of_koiters_model() -> None:
     runs = []
     for linear_solver in ("direct", "multigrid"):
         options = dataclasses.replace(cfg.solver, linear_solver=linear_solver)
-        result = solve(cfg.shell, mesh, cfg.penalty, cfg.discretization, options)
+        result = solve_problem(cfg.shell, mesh, cfg.penalty, cfg.discretization, options=options)
         assert result.converged
         runs.append(result)
     direct, geometric = runs
@@ -124,7 +113,7 @@ def test_koiters_cg_iterations_per_newton_step_stay_bounded_as_h_halves() -> Non
         cfg = load_config(KOITER, ["domain.h=0.05", f"domain.refinements={refinements}"])
         mesh = make_mesh(cfg.domain, ghosted=True)
         options = dataclasses.replace(cfg.solver, linear_solver="multigrid")
-        result = solve(cfg.shell, mesh, cfg.penalty, cfg.discretization, options)
+        result = solve_problem(cfg.shell, mesh, cfg.penalty, cfg.discretization, options=options)
         assert result.converged
         means.append(np.mean([n for s in result.steps for n in s.record.linear_iterations]))
     assert means[1] <= 1.3 * means[0], means
@@ -138,7 +127,7 @@ def test_koiters_model_without_levels_is_refused() -> None:
     assert coarser_meshes(mesh) == []
     options = dataclasses.replace(cfg.solver, linear_solver="multigrid")
     with pytest.raises(ConfigError, match=r"domain\.refinements >= 1"):
-        solve(cfg.shell, mesh, cfg.penalty, cfg.discretization, options)
+        solve_problem(cfg.shell, mesh, cfg.penalty, cfg.discretization, options=options)
 
 
 def test_without_a_hierarchy_it_is_algebraic_multigrid() -> None:

@@ -25,8 +25,7 @@ def solve_and_gather() -> dict | None:
     few cores):
     on rank 0 the contact area, whether every step converged, and ζ at the nodes sorted by
     coordinates."""
-    from conftest import make_paper_shell
-    from test_multigrid import ladder
+    from conftest import ladder, make_paper_shell
 
     from shellobstacle.mesh.domains import DomainSpec
     from shellobstacle.mesh.meshing import create_mesh

@@ -4,6 +4,7 @@ cut Newton step (solvers/newton/normal_relaxation.py)."""
 from __future__ import annotations
 
 import dataclasses
+import logging
 from pathlib import Path
 
 from mpi4py import MPI
@@ -11,16 +12,17 @@ from mpi4py import MPI
 import dolfinx
 import numpy as np
 import pytest
+from conftest import ball, disk, ladder
 from conftest import make_paper_shell as paper_shell
-from test_multigrid import disk, ladder
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
+from shellobstacle.solvers.auto import check_nested, resolve
 from shellobstacle.solvers.methods.newton import NewtonContinuation
 from shellobstacle.solvers.newton.continuation import continuation
-from shellobstacle.solvers.newton.nested import check_nested, interpolate, nested_wanted
+from shellobstacle.solvers.newton.nested import interpolate
 from shellobstacle.solvers.newton.normal_relaxation import NormalRelaxation
 from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.spec import Discretization
@@ -55,7 +57,7 @@ def test_nested_iteration_ends_at_the_continuations_solution() -> None:
     plain, steps = solved_plainly(mesh)
     problem = PenalizedProblem(paper_shell(), mesh)
     options = dataclasses.replace(MULTIGRID, nested_iteration="on")
-    out = NewtonContinuation().solve(problem, 0.0, ladder(mesh), options, lambda _: None)
+    out = NewtonContinuation().solve(problem, 0.0, ladder(mesh), options)
     assert out.converged and len(out.steps) == 1
     assert out.steps[0].kappa == ladder(mesh)[-1]
     levels = out.extra["nested_iteration"]["levels"]
@@ -146,7 +148,7 @@ def test_a_full_step_no_better_than_the_cut_one_is_undone(monkeypatch) -> None:
     relaxation.destroy()
 
 
-def test_a_nested_iteration_that_fails_falls_back_to_the_continuation(monkeypatch) -> None:
+def test_a_nested_iteration_that_fails_falls_back_to_the_continuation(monkeypatch, caplog) -> None:
     """A coarser level that does not converge is reported, and the finest mesh is then solved
     by the continuation on the whole ladder, from ζ = 0: the plain continuation's solution."""
     import shellobstacle.solvers.newton.nested as nested
@@ -161,11 +163,11 @@ def test_a_nested_iteration_that_fails_falls_back_to_the_continuation(monkeypatc
     plain, _ = solved_plainly(mesh)
     problem = PenalizedProblem(paper_shell(), mesh)
     options = dataclasses.replace(MULTIGRID, nested_iteration="on")
-    said: list[str] = []
-    out = NewtonContinuation().solve(problem, 0.0, ladder(mesh), options, said.append)
+    with caplog.at_level(logging.INFO, logger="shellobstacle"):
+        out = NewtonContinuation().solve(problem, 0.0, ladder(mesh), options)
     assert out.converged and len(out.steps) == 3
     assert out.extra["nested_iteration"] == {"failed": "Newton did not converge for kappa = 1"}
-    assert any("nested iteration failed" in line for line in said)
+    assert any("nested iteration failed" in line for line in caplog.messages)
     assert l2_norm(problem.zeta - plain.zeta) <= 1e-8 * l2_norm(plain.zeta)
 
 
@@ -181,16 +183,20 @@ def test_the_config_refuses_nested_iteration_for_koiter(tmp_path) -> None:
 def test_auto_takes_nested_iteration_with_multigrid_on_one_rank_only() -> None:
     """``nested_iteration = "auto"`` (the default): on with multigrid on a refined mesh on
     one rank (off on several), off with the direct path there and with multigrid on a mesh
-    without levels (GAMG); ``"on"`` on any number of ranks."""
+    without levels (GAMG); ``"on"`` and ``"off"`` as asked, on any number of ranks."""
     refined = PenalizedProblem(paper_shell(), disk(1))
     flat = PenalizedProblem(paper_shell(), disk(0))
     assert NewtonOptions().nested_iteration == "auto"
-    assert nested_wanted(refined, MULTIGRID) is (MPI.COMM_WORLD.size == 1)
-    assert nested_wanted(refined, dataclasses.replace(MULTIGRID, nested_iteration="on"))
-    assert not nested_wanted(refined, NewtonOptions(linear_solver="direct"))
-    assert not nested_wanted(refined, NewtonOptions())  # "auto" is direct at this size
-    assert not nested_wanted(flat, MULTIGRID)
-    assert not nested_wanted(refined, dataclasses.replace(MULTIGRID, nested_iteration="off"))
+
+    def nested(problem: PenalizedProblem, options: NewtonOptions) -> str:
+        return resolve(problem, options).options.nested_iteration
+
+    assert nested(refined, MULTIGRID) == ("on" if MPI.COMM_WORLD.size == 1 else "off")
+    assert nested(refined, dataclasses.replace(MULTIGRID, nested_iteration="on")) == "on"
+    assert nested(refined, NewtonOptions(linear_solver="direct")) == "off"
+    assert nested(refined, NewtonOptions()) == "off"  # "auto" is direct at this size
+    assert nested(flat, MULTIGRID) == "off"
+    assert nested(refined, dataclasses.replace(MULTIGRID, nested_iteration="off")) == "off"
 
 
 @pytest.mark.mpi
@@ -228,7 +234,7 @@ def test_the_finest_levels_newton_steps_stay_flat_as_h_halves() -> None:
         for mode, counts in (("on", nested), ("off", plain)):
             problem = PenalizedProblem(paper_shell(), mesh)
             options = dataclasses.replace(MULTIGRID, nested_iteration=mode)
-            out = NewtonContinuation().solve(problem, 0.0, ladder(mesh), options, lambda _: None)
+            out = NewtonContinuation().solve(problem, 0.0, ladder(mesh), options)
             assert out.converged
             counts.append(sum(s.iterations for s in out.steps))
     assert max(nested) - min(nested) <= 1, nested
@@ -241,10 +247,8 @@ def test_nested_iteration_on_a_curved_obstacle_ends_at_the_plain_answer(monkeypa
     is linearized at its start, the finest mesh's passes solve the last κ only and settle the
     gap, nested iteration runs on the first pass alone, and ζ is the plain continuation's
     (solver tolerance), serially and on 2 ranks."""
-    from test_obstacle_kinds import ball
-
     from shellobstacle.solvers.linearization import solve_with
-    from shellobstacle.solvers.newton.solver import nested as nested_module
+    from shellobstacle.solvers.newton import nested as nested_module
 
     calls: list[int] = []
     original = nested_module.nested_start
@@ -262,7 +266,7 @@ def test_nested_iteration_on_a_curved_obstacle_ends_at_the_plain_answer(monkeypa
         assert problem.linearized
         options = dataclasses.replace(MULTIGRID, nested_iteration=nested)
         method = NewtonContinuation()
-        outs[nested] = solve_with(method, problem, 0.0, ladder(mesh), options, lambda _: None)
+        outs[nested] = solve_with(method, problem, 0.0, ladder(mesh), options)
         assert outs[nested].converged
         passes = outs[nested].extra["linearization"]
         assert passes["residual"][-1] <= passes["residual_target"][-1]

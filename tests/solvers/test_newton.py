@@ -9,12 +9,12 @@ from mpi4py import MPI
 from petsc4py import PETSc
 
 import basix
-import dolfinx
 import numpy as np
 import pytest
 from conftest import make_paper_shell as paper_shell
+from conftest import square
 
-from shellobstacle.api import solve
+from shellobstacle.api import solve_problem
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.spec import PenaltySpec
@@ -26,11 +26,6 @@ from shellobstacle.solvers.linear.iterative import WARM_FORCING, IterativeStrate
 from shellobstacle.solvers.newton.continuation import continuation
 from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
 from shellobstacle.spec import Discretization, Obstacle, Shell
-
-
-def square(comm=MPI.COMM_WORLD, n: int = 24, half: float = 0.25) -> dolfinx.mesh.Mesh:
-    """A structured mesh of [-half, half]²."""
-    return dolfinx.mesh.create_rectangle(comm, [[-half, -half], [half, half]], [n, n])
 
 
 @pytest.mark.parametrize("quadrature", ["gauss", "vertex"])
@@ -71,7 +66,7 @@ def test_cold_start_small_kappa_with_continuation() -> None:
     """``solve`` with one small κ reaches it from ζ = 0 through its continuation ladder."""
     shell = paper_shell()
     mesh = square()
-    result = solve(shell, mesh, PenaltySpec(kappa=1e-10))
+    result = solve_problem(shell, mesh, PenaltySpec(kappa=1e-10))
     assert result.converged
     assert result.steps[-1].kappa == 1e-10
     assert len(result.steps) > 1
@@ -91,8 +86,8 @@ def test_nonconvergence_is_reported_with_the_iterate() -> None:
     assert not result.converged
     assert result.iterations == 2
     assert len(result.residual_norms) == 3
-    # and solve() turns it into a failed result, not a success
-    failed = solve(
+    # and solve_problem() turns it into a failed result, not a success
+    failed = solve_problem(
         paper_shell(),
         square(),
         PenaltySpec(kappa=1e-10, continuation=False),

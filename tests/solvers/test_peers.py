@@ -20,15 +20,16 @@ import dolfinx
 import numpy as np
 import pytest
 from cli_helpers import assert_user_error, run
+from conftest import VERTEX, square
+from conftest import make_paper_shell as paper_shell
 
 from shellobstacle.api import nodal_solver
 from shellobstacle.config.loader import ConfigError, load_config
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.norms import l2_norm
 from shellobstacle.solvers.base import ConvergenceError
-from shellobstacle.solvers.options import ProximalGalerkinOptions, SnesVIOptions
+from shellobstacle.solvers.vi.options import ProximalGalerkinOptions, SnesVIOptions
 from shellobstacle.spec import Discretization
-from tests.solvers.test_active_set import VERTEX, paper_shell, square
 
 SMALL = Path(__file__).parents[2] / "examples" / "small.toml"
 serial = pytest.mark.skipif(MPI.COMM_WORLD.size > 1, reason="CLI tests run serially")

@@ -23,8 +23,8 @@ from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.solvers.newton.continuation import continuation
 from shellobstacle.solvers.newton.solver import NewtonSolver
-from shellobstacle.solvers.options import ActiveSetOptions, SnesVIOptions
 from shellobstacle.solvers.vi.active_set import ActiveSetSolver
+from shellobstacle.solvers.vi.options import ActiveSetOptions, SnesVIOptions
 from shellobstacle.solvers.vi.snes_vi import SnesVISolver
 
 SMALL = Path(__file__).parents[2] / "examples" / "small.toml"

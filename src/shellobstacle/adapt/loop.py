@@ -17,6 +17,7 @@ the continuation ladder; the later ones start from the transferred solution at t
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -37,7 +38,7 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.kappa import MeshKappa, kappa_on_mesh
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.linearization import solve_with
-from shellobstacle.solvers.options import NewtonOptions
+from shellobstacle.solvers.newton.options import NewtonOptions
 from shellobstacle.solvers.registry import METHODS, Method, options_for
 from shellobstacle.solvers.result import MethodResult, SolveResult, Step
 from shellobstacle.spec import Discretization, Shell
@@ -50,7 +51,7 @@ __all__ = [
     "solve_adaptively",
 ]
 
-Progress = Callable[[str], Any]
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -112,8 +113,6 @@ def adaptive_solve(
     options: NewtonOptions | None = None,
     method: str = "newton",
     method_options: Any = None,
-    progress: Progress | None = None,
-    newton_progress: Callable[[int, float], Any] | None = None,
     on_level: Callable[[AdaptLevel, PenalizedProblem], Any] | None = None,
     start: dolfinx.fem.Function | None = None,
     carry: list[dolfinx.fem.Function] | None = None,
@@ -132,8 +131,6 @@ def adaptive_solve(
             ``adaptive``: ``"newton"`` (penalized) or ``"active-set"`` (the exact discrete VI).
         method_options: its options (e.g. ``ActiveSetOptions``); None: ``options`` for
             Newton, the defaults otherwise.
-        progress: called with one line per level.
-        newton_progress: called after every Newton iteration.
         on_level: called with each level's record and problem once it is estimated (e.g. to
             measure errors against a reference).
         start: a solution on ``mesh`` or a coarser mesh it refines: the first level starts
@@ -152,7 +149,6 @@ def adaptive_solve(
     if chosen is None or not chosen.adaptive:
         adaptive = [m.name for m in METHODS.values() if m.adaptive]
         raise ValueError(f"adaptive refinement solves by one of {adaptive}, not {method!r}")
-    say = progress or (lambda _m: None)
     disc = discretization or Discretization()
     if not chosen.penalized and disc.degree == 1:  # the exact solver's nodal constraint
         disc = dataclasses.replace(disc, penalty_quadrature="vertex")
@@ -173,7 +169,7 @@ def adaptive_solve(
                 carry[:] = moved[1:]
         seconds = {"setup": time.perf_counter() - t0}
         t0 = time.perf_counter()
-        done = _solve_level(chosen, problem, kappa, previous is not None, opts, newton_progress)
+        done = _solve_level(chosen, problem, kappa, previous is not None, opts)
         steps, iterations = done.steps, done.iterations
         if not done.converged:
             return AdaptiveResult(levels, problem, steps, "solver failure", False, done.error)
@@ -199,18 +195,18 @@ def adaptive_solve(
         if on_level is not None:
             on_level(level, problem)
         if reason:
-            say(_line(level, reason))
+            log.info(_line(level, reason))
             extra = {} if force is None else {"contact_pressure": force}
             return AdaptiveResult(levels, problem, steps, reason, True, None, indicators, extra)
         t0 = time.perf_counter()
         cells = mark_dorfler(indicators.eta2, adapt.fraction, comm)
         if adapt.free_boundary:
-            constraint = "nodes" if method == "active-set" else "penalty"
+            constraint = "penalty" if chosen.penalized else "nodes"  # (SolveResult.constraint)
             cells = np.union1d(cells, _free_boundary(problem, constraint)).astype(np.int32)
         level.marked = int(comm.allreduce(cells.size, op=MPI.SUM))
         mesh = refine_marked(mesh, marked_edges(mesh, cells))
         seconds["refine"] = time.perf_counter() - t0
-        say(_line(level, ""))
+        log.info(_line(level, ""))
         previous = problem.zeta
         k += 1
 
@@ -230,7 +226,6 @@ def _solve_level(
     kappa: MeshKappa,
     warm: bool,
     options: Any,
-    newton_progress: Callable[[int, float], Any] | None,
 ) -> MethodResult:
     """Solve one level by ``method`` (its :class:`~shellobstacle.solvers.result.MethodResult`):
     the mesh's κ ladder, only its last κ when ``warm`` (κ = 0 for a method of the nodal
@@ -239,7 +234,7 @@ def _solve_level(
     if method.penalized:
         assert kappa.ladder != [0.0], "a penalized method needs a penalty"
         kappas = kappa.ladder[-1:] if warm else kappa.ladder
-    return solve_with(method, problem, kappa.h, kappas, options, lambda _m: None, newton_progress)
+    return solve_with(method, problem, kappa.h, kappas, options)
 
 
 def _free_boundary(problem: PenalizedProblem, constraint: str) -> np.ndarray:
@@ -283,19 +278,14 @@ def solve_adaptively(
     options: NewtonOptions | None,
     method: str,
     method_options: Any,
-    say: Progress,
-    newton_progress: Callable[[int, float], Any] | None,
     checks: list[Any],
     timings: dict[str, float],
 ) -> SolveResult:
     """:func:`adaptive_solve` as a :class:`~shellobstacle.solvers.result.SolveResult` (what
-    :func:`~shellobstacle.api.solve` returns with ``adapt``): the last level's problem
+    :func:`~shellobstacle.api.solve_problem` returns with ``adapt``): the last level's problem
     and steps, the levels in ``extra["adapt"]``."""
     t = time.perf_counter()
-    r = adaptive_solve(
-        shell, mesh, discretization, penalty, adapt, options, method, method_options, say,
-        newton_progress,
-    )  # fmt: skip
+    r = adaptive_solve(shell, mesh, discretization, penalty, adapt, options, method, method_options)
     timings["solve"] = time.perf_counter() - t
     problem = r.problem
     kappa = float(problem.kappa.value) if METHODS[method].penalized else 0.0

@@ -97,17 +97,22 @@ def run_and_write(
     A solve that does not converge has results too (the last iterate, the residual history):
     they replace an old folder like a converged solve's, and the exit code is 1.
     """
-    from shellobstacle.api import solve_config
+    from shellobstacle.api import solve
     from shellobstacle.config.loader import to_toml
     from shellobstacle.io.folders import prepare_folder
     from shellobstacle.io.records import atomic_write
     from shellobstacle.io.summary import write_solution
-    from shellobstacle.mesh.resources import linear_solver_of, require_fits
+    from shellobstacle.mesh.resources import require_fits
     from shellobstacle.post.contact import contact_text
+    from shellobstacle.solvers.auto import estimated_linear_solver
+    from shellobstacle.solvers.registry import METHODS, options_for
 
     if not force:
-        linear = linear_solver_of(cfg.method, cfg.solver)
-        require_fits(cfg.domain, cfg.shell.model, cfg.discretization.degree, linear_solver=linear)
+        model, degree = cfg.shell.model, cfg.discretization.degree
+        method = METHODS[cfg.method]
+        options = options_for(method, cfg.method_options, cfg.solver)
+        linear = estimated_linear_solver(method, options, cfg.domain, model, degree)
+        require_fits(cfg.domain, model, degree, linear_solver=linear)
     where = prepare_folder(output, default, overwrite)
     if args is not None:
         args.folder = where
@@ -118,9 +123,9 @@ def run_and_write(
         report(f"warning: {message}")
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
     with report.reporting_warnings() as raised:
-        result = solve_config(cfg, force=force, progress=report, newton_progress=report.newton)
+        result = solve(cfg, force=force)
     seen = [*config_warnings, *raised]
-    summary = write_solution(result, cfg, folder, report, seen)
+    summary = write_solution(result, cfg, folder, seen)
     if not result.converged:
         report(f"FAILED: {result.error}")
         report(f"the last iterate and the residual history are in {where.target}/")
@@ -183,7 +188,7 @@ def reproduce(args: argparse.Namespace) -> int:
     report.attach(folder / "log.txt", append=args.resume)
     _announce(where, report, f" (mode {mode}{', resumed' if args.resume else ''})")
     with report.reporting_warnings():
-        reproduce(folder, mode, report, checkpoint, report.newton)
+        reproduce(folder, mode, checkpoint)
     _finish(checkpoint, report)
     _commit(where, report)
     return EXIT_OK
@@ -274,9 +279,9 @@ def experiment(args: argparse.Namespace) -> int:
     for message in config_warnings:
         report(f"warning: {message}")
     atomic_write(folder / "config.toml", to_toml(cfg.resolved))
-    kw: dict[str, Any] = {"checkpoint": checkpoint, "newton_progress": report.newton}
+    kw: dict[str, Any] = {"checkpoint": checkpoint}
     with report.reporting_warnings():
-        text = _run_batch(args, cfg, folder, options, report, kw)
+        text = _run_batch(args, cfg, folder, options, kw)
     loaded = checkpoint.stats["loaded"]
     if loaded:
         text += (
@@ -295,7 +300,6 @@ def _run_batch(
     cfg: Any,
     folder: Path,
     options: dict[str, Any],
-    report: Reporter,
     kw: dict[str, Any],
 ) -> str:
     """Run the batch of ``experiment``; returns its report section."""
@@ -311,25 +315,25 @@ def _run_batch(
     if args.batch == "penalty":
         opts = PenaltyStudyOptions(args.start, args.step, args.tol, args.q_max)
         quadratures = options["--quadratures"]
-        text = run_penalty(cfg, folder, [cfg.domain], report, opts, quadratures, **kw)
+        text = run_penalty(cfg, folder, [cfg.domain], opts, quadratures, **kw)
     elif args.batch == "mesh":
         text = mesh.run_mesh(
-            cfg, folder, cfg.domain, args.refinements, options["--q"], report, args.tol, **kw
+            cfg, folder, cfg.domain, args.refinements, options["--q"], args.tol, **kw
         )
     elif args.batch == "adaptive":
         study = adaptive.AdaptiveStudyOptions(
             args.refinements, options["--reference-dofs"], options["--dofs"]
         )
-        text = adaptive.run_adaptive(cfg, folder, cfg.domain, study, report, **kw)
+        text = adaptive.run_adaptive(cfg, folder, cfg.domain, study, **kw)
     elif args.batch == "solvers":
         sizes = [dataclasses.replace(cfg.domain, h=v) for v in options["--sizes"]]
-        text = solvers.run_solvers(cfg, folder, sizes, args.exponent, report, **kw)
+        text = solvers.run_solvers(cfg, folder, sizes, args.exponent, **kw)
     elif args.batch == "koiter-limit":
         domain = koiter_limit.study_domain(
             cfg.domain, options["--epsilons"], args.edge_h, args.edge_width, options["--full"]
         )
         epsilons = options["--epsilons"]
-        text = koiter_limit.run_koiter_limit(cfg, folder, domain, epsilons, report, **kw)
+        text = koiter_limit.run_koiter_limit(cfg, folder, domain, epsilons, **kw)
     else:
         text = load.run_load(
             cfg,
@@ -337,7 +341,6 @@ def _run_batch(
             cfg.domain,
             options["--values"],
             cfg.penalty.exponent,
-            report,
             args.parameter,
             **kw,
         )

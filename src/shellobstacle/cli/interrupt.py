@@ -2,15 +2,16 @@
 
 Python runs its SIGINT handler only between bytecodes: during a gmsh meshing, a mesh
 refinement, an assembly or a MUMPS factorization of seconds to minutes, a ``KeyboardInterrupt``
-waits for the call to return. The command line therefore starts a small watcher process next to
+waits for the call to return, and no Python thread runs meanwhile (petsc4py holds the GIL;
+docs/perf/interrupt.md). The command line therefore starts a small watcher process next to
 each MPI rank. Python's C-level signal handler writes every signal it catches to a pipe
 (:func:`signal.set_wakeup_fd`: no Python code, no GIL); the watcher reads it. When the process
 has not handled the interrupt (:func:`acknowledge`) within :data:`GRACE` seconds, or at a
 second Ctrl-C, the watcher says so on stderr (one line, from rank 0) and sends :data:`STOP`,
-whose handler, installed at the C level where Python runs none, exits at once with status 130:
-no PETSc error dump (PETSc catches SIGTERM) and no "bad termination" of ``mpiexec`` (which
-reports a rank killed by any signal). Where that handler cannot be installed, or the process
-does not end, the watcher goes on with SIGTERM, then SIGKILL.
+which ends the process at once with status 130 (:mod:`shellobstacle.compat.exit_in_c`: no
+PETSc error dump, no "bad termination" of ``mpiexec``). Where that handler cannot be installed,
+or the process does not end, the watcher goes on with SIGTERM, then SIGKILL; the process has
+ended when its end of the pipe closes.
 
 Ctrl-C only marks the interrupt, and ``KeyboardInterrupt`` is raised at the next point of
 :func:`agree` (the start and end of every phase and each Newton or Brezis–Sibony step,
@@ -18,7 +19,7 @@ Ctrl-C only marks the interrupt, and ``KeyboardInterrupt`` is raised at the next
 ranks raise it there together: a rank that stopped while another waits for it inside a
 collective call leaves that one stuck until the watcher kills it. On one rank too: raised at
 any bytecode, it can land in a Python function that C++ called (nanobind), which then ends the
-process with ``std::terminate`` (3 of 488 interrupted runs did so before).
+process with ``std::terminate``.
 
 Result folders stay consistent after such a stop: every file is written atomically, a staged
 ``--overwrite`` leaves the old folder untouched, and ``--resume`` continues from the recorded
@@ -31,7 +32,6 @@ the process's signals alone.
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
 import signal
 import subprocess
@@ -39,18 +39,18 @@ import sys
 from collections.abc import Iterator
 from typing import Any
 
+from shellobstacle.compat.exit_in_c import exit_on
+
 __all__ = ["GRACE", "STOP", "acknowledge", "agree", "immediate", "install"]
 
 #: Seconds a long call into C may keep running after Ctrl-C.
 GRACE = 2.0
 #: The signal with which the watcher stops a process still inside a call into C: it exits
-#: with status 130 at once (:func:`_exit_on`); PETSc and MPI leave it alone.
+#: with status 130 at once (:func:`shellobstacle.compat.exit_in_c.exit_on`); PETSc and MPI
+#: leave it alone.
 STOP = signal.SIGUSR2
 #: the exit status of an interrupted run (128 + SIGINT, as a shell reports death by Ctrl-C)
 INTERRUPTED = 130
-#: the C-level handler of :data:`STOP` (kept alive while installed)
-_stop_handler: Any = None
-
 _ack_fd: int | None = None
 #: the communicator whose ranks stop together (None: one process), and whether Ctrl-C came
 _comm: Any = None
@@ -67,15 +67,12 @@ import os, select, signal, sys, time
 parent, grace, ack = int(sys.argv[1]), float(sys.argv[2]), int(sys.argv[3])
 first, loud = int(sys.argv[4]), sys.argv[5] == "1"
 signals = 0
-def alive():
-    try:
-        os.kill(parent, 0)
-        with open("/proc/%d/stat" % parent) as f:
-            return f.read().rsplit(")", 1)[1].split()[0] != "Z"  # not a zombie
-    except ProcessLookupError:
-        return False
-    except OSError:
-        return True
+def ended(timeout):  # the process has closed its end of the signals' pipe: it has ended
+    end = time.monotonic() + timeout
+    while select.select([signals], [], [], max(end - time.monotonic(), 0.0))[0]:
+        if not os.read(signals, 64):
+            return True
+    return False
 def stop(why):
     if loud:
         try:
@@ -83,13 +80,12 @@ def stop(why):
         except OSError:
             pass  # stderr's reader has gone (a pipe): the stop matters, not the line
     for sig in [first] * (first > 0) + [signal.SIGTERM, signal.SIGKILL]:
-        if not alive():
+        try:
+            os.kill(parent, sig)
+        except ProcessLookupError:
             return
-        os.kill(parent, sig)
-        for _ in range(20):
-            time.sleep(0.05)
-            if not alive():
-                return
+        if ended(1.0):
+            return
 deadline = None
 while True:
     timeout = None if deadline is None else max(deadline - time.monotonic(), 0.0)
@@ -125,7 +121,7 @@ def install(grace: float = GRACE, comm: Any = None) -> bool:
     sig_r, sig_w = os.pipe()
     ack_r, ack_w = os.pipe()
     os.set_blocking(sig_w, False)
-    first = int(STOP) if _exit_on(STOP) else 0
+    first = int(STOP) if exit_on(STOP, INTERRUPTED) else 0
     loud = "1" if comm is None or comm.rank == 0 else "0"
     argv = [str(os.getpid()), str(grace), str(ack_r), str(first), loud]
     try:
@@ -151,36 +147,6 @@ def install(grace: float = GRACE, comm: Any = None) -> bool:
     set_meeting_point(agree)  # every phase and step of the library is such a point
     signal.set_wakeup_fd(sig_w, warn_on_full_buffer=False)
     _ack_fd = ack_w
-    return True
-
-
-def _exit_on(signum: int) -> bool:
-    """Make ``signum`` end the process at once with status :data:`INTERRUPTED`, also inside a
-    call into C; False where the C library cannot be reached.
-
-    Python runs its own handlers between bytecodes, after the call into C; this one, installed
-    with the C library's ``signal``, runs at once on the busy thread and reaches ``os._exit``
-    through C functions only (nothing it interrupted is resumed). Nothing is flushed: every
-    result file is written atomically, and the folder stays as a killed run leaves it."""
-    global _stop_handler
-    if _stop_handler is not None:
-        return True
-    try:
-        import ctypes
-
-        libc = ctypes.CDLL(None, use_errno=True)
-        # no bytecode runs (where a pending Ctrl-C would raise KeyboardInterrupt instead):
-        # the C function ``partial`` calls the C function ``os._exit``; the signal number that
-        # the prototype leaves out is ignored
-        handler = ctypes.CFUNCTYPE(None)(functools.partial(os._exit, INTERRUPTED))
-        libc.signal.argtypes = [ctypes.c_int, ctypes.c_void_p]
-        libc.signal.restype = ctypes.c_void_p
-        failed = ctypes.c_void_p(-1).value  # SIG_ERR
-        if libc.signal(signum, ctypes.cast(handler, ctypes.c_void_p)) == failed:
-            return False
-    except (OSError, AttributeError, ImportError):
-        return False
-    _stop_handler = handler
     return True
 
 

@@ -1,8 +1,16 @@
-"""Progress of a command: lines on rank 0's stderr and in a log file, and on a terminal the
-live status line of :mod:`shellobstacle.progress` below them."""
+"""What a command says: the records of the ``shellobstacle`` logger as lines on rank 0's stderr
+and in the run's log file, and on a terminal the live status line of
+:mod:`shellobstacle.progress` below them.
+
+The library only logs (``logging.getLogger(__name__)`` in each module, a ``NullHandler`` on the
+package's logger); the command line installs the one handler, :class:`Reporter`, for the time
+of a command. Its levels: ``-q`` prints errors only, the default information too, ``-v`` also
+the debug records (one per Newton step); the log file gets every record the logger passes.
+"""
 
 from __future__ import annotations
 
+import logging
 import sys
 import time
 import warnings
@@ -16,45 +24,64 @@ from mpi4py import MPI
 from shellobstacle.cli.output import emit
 from shellobstacle.progress import LiveStatus, on_terminal
 
-__all__ = ["NewtonEcho", "Reporter"]
+__all__ = ["PACKAGE", "Reporter"]
+
+#: the logger of the package, whose records a command prints
+PACKAGE = logging.getLogger("shellobstacle")
+_log = logging.getLogger(__name__)
 
 
-class Reporter:
-    """Progress lines on rank 0 (stderr), also appended to a log file once one is known.
+class Reporter(logging.Handler):
+    """The command's handler of the ``shellobstacle`` logger: each record as a line
+    ``[   1.2s] message`` (``warning: message`` for a warning) on stderr, rank 0 only, and in
+    the log file once one is known (:meth:`attach`).
 
-    ``quiet`` prints nothing (the log file still gets every line); ``verbose`` adds a line per
-    Newton iteration (:meth:`newton`, passed as ``newton_progress`` to the solvers).
+    ``quiet`` prints errors only (the log file still gets every line); ``verbose`` lets the
+    debug records through (one line per Newton step). Calling the reporter logs ``msg`` as
+    information. :meth:`close` removes the handler (and the live status line).
     """
 
     def __init__(self, quiet: bool = False, verbose: bool = False) -> None:
+        super().__init__(logging.DEBUG)
         self.quiet = quiet
-        self.verbose = verbose
         self.start = time.perf_counter()
         self.log: Path | None = None
         self.lines: list[str] = []
+        self.rank = MPI.COMM_WORLD.rank
         self._status: Any = None
         if on_terminal(quiet):
             # on a terminal: a live status line (the running phases and their times) below
             # the log lines; in files, pipes and CI only the plain lines are written
             self._status = LiveStatus().start()
+        self._level = PACKAGE.level
+        PACKAGE.setLevel(logging.DEBUG if verbose else logging.INFO)
+        PACKAGE.addHandler(self)
 
     def close(self) -> None:
-        """Remove the live status line (the command has ended); idempotent."""
+        """Stop handling the logger's records and remove the live status line (the command
+        has ended); idempotent."""
+        if self in PACKAGE.handlers:
+            PACKAGE.removeHandler(self)
+            PACKAGE.setLevel(self._level)
         if self._status is not None:
             self._status.stop()
             self._status = None
-
-    def __del__(self) -> None:
-        self.close()
+        super().close()
 
     def __call__(self, msg: str) -> None:
+        _log.info(msg)
+
+    def emit(self, record: logging.LogRecord) -> None:
+        msg = record.getMessage()
+        if record.levelno == logging.WARNING:
+            msg = f"warning: {msg}"
         line = f"[{time.perf_counter() - self.start:7.1f}s] {msg}"
         self.lines.append(line)
-        if MPI.COMM_WORLD.rank != 0:
+        if self.rank != 0:
             return
         if self._status is not None:
             self._status.print(line, msg)
-        elif not self.quiet:
+        elif not self.quiet or record.levelno >= logging.ERROR:
             emit(line, sys.stderr)  # (a closed stderr is silenced: the run goes on)
         if self.log is not None:
             with self.log.open("a") as f:
@@ -71,7 +98,7 @@ class Reporter:
             text = str(message)
             if text not in seen:
                 seen.append(text)
-                self(f"warning: {text}")
+                _log.warning(text)
 
         with warnings.catch_warnings():
             warnings.simplefilter("always")
@@ -84,7 +111,7 @@ class Reporter:
         The terminal gets it from :func:`shellobstacle.cli.main`; nothing happens before the
         log file is known.
         """
-        if self.log is None or MPI.COMM_WORLD.rank != 0:
+        if self.log is None or self.rank != 0:
             return
         try:
             with self.log.open("a") as f:
@@ -98,30 +125,10 @@ class Reporter:
         With ``append`` (a resumed run) the earlier log is kept and continued.
         """
         self.log = path
-        if MPI.COMM_WORLD.rank == 0:
+        if self.rank == 0:
             text = "".join(line + "\n" for line in self.lines)
             if append and path.exists():
                 with path.open("a") as f:
                     f.write("--- resumed ---\n" + text)
             else:
                 path.write_text(text)
-
-    @property
-    def newton(self) -> NewtonEcho | None:
-        """The per-iteration callback in verbose mode, else None."""
-        return NewtonEcho(self) if self.verbose else None
-
-
-class NewtonEcho:
-    """``newton_progress`` of the verbose mode: one line per Newton iteration."""
-
-    def __init__(self, say: Reporter) -> None:
-        self.say = say
-
-    def __call__(self, it: int, relres: float) -> None:
-        self.say(f"    Newton {it}: relative residual {relres:.3e}")
-
-    def finished(self, result: Any) -> None:
-        """After a solve: its step lengths (the exact line search's t) and stop reason."""
-        steps = ", ".join(f"{t:.3g}" for t in result.step_lengths) or "none"
-        self.say(f"    Newton: {result.iterations} steps, step lengths {steps}; {result.reason}")

@@ -6,6 +6,8 @@ is known, the releases it applies to, and the test that fails without it.
 * :mod:`.ffcx_cache_lookup`: FFCx 0.11 lists its whole JIT cache folder at every cache hit.
 * :mod:`.startup`: the start-up file ``./run setup`` writes, which applies both in a script
   that imports ``dolfinx`` or ``petsc4py`` before this package.
+* :mod:`.exit_in_c`: no Python code runs inside a long call into C, and a signal's default
+  death reads as a crash to PETSc and ``mpiexec`` (used by the command line's Ctrl-C).
 
 :func:`bootstrap` applies them (the command line, the tests and the benchmarks call it first).
 This package imports nothing heavy on import: the start-up file imports it in every process.

@@ -1,30 +1,29 @@
 """A configuration key and how it binds to the API's dataclasses.
 
 A :class:`Key` has a type, a default and a meaning. A key that sets a field of an options
-dataclass takes its default and choices from that field (:func:`bound`); a ``[solver]`` key
-sets a field of the options of every method that reads it (:data:`SOLVER_FIELDS`, from each
-method's ``solver_fields``), and its default is that method's (:func:`solver_key`). So the
-command line and the Python API cannot drift.
+dataclass takes its default and choices from that field (:func:`bound`); a ``[solver]`` key is
+declared on the fields of the methods' options that it sets
+(:func:`~shellobstacle.solvers.options.option`) and made from those declarations
+(:func:`option_key`). So the command line and the Python API cannot drift.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Collection, Iterator, Mapping, Sequence
+from collections.abc import Callable, Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from shellobstacle.solvers.registry import METHODS, solver_fields
+from shellobstacle.solvers.options import key_type
 
 __all__ = [
-    "METHOD_OPTIONS",
     "OPTIONAL",
     "REQUIRED",
-    "SOLVER_FIELDS",
     "ByValue",
     "Key",
+    "RegistryKeys",
     "bound",
-    "solver_key",
+    "option_key",
 ]
 
 REQUIRED = object()
@@ -45,7 +44,7 @@ class Key:
     # "options" (a table of PETSc options)
     default: Any
     help: str
-    choices: Collection[str] = ()  # a live view for solver.method (the registry's names)
+    choices: Collection[str] = ()
     when: Sequence[str] = ()
     #: the dataclass fields the key sets: (class, field name) per selector value, or ("", ...)
     fields: Mapping[str, tuple[type, str]] = field(default_factory=dict)
@@ -61,9 +60,8 @@ class Key:
         return not self.when or selector in self.when
 
 
-def _default(owner: type, name: str) -> Any:
-    """The default of the field ``owner.name`` (``REQUIRED`` if it has none)."""
-    f = {f.name: f for f in dataclasses.fields(owner)}[name]
+def _default(f: dataclasses.Field) -> Any:
+    """The default of the field ``f`` (``REQUIRED`` if it has none)."""
     if f.default is not dataclasses.MISSING:
         return f.default
     if f.default_factory is not dataclasses.MISSING:
@@ -84,89 +82,52 @@ def bound(
     ``choices``) its choices are the field's."""
     f = {f.name: f for f in dataclasses.fields(owner)}[name]
     found = tuple(f.metadata.get("choices", ()))
-    return Key(type, _default(owner, name), help, found if choices is None else choices, when,
+    return Key(type, _default(f), help, found if choices is None else choices, when,
                {"": (owner, name)})  # fmt: skip
 
 
-class _MethodOptions(Mapping[str, type]):
-    """``solver.method`` → its options class, read from the registry (a live view: a method
-    registered later is in it; a method that takes no options is not)."""
-
-    def __getitem__(self, name: str) -> type:
-        cls = METHODS[name].options_type
-        if cls is None:
-            raise KeyError(name)
-        return cls
-
-    def __iter__(self) -> Iterator[str]:
-        return (name for name, m in METHODS.items() if m.options_type is not None)
-
-    def __len__(self) -> int:
-        return sum(1 for _ in self)
-
-
-#: the options class of each ``solver.method``
-METHOD_OPTIONS: Mapping[str, type] = _MethodOptions()
-_ALL = tuple(METHOD_OPTIONS)
-
-
-class _SolverFields(Mapping[str, Mapping[str, str]]):
-    """``[solver]`` key → the field it sets in the options of each method that reads it, read
-    from the methods' ``solver_fields`` (a live view, like :data:`METHOD_OPTIONS`)."""
-
-    def _all(self) -> dict[str, dict[str, str]]:
-        out: dict[str, dict[str, str]] = {}
-        for name, method in METHODS.items():
-            for key, field_name in solver_fields(method).items():
-                out.setdefault(key, {})[name] = field_name
-        return out
-
-    def __getitem__(self, key: str) -> Mapping[str, str]:
-        return self._all()[key]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._all())
-
-    def __len__(self) -> int:
-        return len(self._all())
-
-
-#: ``[solver]`` key → the field it sets in the options of each method that reads it
-SOLVER_FIELDS: Mapping[str, Mapping[str, str]] = _SolverFields()
-
-
-def solver_key(name: str, type: str, help: str, choices: tuple[str, ...] | None = None) -> Key:
-    """The ``[solver]`` key ``name``: the default of each method that reads it is the field's
-    of that method's options (:data:`SOLVER_FIELDS`)."""
-    fields = {m: (METHOD_OPTIONS[m], f) for m, f in SOLVER_FIELDS[name].items()}
-    defaults = ByValue({m: _default(cls, f) for m, (cls, f) in fields.items()})
+def option_key(readers: Mapping[str, tuple[type, dataclasses.Field]], every: bool) -> Key:
+    """The ``[solver]`` key that sets, for each method of ``readers``, a field of its options
+    (method → (options class, field), each field declared by
+    :func:`~shellobstacle.solvers.options.option`): its type, each method's default (a
+    :class:`ByValue` where they differ), one meaning (each method's, named, where they differ)
+    and the choices the config offers; read by every method (``every``) or by those named."""
+    declared = [(m, cls, f) for m, (cls, f) in readers.items()]
+    defaults = ByValue({m: _default(f) for m, _, f in declared})
     values = list(defaults.values())
     default = values[0] if all(v == values[0] for v in values) else defaults
-    if choices is None:
-        found = [
-            {f.name: f for f in dataclasses.fields(cls)}[f].metadata.get("choices", ())
-            for cls, f in fields.values()
-        ]
-        choices = tuple(found[0])
-    when = () if set(fields) == set(_ALL) else _ReadBy(name)
-    return Key(type, default, help, choices, when, fields)
+    helps: dict[str, list[str]] = {}
+    for m, _, f in declared:
+        helps.setdefault(f.metadata["help"], []).append(m)
+    help = next(iter(helps))
+    if len(helps) > 1:
+        help = "; ".join(f"{text} ({', '.join(names)})" for text, names in helps.items())
+    choices = tuple(dict.fromkeys(c for _, _, f in declared for c in f.metadata["offered"]))
+    _, cls, f = declared[0]
+    fields = {m: (cls, f.name) for m, cls, f in declared}
+    return Key(key_type(cls, f), default, help, choices, () if every else tuple(readers), fields)
 
 
-class _ReadBy(Sequence[str]):
-    """The methods that read the ``[solver]`` key ``key`` (a live view of
-    :data:`SOLVER_FIELDS`: a method registered later that reads it is in it)."""
+class RegistryKeys(Mapping[str, Key]):
+    """The keys of a section made from a registry by ``make()``, made again when the registry
+    has changed: a method or a shape registered later is in them."""
 
-    def __init__(self, key: str) -> None:
-        self.key = key
+    def __init__(self, registry: Mapping[str, Any], make: Callable[[], dict[str, Key]]) -> None:
+        self._registry, self._make = registry, make
+        self._seen: tuple[tuple[str, Any], ...] | None = None
+        self._keys_now: dict[str, Key] = {}
 
-    def _names(self) -> tuple[str, ...]:
-        return tuple(SOLVER_FIELDS.get(self.key, ()))
+    def _keys(self) -> dict[str, Key]:
+        seen = tuple(self._registry.items())
+        if seen != self._seen:
+            self._seen, self._keys_now = seen, self._make()
+        return self._keys_now
 
-    def __getitem__(self, i: Any) -> Any:
-        return self._names()[i]
+    def __getitem__(self, name: str) -> Key:
+        return self._keys()[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._keys())
 
     def __len__(self) -> int:
-        return len(self._names())
-
-    def __repr__(self) -> str:
-        return repr(self._names())
+        return len(self._keys())

@@ -9,30 +9,26 @@ import copy
 import dataclasses
 import warnings
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from shellobstacle.adapt.options import AdaptOptions
+from shellobstacle.config.build import build
 from shellobstacle.config.keys import REQUIRED, Key
-from shellobstacle.config.options import adapt_options, method_options, solver_options
-from shellobstacle.config.origins import Origins, in_section
-from shellobstacle.config.schema import OPTIONAL_SECTIONS, REQUIRED_SECTIONS, SCHEMA, SELECTORS
-from shellobstacle.config.toml_io import apply_overrides, read_toml, to_toml
+from shellobstacle.config.origins import Origins
+from shellobstacle.config.schema import (
+    ARRAY_SECTIONS,
+    OPTIONAL_SECTIONS,
+    REQUIRED_SECTIONS,
+    SCHEMA,
+    SELECTORS,
+)
+from shellobstacle.config.toml_io import apply_overrides, apply_sections, read_toml, to_toml
+from shellobstacle.config.validated import Config, default_degree, method_of
 from shellobstacle.geometry.expressions import ExpressionError
-from shellobstacle.geometry.surface import Surface
-from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.messages import ConfigError, not_one_of, suggest
 from shellobstacle.obstacle.shapes import require_read
-from shellobstacle.penalty.spec import PenaltySpec
-from shellobstacle.solvers.options import NewtonOptions
-from shellobstacle.solvers.registry import METHODS
+from shellobstacle.solvers.registry import DEFAULT
 from shellobstacle.spec import (
-    Discretization,
-    Load,
-    Material,
-    Obstacle,
-    Shell,
     boolean,
     finite,
     integer,
@@ -42,33 +38,12 @@ __all__ = [
     "Config",
     "ConfigError",
     "apply_overrides",
+    "as_config",
     "load_config",
+    "method_of",
     "parse_config",
     "to_toml",
 ]
-
-
-@dataclass(frozen=True)
-class Config:
-    """A validated configuration: the physical shell and every numerical choice
-    (``method_options``: the options of ``method`` when it is not Newton's)."""
-
-    shell: Shell
-    domain: DomainSpec
-    discretization: Discretization
-    penalty: PenaltySpec | None  # None for the methods of κ = 0 (not METHODS[m].penalized)
-    solver: NewtonOptions
-    method: str
-    output: Mapping[str, bool]
-    resolved: Mapping[str, Mapping[str, Any]]
-    source: str
-    method_options: Any = None  # the options of solver.method when it is not Newton's
-    adapt: AdaptOptions | None = None  # [adapt]: solve on adaptively refined meshes
-
-    def options_of(self, method: str) -> Any:
-        """The options of ``method`` (any of them, e.g. Brezis–Sibony beside Newton in an
-        experiment) from the keys of ``[solver]`` it reads; the others keep its defaults."""
-        return solver_options(method, self.resolved["solver"], self.resolved["solver"])
 
 
 def _coerce(value: Any, key: Key, where: str, origin: str, dotted: str) -> Any:
@@ -175,7 +150,14 @@ def parse_config(
                 f"{origins.of(section)}: unknown section [{section}]"
                 + suggest(section, list(SCHEMA))
             )
-        if not isinstance(data[section], dict):
+        if section in ARRAY_SECTIONS:
+            if not isinstance(data[section], list) or not all(
+                isinstance(t, dict) for t in data[section]
+            ):
+                raise ConfigError(
+                    f"{origins.of(section)}: write each {section} as a table [[{section}]]"
+                )
+        elif not isinstance(data[section], dict):
             raise ConfigError(f"{origins.of(section)}: [{section}] must be a table of keys")
     for section in REQUIRED_SECTIONS:
         if section not in data:
@@ -184,11 +166,15 @@ def parse_config(
     selected = _selected(data, origins)
     given_keys: set[str] = set()
     for section, keys in SCHEMA.items():
+        if section in ARRAY_SECTIONS:
+            if data.get(section):
+                resolved[section] = _array_section(data[section], section, keys, origins)
+            continue
         if section in OPTIONAL_SECTIONS and section not in data:
             continue
         given = dict(data.get(section, {}))
         if section == "discretization" and koiter:
-            given.setdefault("degree", 2)  # Koiter's ζ_3 ∈ H² needs P2
+            given.setdefault("degree", default_degree("koiter"))  # ζ_3 ∈ H² needs P2
         for name in given:
             if name not in keys:
                 raise ConfigError(
@@ -227,11 +213,37 @@ def parse_config(
                 out[name] = copy.deepcopy(key.default_for(value))
         resolved[section] = out
     try:
-        return _build(resolved, source, given_keys)
+        config = build(resolved, source, given_keys)
     except (ValueError, ExpressionError) as err:  # ConfigError is a ValueError
         section = getattr(err, "section", "")
         own = [n for n in data.get(section, {}) if origins.of(f"{section}.{n}") == source]
         raise ConfigError(f"{origins.named_in(str(err), section, own)}: {err}") from None
+    return dataclasses.replace(config, document=copy.deepcopy(dict(data)))
+
+
+def _array_section(
+    tables: list[Mapping[str, Any]], section: str, keys: Mapping[str, Key], origins: Origins
+) -> list[dict[str, Any]]:
+    """The tables of ``[[section]]``, each key checked and coerced (no defaults: an absent
+    key stays absent)."""
+    out = []
+    for k, table in enumerate(tables, start=1):
+        entry: dict[str, Any] = {}
+        for name, value in table.items():
+            dotted = f"{section}.{name}"
+            where = f"{origins.of(section)}: [[{section}]] number {k}"
+            if name not in keys:
+                raise ConfigError(f"{where}: unknown key '{name}'" + suggest(name, list(keys)))
+            entry[name] = _coerce(
+                value, keys[name], f"{where}: {dotted}", origins.of(section), dotted
+            )
+        for name, key in keys.items():
+            if key.default is REQUIRED and name not in entry:
+                raise ConfigError(
+                    f"{origins.of(section)}: [[{section}]] number {k} needs '{name}' ({key.help})"
+                )
+        out.append(entry)
+    return out
 
 
 def _selected(data: Mapping[str, Any], origins: Origins) -> dict[str, Any]:
@@ -250,124 +262,6 @@ def _selected(data: Mapping[str, Any], origins: Origins) -> dict[str, Any]:
     return out
 
 
-def _need(sec: Mapping[str, Any], section: str, names: tuple[str, ...], why: str) -> None:
-    for n in names:
-        if n not in sec:
-            raise ConfigError(f"[{section}] needs '{n}' for {why}")
-
-
-def _surface(s: Mapping[str, Any]) -> Surface:
-    """The surface of ``[surface]``."""
-    kind = s["kind"]
-    if kind == "spherical_cap":
-        _need(s, "surface", ("radius", "offset"), "kind = 'spherical_cap'")
-        return Surface.spherical_cap(s["radius"], s["offset"])
-    if kind == "ellipsoid_cap":
-        _need(s, "surface", ("semi_axes", "offset"), "kind = 'ellipsoid_cap'")
-        return Surface.ellipsoid_cap(s["semi_axes"], s["offset"])
-    if kind == "elliptic_paraboloid":
-        _need(s, "surface", ("height", "curvatures"), "kind = 'elliptic_paraboloid'")
-        return Surface.elliptic_paraboloid(s["height"], s["curvatures"])
-    _need(s, "surface", ("theta",), "kind = 'expression'")
-    return Surface.from_strings(s["theta"])
-
-
-def _obstacle(o: Mapping[str, Any]) -> Obstacle:
-    """The obstacle of ``[obstacle]`` (the keys its kind reads; vectors as tuples)."""
-    return Obstacle(**{k: tuple(v) if isinstance(v, list) else v for k, v in o.items()})
-
-
-def _build(r: dict[str, dict[str, Any]], source: str, given: set[str]) -> Config:
-    """The objects of a resolved configuration; their constructors validate (the API's
-    messages, which :func:`parse_config` prefixes with the file or the ``--set``). ``given``:
-    the keys of ``[solver]`` and the dotted others the file or a ``--set`` gives."""
-    with in_section("surface"):
-        surface = _surface(r["surface"])
-    m = r["material"]
-    material = Material(m["epsilon"], m["lambda"], m["mu"])
-    load = Load(tuple(r["load"]["p"]), dict(r["load"].get("parameters", {})))
-    model = r["model"]["kind"]
-    shell = Shell(surface, material, load, _obstacle(r["obstacle"]), model)
-    shell.load_expressions()  # parse now: errors name the key
-
-    d = dict(r["domain"])
-    if "path" in d and not Path(d["path"]).is_absolute():
-        # relative to the config; the resolved config (a result folder's config.toml) holds
-        # the absolute path, so that it reruns from anywhere
-        base = Path(source).parent if source not in ("<config>", "") else Path(".")
-        d["path"] = r["domain"]["path"] = str((base / d["path"]).resolve())
-    with in_section("domain"):
-        if d["kind"] == "file" and "path" in d:
-            _require_mesh_file(d["path"])
-        domain = DomainSpec(**d)
-
-    disc = Discretization(**r["discretization"])
-    sv = r["solver"]
-    if model == "koiter":
-        _koiter_choices(sv, disc)
-
-    p = r.get("penalty", {})
-    penalty = None
-    if not METHODS[sv["method"]].penalized:
-        if disc.degree == 1:
-            # the nodal methods' constraint is the one P1's vertex penalty has
-            disc = dataclasses.replace(disc, penalty_quadrature="vertex")
-            r["discretization"]["penalty_quadrature"] = "vertex"
-        r["penalty"] = {}
-    else:
-        penalty = PenaltySpec(p.get("kappa"), p.get("exponent"), p["continuation"])
-    solver, options = method_options(sv, given)
-    adapt = adapt_options(r, shell, penalty, sv["method"]) if "adapt" in r else None
-    return Config(
-        shell,
-        domain,
-        disc,
-        penalty,
-        solver,
-        sv["method"],
-        dict(r["output"]),
-        r,
-        source,
-        options,
-        adapt,
-    )
-
-
-def _require_mesh_file(path: str) -> None:
-    """A mesh file is a regular file: refused at loading, before any result folder."""
-    p = Path(path)
-    problem = "is a directory" if p.is_dir() else "does not exist" if not p.exists() else None
-    if problem or not p.is_file():
-        raise ConfigError(
-            f"domain.path: mesh file {path!r} {problem or 'is not a regular file'}: give a "
-            "gmsh .msh file (a relative path is relative to the config file)"
-        )
-
-
-def _koiter_choices(sv: Mapping[str, Any], disc: Discretization) -> None:
-    """The solver and discretization choices Koiter's model cannot take."""
-    if sv.get("linear_solver") == "iterative":
-        raise ConfigError(
-            "solver.linear_solver = 'iterative' preconditions ζ_3 as the membrane's L² "
-            "unknown, not Koiter's bending: use linear_solver = 'direct' or 'multigrid'"
-        )
-    if sv.get("nested_iteration") == "on":
-        raise ConfigError(
-            "solver.nested_iteration relaxes ζ_3 as the membrane's L² unknown, which Koiter's "
-            "bending differentiates: remove the key or set it to 'off'"
-        )
-    if disc.degree != 2:
-        raise ConfigError(
-            "model.kind = 'koiter' needs discretization.degree = 2 (ζ_3 ∈ H² by "
-            f"C⁰ interior penalty), got {disc.degree}: remove the key or set it to 2"
-        )
-    if disc.transverse != "clamped":
-        raise ConfigError(
-            "model.kind = 'koiter' clamps ζ_3 and ∂_ν ζ_3 on γ: remove "
-            "discretization.transverse or set it to 'clamped'"
-        )
-
-
 def load_config(
     path: str | Path,
     overrides: list[str] | None = None,
@@ -383,3 +277,59 @@ def load_config(
     data = read_toml(path)
     given = apply_overrides(data, overrides or [])
     return parse_config(data, str(path), given, reads)
+
+
+def as_config(
+    spec: Config | str | Path | Mapping[str, Any], overrides: Mapping[str, Any] | None = None
+) -> Config:
+    """The validated :class:`Config` of ``spec`` with ``overrides`` applied.
+
+    Args:
+        spec: a :class:`Config`, the path of a TOML file, or a mapping shaped like one.
+        overrides: section → a mapping of its keys (``{"domain": {"h": 0.02}}``), applied
+            and validated as ``--set domain.h=0.02`` is (:func:`apply_sections`). ``solver``
+            may instead be an options object, which chooses the method whose
+            ``options_type`` it is (:meth:`Config.with_options`).
+
+    Raises:
+        ConfigError: naming the override (or the file, or the key) and the fix.
+    """
+    sections = dict(overrides or {})
+    options = sections.pop("solver") if _is_options(sections.get("solver")) else None
+    if isinstance(spec, Config):
+        moved = options is not None and method_of(options, spec.method) != spec.method
+        if moved and spec.document is not None:
+            sections["solver"] = {}  # re-read for the method the options choose
+        if not sections:
+            return spec if options is None else spec.with_options(options)
+        if spec.document is None:
+            raise ConfigError(
+                f"overrides {', '.join(map(repr, sections))} need a config read from TOML or "
+                "given as a mapping: change a Config built in Python by dataclasses.replace"
+            )
+        data, source = _plain(spec.document), spec.source
+    elif isinstance(spec, str | Path):
+        data, source = read_toml(Path(spec)), str(spec)
+    elif isinstance(spec, Mapping):
+        data, source = _plain(spec), "<config>"
+    else:
+        raise TypeError(
+            f"a spec is a Config, a TOML file's path or a mapping, not {type(spec).__name__}"
+        )
+    if options is not None:  # the options choose the method: the config reads its keys
+        current = data.get("solver", {}).get("method", DEFAULT)
+        sections["solver"] = {**sections.get("solver", {}), "method": method_of(options, current)}
+    config = parse_config(data, source, apply_sections(data, sections))
+    return config if options is None else config.with_options(options)
+
+
+def _is_options(value: object) -> bool:
+    """``value`` is a dataclass instance (a method's options), not a mapping of keys."""
+    return dataclasses.is_dataclass(value) and not isinstance(value, type)
+
+
+def _plain(document: Mapping[str, Any]) -> dict[str, Any]:
+    """A deep copy of ``document`` whose mappings are dicts (what the overrides edit)."""
+    return {
+        k: _plain(v) if isinstance(v, Mapping) else copy.deepcopy(v) for k, v in document.items()
+    }

@@ -8,11 +8,11 @@ from collections.abc import Collection, Mapping
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config.keys import SOLVER_FIELDS
 from shellobstacle.messages import ConfigError
 from shellobstacle.penalty.spec import PenaltySpec
-from shellobstacle.solvers.options import NewtonOptions
-from shellobstacle.solvers.registry import DEFAULT, METHODS, options_from, solver_fields
+from shellobstacle.solvers.newton.options import NewtonOptions
+from shellobstacle.solvers.options import config_keys
+from shellobstacle.solvers.registry import DEFAULT, METHODS, options_from
 from shellobstacle.spec import Shell
 
 __all__ = ["adapt_options", "method_options", "solver_options"]
@@ -20,13 +20,14 @@ __all__ = ["adapt_options", "method_options", "solver_options"]
 
 def solver_options(method: str, sv: Mapping[str, Any], given: Collection[str]) -> Any:
     """The options of ``method`` from ``[solver]`` (None for a method that takes none), built
-    by the method (:func:`~shellobstacle.solvers.registry.options_from`) from the keys it
-    reads (its ``solver_fields``) that are in ``sv`` when it is ``sv["method"]``, else those
-    in ``given``; the fields no key sets keep the options class's defaults."""
+    by the method (:func:`~shellobstacle.solvers.registry.options_from`) from the keys its
+    options declare (:func:`~shellobstacle.solvers.options.config_keys`) that are in ``sv``
+    when it is ``sv["method"]``, else those in ``given``; the fields no key sets keep the
+    options class's defaults."""
     chosen = METHODS[method]
     values = {
         k: sv[k]
-        for k in solver_fields(chosen)
+        for k in config_keys(chosen.options_type)
         if k in sv and (method == sv["method"] or k in given)
     }
     return options_from(chosen, values)
@@ -41,9 +42,14 @@ def method_options(sv: Mapping[str, Any], given: Collection[str]) -> tuple[Newto
     chosen = None if method == DEFAULT else solver_options(method, sv, given)
     for other in METHODS:
         if other not in (method, DEFAULT):
-            alone = [k for k in given if list(SOLVER_FIELDS.get(k, ())) == [other]]
+            alone = [k for k in given if _readers(k) == [other]]
             solver_options(other, {**{k: sv[k] for k in alone}, "method": method}, alone)
     return solver_options(DEFAULT, sv, given), chosen
+
+
+def _readers(key: str) -> list[str]:
+    """The methods whose options declare the ``[solver]`` key ``key``."""
+    return [name for name, m in METHODS.items() if key in config_keys(m.options_type)]
 
 
 def adapt_options(

@@ -2,36 +2,42 @@
 
 :mod:`shellobstacle.config.loader` validates against it and ``shellobstacle config-reference``
 prints it (:func:`reference_text`), so the documentation cannot drift from the loader. The
-defaults and choices of the keys that set a field of the API's dataclasses (``NewtonOptions``,
-``Discretization``, ``DomainSpec``, ...) are read from those fields
-(:mod:`shellobstacle.config.keys`), so the command line and the Python API cannot drift
-either.
+defaults and choices of the keys that set a field of the API's dataclasses (``Discretization``,
+``DomainSpec``, ...) are read from those fields (:mod:`shellobstacle.config.keys`), and the
+keys of ``[solver]`` and ``[obstacle]`` are made from the declarations of the registered
+methods' options and shapes, so the command line and the Python API cannot drift either.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+import dataclasses
+from collections.abc import Mapping
 from typing import Any
 
 from shellobstacle.adapt.options import AdaptOptions
-from shellobstacle.config.keys import OPTIONAL, REQUIRED, ByValue, Key, bound, solver_key
+from shellobstacle.config.keys import (
+    OPTIONAL,
+    REQUIRED,
+    ByValue,
+    Key,
+    RegistryKeys,
+    bound,
+    option_key,
+)
 from shellobstacle.geometry.surface import SURFACE_KINDS
 from shellobstacle.mesh.domains import KINDS, DomainSpec
-from shellobstacle.mesh.memory import MULTIGRID_FROM_DOFS
 from shellobstacle.obstacle.shapes import SHAPES, declared, shape_help
 from shellobstacle.penalty.spec import PenaltySpec
-from shellobstacle.solvers.options import (
-    PETSC_OPTIONS_HELP,
-)
+from shellobstacle.solvers.options import config_keys
 from shellobstacle.solvers.registry import DEFAULT, METHODS, method_help
-from shellobstacle.spec import Discretization, Load, Obstacle, Shell
+from shellobstacle.spec import EDGE_CONDITIONS, Discretization, Load, Obstacle, Shell
 
 __all__ = [
+    "ARRAY_SECTIONS",
     "OPTIONAL_SECTIONS",
     "REQUIRED_SECTIONS",
     "SCHEMA",
     "SELECTORS",
-    "ObstacleKeys",
     "reference_text",
 ]
 
@@ -39,35 +45,11 @@ __all__ = [
 _PENALIZED = tuple(m.name for m in METHODS.values() if m.penalized)
 
 
-class ObstacleKeys(Mapping[str, Key]):
-    """The keys of ``[obstacle]``, generated from :data:`~shellobstacle.obstacle.shapes.SHAPES`
-    (a live view: a shape registered later is in it): ``kind``, every shape's parameters,
+def _obstacle_keys() -> dict[str, Key]:
+    """The keys of ``[obstacle]`` for the shapes registered now
+    (:data:`~shellobstacle.obstacle.shapes.SHAPES`): ``kind``, every shape's parameters,
     ``contact_face``. A key that several shapes read is one key: their type, each one's
     default (:class:`ByValue` where they differ) and meaning."""
-
-    def __init__(self) -> None:
-        self._shapes: tuple[tuple[str, type], ...] = ()
-        self._keys_now: dict[str, Key] = {}
-
-    def _keys(self) -> dict[str, Key]:
-        """The keys, made again when the registry has changed."""
-        shapes = tuple(SHAPES.items())
-        if shapes != self._shapes:
-            self._shapes, self._keys_now = shapes, _obstacle_keys()
-        return self._keys_now
-
-    def __getitem__(self, name: str) -> Key:
-        return self._keys()[name]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._keys())
-
-    def __len__(self) -> int:
-        return len(self._keys())
-
-
-def _obstacle_keys() -> dict[str, Key]:
-    """The keys of ``[obstacle]`` for the shapes registered now (:class:`ObstacleKeys`)."""
     keys = {"kind": bound(Obstacle, "kind", "str", shape_help())}
     names = dict.fromkeys(p.name for s in SHAPES.values() for p in s.parameters)
     for name in names:
@@ -90,6 +72,23 @@ def _obstacle_keys() -> dict[str, Key]:
         "str",
         "the face that must stay admissible: middle (θ), lower (θ − ε a_3) or upper (θ + ε a_3)",
     )
+    return keys
+
+
+def _solver_keys() -> dict[str, Key]:
+    """The keys of ``[solver]`` for the methods registered now
+    (:data:`~shellobstacle.solvers.registry.METHODS`): ``method``, then every key their
+    options declare (:func:`~shellobstacle.solvers.options.option`), those every method
+    reads last; a key that several methods read is one key
+    (:func:`~shellobstacle.config.keys.option_key`)."""
+    keys = {"method": Key("str", DEFAULT, method_help(), tuple(METHODS))}
+    readers: dict[str, dict[str, tuple[type, dataclasses.Field]]] = {}
+    for name, method in METHODS.items():
+        for key, f in config_keys(method.options_type).items():
+            readers.setdefault(key, {})[name] = (method.options_type, f)
+    every = [key for key, found in readers.items() if set(found) == set(METHODS)]
+    for key in sorted(readers, key=every.__contains__):  # the keys every method reads last
+        keys[key] = option_key(readers[key], every=key in every)
     return keys
 
 
@@ -183,7 +182,7 @@ SCHEMA: dict[str, Mapping[str, Key]] = {
             "immersed thin shell (P2, C⁰ interior penalty for ζ_3)",
         ),
     },
-    "obstacle": ObstacleKeys(),
+    "obstacle": RegistryKeys(SHAPES, _obstacle_keys),
     "penalty": {
         "kappa": bound(PenaltySpec, "kappa", "float", "penalty parameter κ > 0", when=_PENALIZED),
         "exponent": bound(
@@ -227,70 +226,25 @@ SCHEMA: dict[str, Mapping[str, Key]] = {
             when=("koiter",),
         ),
     },
-    "solver": {
-        "method": Key("str", DEFAULT, method_help(), METHODS.keys()),
-        "linear_solver": solver_key(
-            "linear_solver",
+    "solver": RegistryKeys(METHODS, _solver_keys),
+    "edge": {
+        "condition": Key(
             "str",
-            f"multigrid (membrane P1) from {MULTIGRID_FROM_DOFS / 1e6:g} M dofs on a refined "
-            "mesh and (membrane P1, Koiter on a refined mesh) where only its memory estimate "
-            "fits this machine, else direct; "
-            "MUMPS; inexact Newton with flexible CG and a field split (GAMG on ζ_α): about 70 % "
-            "of the memory; or inexact Newton with CG and geometric multigrid on the mesh's "
-            "uniform refinements (GAMG on a mesh without them)",
+            REQUIRED,
+            "clamped: ζ = 0, ∂_ν ζ_3 = 0; simply-supported: ζ = 0; free: nothing; symmetry: "
+            "ζ_α = 0 and ∂_ν ζ_3 = 0 on a line y_α = c about which θ is symmetric (membrane: "
+            "clamped only)",
+            EDGE_CONDITIONS,
         ),
-        "factorization": solver_key(
-            "factorization",
+        "where": Key(
             "str",
-            "direct solver: Cholesky (symmetric positive definite; half the memory of LU), or LU",
+            OPTIONAL,
+            "the part: the boundary facets whose midpoint satisfies this condition in y1, y2, "
+            "r (e.g. 'y1 < -0.499', 'And(y1 > 0, y2 > 0)')",
         ),
-        "contact_zone": solver_key(
-            "contact_zone",
-            "bool",
-            "direct solver: condense each Newton step onto the contact zone (K factorized once "
-            "per zone, kept across κ); false: one factorization per κ reused by CG",
+        "tag": Key(
+            "int", OPTIONAL, "or the part: a gmsh physical curve of a domain.kind = 'file' mesh"
         ),
-        "nested_iteration": solver_key(
-            "nested_iteration",
-            "str",
-            "on: climb the κ ladder on the coarsest of the mesh's refinement levels, then solve "
-            "every finer level at the last κ only, from the coarser solution (membrane; a "
-            "curved obstacle's gap linearized at each level's start); auto: on with multigrid "
-            "on one rank where the problem allows it",
-        ),
-        "rtol": solver_key("rtol", "float", "relative residual tolerance"),
-        "stol": solver_key("stol", "float", "relative Newton-correction tolerance"),
-        "max_iterations": solver_key(
-            "max_iterations",
-            "int",
-            "Newton iterations per κ; active-set: linear solves; snes-vi: PETSc's Newton "
-            "steps; proximal-galerkin: proximal steps",
-        ),
-        "xi": solver_key("xi", "float", "Ξ of (38); default: from a λ_max estimate"),
-        "mass": solver_key("mass", "str", "mass matrix"),
-        "start": solver_key("start", "str", "ψ_0", choices=("zero", "linearized")),
-        "bs_max_iterations": solver_key("bs_max_iterations", "int", "iteration cap"),
-        "bs_rtol": solver_key("bs_rtol", "float", "relative L² increment tolerance"),
-        "vi_type": solver_key(
-            "vi_type",
-            "str",
-            "PETSc's reduced-space (rsls) or semismooth Fischer–Burmeister (ssls) Newton",
-        ),
-        "vi_line_search": solver_key(
-            "vi_line_search",
-            "str",
-            "PETSc's line search (l2: secant on ‖F‖²; bt, PETSc's default: backtracking, which "
-            "stalls on Koiter's cylinder_koiter.toml; basic: full steps)",
-        ),
-        "proximal_tol": solver_key(
-            "proximal_tol",
-            "float",
-            "stop at a relative increment ‖u_k − u_(k−1)‖/‖u_k‖ below this",
-        ),
-        "proximal_alpha_max": solver_key(
-            "proximal_alpha_max", "float", "cap of the (dimensionless) proximal parameter α̂"
-        ),
-        "petsc_options": solver_key("petsc_options", "options", PETSC_OPTIONS_HELP),
     },
     "adapt": {
         "fraction": bound(
@@ -339,6 +293,8 @@ SCHEMA: dict[str, Mapping[str, Key]] = {
 }
 
 REQUIRED_SECTIONS = ("surface", "domain", "material", "load")
+#: sections written as arrays of tables (``[[edge]]``), each table validated as a section
+ARRAY_SECTIONS = ("edge",)
 #: sections that switch a feature on by being present (absent: not in the resolved config)
 OPTIONAL_SECTIONS = ("adapt",)
 #: the key whose value decides which keys of a section are read (``Key.when``), and what to
@@ -360,8 +316,15 @@ def reference_text() -> str:
         req = " (required section)" if section in REQUIRED_SECTIONS else ""
         if section in OPTIONAL_SECTIONS:
             req = " (optional section: present, even empty, it switches the feature on)"
+        title = f"[{section}]"
+        if section in ARRAY_SECTIONS:
+            title = f"[[{section}]]"
+            req = (
+                " (an array of tables, one per part of γ; facets no part selects are clamped; "
+                "give `where` or `tag`)"
+            )
         lines += [
-            f"## [{section}]{req}",
+            f"## {title}{req}",
             "",
             "| key | type | default | meaning |",
             "|---|---|---|---|",

@@ -14,7 +14,7 @@ import tomli_w
 
 from shellobstacle.messages import ConfigError
 
-__all__ = ["apply_overrides", "read_toml", "to_toml"]
+__all__ = ["apply_overrides", "apply_sections", "read_toml", "to_toml"]
 
 
 def read_toml(path: Path) -> dict[str, Any]:
@@ -60,24 +60,67 @@ def apply_overrides(data: dict[str, Any], items: list[str]) -> dict[str, str]:
         parts = [part.strip() for part in lhs.split(".")]
         if not sep or len(parts) < 2 or not all(parts):
             raise ConfigError(f"--set {item!r}: expected section.key=value, e.g. domain.h=0.01")
-        text = f"--set {item.strip()}"
         try:
             value = tomllib.loads(f"v = {rhs.strip()}")["v"]
         except tomllib.TOMLDecodeError:
             value = rhs.strip()
-        table = data
-        for i, part in enumerate(parts[:-1]):
-            table = table.setdefault(part, {})
-            if not isinstance(table, dict):
-                where = ".".join(parts[: i + 1])
-                raise ConfigError(f"{text}: {where} is not a table, it cannot hold '{parts[-1]}'")
-        dotted = ".".join(parts)
-        partner = _EXCLUSIVE.get(dotted)
-        if partner is not None and f"penalty.{partner}" not in given:
-            table.pop(partner, None)
-        table[parts[-1]] = value
-        given[dotted] = text
+        _put(data, parts, value, f"--set {item.strip()}", given)
     return given
+
+
+def apply_sections(data: dict[str, Any], sections: Mapping[str, Any]) -> dict[str, str]:
+    """Apply overrides given in Python as sections, ``domain={"h": 0.01}``, as
+    :func:`apply_overrides` applies ``--set domain.h=0.01`` (a table's keys are set one by
+    one: ``load={"parameters": {"ell": 3}}`` keeps the file's other parameters).
+
+    Returns:
+        dotted key → the override that gave it, e.g. ``domain={'h': 0.01}``.
+    """
+    given: dict[str, str] = {}
+    for section, keys in sections.items():
+        if not isinstance(keys, Mapping):
+            raise ConfigError(
+                f"{section}={keys!r}: give a section as a mapping of its keys, "
+                "e.g. domain={'h': 0.01}"
+            )
+        for parts, value in _leaves([section], keys):
+            text = f"{section}={_nested(parts[1:], value)}"
+            _put(data, parts, value, text, given)
+    return given
+
+
+def _leaves(path: list[str], keys: Mapping[str, Any]) -> list[tuple[list[str], Any]]:
+    """``(dotted path, value)`` of every value of ``keys`` that is not a mapping."""
+    out = []
+    for name, value in keys.items():
+        if isinstance(value, Mapping) and value:
+            out += _leaves([*path, str(name)], value)
+        else:
+            out.append(([*path, str(name)], value))
+    return out
+
+
+def _nested(parts: list[str], value: Any) -> str:
+    """``{'parameters': {'ell': 3}}``: the mapping that sets ``value`` at ``parts``."""
+    return repr(value) if not parts else f"{{{parts[0]!r}: {_nested(parts[1:], value)}}}"
+
+
+def _put(
+    data: dict[str, Any], parts: list[str], value: Any, text: str, given: dict[str, str]
+) -> None:
+    """Set ``data[parts[0]]…[parts[-1]] = value``, recording ``text`` as its origin."""
+    table = data
+    for i, part in enumerate(parts[:-1]):
+        table = table.setdefault(part, {})
+        if not isinstance(table, dict):
+            where = ".".join(parts[: i + 1])
+            raise ConfigError(f"{text}: {where} is not a table, it cannot hold '{parts[-1]}'")
+    dotted = ".".join(parts)
+    partner = _EXCLUSIVE.get(dotted)
+    if partner is not None and f"penalty.{partner}" not in given:
+        table.pop(partner, None)
+    table[parts[-1]] = value
+    given[dotted] = text
 
 
 def to_toml(resolved: Mapping[str, Mapping[str, Any]]) -> str:

@@ -17,6 +17,7 @@ its solution (every coarser level, estimate and refinement included).
 from __future__ import annotations
 
 import dataclasses
+import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ from shellobstacle.adapt.loop import AdaptiveResult, AdaptLevel, adaptive_solve,
 from shellobstacle.adapt.options import MAX_LEVELS, AdaptOptions
 from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import Config
-from shellobstacle.experiments.common import NewtonProgress, Say, fit_rate, write_csv
+from shellobstacle.experiments.common import fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
@@ -41,6 +42,8 @@ from shellobstacle.solvers.registry import METHODS
 from shellobstacle.solvers.result import ConvergenceError
 
 __all__ = ["COLUMNS", "AdaptiveStudy", "AdaptiveStudyOptions", "adaptive_study", "run_adaptive"]
+
+log = logging.getLogger(__name__)
 
 COLUMNS = (
     "sequence", "level", "dofs", "h_min", "h_max", "kappa_min", "kappa_max", "eta",
@@ -123,8 +126,6 @@ def _adaptive(
     mesh: dolfinx.mesh.Mesh,
     adapt: AdaptOptions,
     method: str,
-    say: Say,
-    newton_progress: NewtonProgress,
     carried: list[dolfinx.fem.Function],
     keep: bool,
     start: dolfinx.fem.Function | None = None,
@@ -145,8 +146,7 @@ def _adaptive(
     penalty = cfg.penalty if METHODS[method].penalized else None
     result = adaptive_solve(
         cfg.shell, mesh, cfg.discretization, penalty, adapt, cfg.solver, method,
-        cfg.method_options if method == cfg.method else None,
-        say, newton_progress, on_level, start, carried,
+        cfg.method_options if method == cfg.method else None, on_level, start, carried,
     )  # fmt: skip
     if not result.converged and not last:
         raise ConvergenceError(f"adaptive level 0: {result.error}")
@@ -158,9 +158,7 @@ def adaptive_study(
     cfg: Config,
     domain: DomainSpec,
     options: AdaptiveStudyOptions,
-    say: Say,
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
 ) -> AdaptiveStudy:
     """Run the sequences on ``domain``'s mesh and measure their errors.
 
@@ -174,28 +172,30 @@ def adaptive_study(
     cp = checkpoint or Checkpoint(None)
     adapt = cfg.adapt or AdaptOptions()
     study = AdaptiveStudy()
-    base = make_mesh(domain, ghosted=True, progress=say)
+    base = make_mesh(domain, ghosted=True)
     dofs = options.dofs or adapt.target_dofs or options.reference_dofs // 8
     run = dataclasses.replace(adapt, max_levels=MAX_LEVELS, target_dofs=dofs, target_error=None)
-    say(f"adaptive study: {cfg.method}, κ '{adapt.kappa}', adapted up to {dofs} dofs")
+    log.info(f"adaptive study: {cfg.method}, κ '{adapt.kappa}', adapted up to {dofs} dofs")
     solutions: list[dolfinx.fem.Function] = []
-    result, last = _adaptive(cfg, base, run, cfg.method, say, newton_progress, solutions, True)
+    result, last = _adaptive(cfg, base, run, cfg.method, solutions, True)
     study.final = result
     if not result.converged:
         study.failure = f"level {len(result.levels)}: {result.error}"
-        say(f"adaptive study: the adaptive loop stopped at {study.failure}")
+        log.info(f"adaptive study: the adaptive loop stopped at {study.failure}")
 
-    say(f"adaptive study: the reference, the exact VI adapted up to {options.reference_dofs} dofs")
+    log.info(
+        f"adaptive study: the reference, the exact VI adapted up to {options.reference_dofs} dofs"
+    )
     exact_options = dataclasses.replace(run, target_dofs=options.reference_dofs)
     exact, reference = _adaptive(
-        cfg, result.problem.mesh, exact_options, "active-set", say, None, solutions, False, last
+        cfg, result.problem.mesh, exact_options, "active-set", solutions, False, last
     )
     if not exact.converged:  # the last level solved is the reference
         study.reference_note = (
             f"the exact solver failed on the next level ({exact.error}); the reference is "
             "its last solved level"
         )
-        say(f"adaptive study: {study.reference_note}")
+        log.info(f"adaptive study: {study.reference_note}")
         solutions[:] = carry_over(solutions, reference.function_space)
     ref = exact.levels[-1]
     study.reference = {"dofs": ref.dofs, "eta": ref.eta, "h_min": ref.h_min}
@@ -208,7 +208,7 @@ def adaptive_study(
     from shellobstacle.experiments.adaptive_uniform import uniform_sequence
 
     norms = SampledNorms(reference)
-    study.rows += uniform_sequence(cfg, base, options.refinements, norms, say, cp, newton_progress)
+    study.rows += uniform_sequence(cfg, base, options.refinements, norms, cp)
     return study
 
 
@@ -254,16 +254,14 @@ def run_adaptive(
     folder: Path,
     domain: DomainSpec,
     options: AdaptiveStudyOptions,
-    say: Say,
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
 ) -> str:
     """The study with its CSV, figures and report section."""
     from shellobstacle.adapt.picture import plot_adapted_mesh
     from shellobstacle.post.contact import Postprocessor
 
     cp = (checkpoint or Checkpoint(None)).scope("adaptive")
-    study = adaptive_study(cfg, domain, options, say, cp, newton_progress)
+    study = adaptive_study(cfg, domain, options, cp)
     write_adaptive_study(study, folder)
     plot_adaptive_study(study, folder / "adaptive.png")
     final = study.final
@@ -278,7 +276,7 @@ def run_adaptive(
         problem.mesh, contact, folder / "adaptive_mesh.png",
         f"the last adapted mesh: {last.dofs} dofs, h_min = {last.h_min:.2g}", zooms,
     )  # fmt: skip
-    picture = SolutionPicture(cfg, folder / "adaptive_shell_3d.png", say)
+    picture = SolutionPicture(cfg, folder / "adaptive_shell_3d.png")
     picture.draw(post, f"The solution on the last adapted mesh ({last.dofs} dofs)")
     return _section(cfg, study, options) + "\n".join(
         ["", *picture.markdown("the solution on the last adapted mesh in 3D")]

@@ -4,6 +4,7 @@ compared with the reference."""
 
 from __future__ import annotations
 
+import logging
 import time
 from typing import Any
 
@@ -13,7 +14,6 @@ import dolfinx
 
 from shellobstacle.adapt.estimator import ErrorEstimator
 from shellobstacle.config.loader import Config
-from shellobstacle.experiments.common import NewtonProgress, Say
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.mesh.measures import mesh_size, mesh_size_min
 from shellobstacle.mesh.refinement import refine_uniformly
@@ -26,15 +26,15 @@ from shellobstacle.solvers.result import ConvergenceError
 
 __all__ = ["uniform_sequence"]
 
+log = logging.getLogger(__name__)
+
 
 def uniform_sequence(
     cfg: Config,
     base: dolfinx.mesh.Mesh,
     refinements: int,
     norms: SampledNorms,
-    say: Say,
     checkpoint: Checkpoint,
-    newton_progress: NewtonProgress = None,
 ) -> list[dict[str, Any]]:
     """``base`` and its ``refinements`` uniform refinements: one row per mesh (dofs, h, κ,
     η, the error against ``norms``' reference, solver steps, seconds). Recorded rows are
@@ -51,10 +51,10 @@ def uniform_sequence(
         record = checkpoint.load(key)
         if record is not None:
             rows.append(record["row"])
-            say(f"adaptive study, uniform level {k}: {record['row']['dofs']} dofs (recorded)")
+            log.info(f"adaptive study, uniform level {k}: {record['row']['dofs']} dofs (recorded)")
             continue
         t0 = time.perf_counter()
-        problem, iterations, force, kappa = _solve(cfg, mesh, newton_progress)
+        problem, iterations, force, kappa = _solve(cfg, mesh)
         seconds = refine_seconds + time.perf_counter() - t0
         estimator = (
             ErrorEstimator(problem)
@@ -73,16 +73,14 @@ def uniform_sequence(
         }  # fmt: skip
         rows.append(row)
         checkpoint.save(key, {"row": row})
-        say(
+        log.info(
             f"adaptive study, uniform level {k}: {row['dofs']} dofs, η = {eta:.4e}, "
             f"error {error:.4e}, {seconds:.1f} s"
         )
     return rows
 
 
-def _solve(
-    cfg: Config, mesh: dolfinx.mesh.Mesh, newton_progress: NewtonProgress
-) -> tuple[PenalizedProblem, int, Any, float]:
+def _solve(cfg: Config, mesh: dolfinx.mesh.Mesh) -> tuple[PenalizedProblem, int, Any, float]:
     """Solve on ``mesh`` by the config's method from ζ = 0: ``(problem, steps, contact
     pressure or None, κ)``."""
     h = mesh_size(mesh)
@@ -91,11 +89,8 @@ def _solve(
     kappas = kappa_on_mesh(cfg.penalty if method.penalized else None, mesh).ladder
     kappa = kappas[0] if method.penalized else None
     problem = PenalizedProblem(cfg.shell, mesh, cfg.discretization, kappa=kappa)
-    done = solve_with(
-        method,
-        problem, h, kappas, options_for(method, cfg.method_options, cfg.solver),
-        lambda _m: None, newton_progress,
-    )  # fmt: skip
+    options = options_for(method, cfg.method_options, cfg.solver)
+    done = solve_with(method, problem, h, kappas, options)
     if not done.converged:
         raise ConvergenceError(done.error or f"{cfg.method} did not converge", done, done.steps)
     pressure = done.extra.get("contact_pressure")

@@ -1,5 +1,5 @@
-"""Shared pieces of the experiments: compiled difference norms, transfer between nested meshes,
-CSV tables, rate fits."""
+"""Shared pieces of the experiments: Newton's options and solves through the method registry,
+transfer between nested meshes, CSV tables, rate fits."""
 
 from __future__ import annotations
 
@@ -17,30 +17,40 @@ import numpy as np
 
 from shellobstacle.io.records import atomic_write
 from shellobstacle.mesh.transfer import Interpolation
-from shellobstacle.penalty.spec import PenaltySpec
-
-Say = Callable[[str], Any]
-NewtonProgress = Callable[[int, float], Any] | None
+from shellobstacle.solvers.newton.options import NewtonOptions
+from shellobstacle.solvers.registry import METHODS
+from shellobstacle.solvers.result import ConvergenceError, MethodResult
 
 __all__ = [
     "LazyReference",
-    "NewtonProgress",
-    "Say",
     "fit_rate",
-    "newton_finished",
-    "penalty_at",
+    "on_its_mesh",
     "readable_log_ticks",
     "reference_of",
+    "solve_by",
     "transfer",
     "write_csv",
 ]
 
 
-def penalty_at(penalty: PenaltySpec | None, exponent: float) -> PenaltySpec:
-    """``κ = h^exponent`` (the exponent an experiment sweeps or sets) with the config's other
-    penalty choices (``penalty``: its ``continuation``; None: the defaults)."""
-    base = penalty or PenaltySpec(exponent=exponent)
-    return dataclasses.replace(base, kappa=None, exponent=exponent)
+def on_its_mesh(newton: NewtonOptions | None) -> NewtonOptions:
+    """Newton's options (None: the defaults) with nested iteration off: an experiment measures
+    the continuation on its own mesh (each κ, each mesh), not through coarser ones."""
+    return dataclasses.replace(newton or NewtonOptions(), nested_iteration="off")
+
+
+def solve_by(
+    method: str, problem: Any, h: float, kappas: Sequence[float], options: Any
+) -> MethodResult:
+    """``METHODS[method].solve(problem, h, kappas, options)``; a failure ends the experiment.
+
+    Raises:
+        ConvergenceError: the method did not converge (its message and steps).
+    """
+    done = METHODS[method].solve(problem, h, kappas, options)
+    if not done.converged:
+        raise ConvergenceError(done.error or f"{method} did not converge", done, done.steps)
+    return done
 
 
 class LazyReference:
@@ -67,12 +77,6 @@ class LazyReference:
 def reference_of(reference: Any) -> dolfinx.fem.Function | None:
     """``reference`` itself, or the value of a :class:`LazyReference`."""
     return reference.get() if isinstance(reference, LazyReference) else reference
-
-
-def newton_finished(newton_progress: Any, result: Any) -> None:
-    """Tell a ``newton_progress`` callback with a ``finished`` method that a solve ended."""
-    if hasattr(newton_progress, "finished"):
-        newton_progress.finished(result)
 
 
 def transfer(

@@ -8,20 +8,23 @@ solutions with it and this module writes the results.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from shellobstacle.api import exact_solution
 from shellobstacle.config.loader import Config
-from shellobstacle.experiments.common import Say, finish_figure, fit_rate, write_csv
+from shellobstacle.experiments.common import finish_figure, fit_rate, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.progress import phase
 
 __all__ = ["exact_reference", "write_batch4"]
 
+log = logging.getLogger(__name__)
 
-def exact_reference(cfg: Config, mesh: Any, disc: Any, say: Say, where: str) -> Callable[[], Any]:
+
+def exact_reference(cfg: Config, mesh: Any, disc: Any, where: str) -> Callable[[], Any]:
     """The batch-4 reference on ``mesh``, to be computed when a step first needs it.
 
     It is not recorded: a resumed run recomputes it (deterministically, the same numbers)
@@ -31,7 +34,7 @@ def exact_reference(cfg: Config, mesh: Any, disc: Any, say: Say, where: str) -> 
     def make() -> Any:
         with phase(f"batch 4: the exact discrete solution on {where}"):
             reference, r = exact_solution(cfg.shell, mesh, disc)
-        say(f"batch 4: exact VI on {where}: {r.iterations} steps, KKT {r.kkt}")
+        log.info(f"batch 4: exact VI on {where}: {r.iterations} steps, KKT {r.kkt}")
         return reference
 
     return make

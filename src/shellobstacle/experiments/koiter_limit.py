@@ -18,6 +18,7 @@ The command's study (:func:`study_domain`) coarsens the configuration's mesh to 
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -41,7 +42,13 @@ from shellobstacle.experiments.boundary_layer import (
     layer_width,
     zeta3_profile,
 )
-from shellobstacle.experiments.common import NewtonProgress, Say, finish_figure, fit_rate, write_csv
+from shellobstacle.experiments.common import (
+    finish_figure,
+    fit_rate,
+    on_its_mesh,
+    solve_by,
+    write_csv,
+)
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
@@ -52,8 +59,7 @@ from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import vm_norm
 from shellobstacle.post.sections import line_tree, mesh_extent
 from shellobstacle.progress import phase
-from shellobstacle.solvers.newton.continuation import continuation
-from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.options import NewtonOptions
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
@@ -64,6 +70,8 @@ __all__ = [
     "study_domain",
     "validate",
 ]
+
+log = logging.getLogger(__name__)
 
 #: the most dofs (estimated, :func:`~shellobstacle.mesh.resources.estimate`) of the command's
 #: mesh without ``--full`` (``examples/paper.toml``: its target h 0.0058 scaled to 0.0149, 116k
@@ -168,21 +176,19 @@ def koiter_limit(
     epsilons: Sequence[float],
     kappas: Sequence[float],
     newton: NewtonOptions | None = None,
-    progress: Say | None = None,
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
     draw: Callable[[Postprocessor, float], Any] | None = None,
     discretization: Discretization | None = None,
 ) -> KoiterLimit:
     """Solve the membrane problem (ζ_3 clamped and free) and Koiter's for every ε' on
-    ``mesh`` (P2, ghosted), each by continuation along ``kappas`` from ζ = 0.
+    ``mesh`` (P2, ghosted), each by Newton's continuation (``METHODS["newton"]``) along
+    ``kappas`` from ζ = 0.
 
     ``discretization`` (the config's) gives the quadrature and Koiter's bending form and
     interior penalty; the experiment sets what it compares: P2 with the penalty at Gauss
     points, ζ_3 clamped for Koiter and clamped or free for the membrane.
     ``draw(post, ε')`` is called with Koiter's solution for the ε' nearest the shell's own ε
     (on a log scale), if it is solved in this run (not read back)."""
-    say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
     cp.check_mesh(mesh)
     eps = shell.material.epsilon
@@ -193,9 +199,10 @@ def koiter_limit(
     points[:, 0] = hi - d
     tree = line_tree(mesh, "y1", 0.0)
 
+    h, options = mesh_size(mesh), on_its_mesh(newton)
+
     def solve(problem: PenalizedProblem) -> list[Any]:
-        solver = NewtonSolver(problem, newton)
-        return continuation(problem, solver, kappas, newton_progress=newton_progress)
+        return solve_by("newton", problem, h, kappas, options).steps
 
     p2 = dataclasses.replace(
         discretization or Discretization(), degree=2, penalty_quadrature="gauss"
@@ -208,7 +215,7 @@ def koiter_limit(
         membrane[transverse] = problem
     zeta_m = membrane["clamped"].zeta
     area_m = Postprocessor(membrane["clamped"]).contact()["contact_area"]
-    study = KoiterLimit(eps, mesh_size(mesh), 0.0, kappas[-1], membrane["clamped"].num_dofs)
+    study = KoiterLimit(eps, h, 0.0, kappas[-1], membrane["clamped"].num_dofs)
     study.membrane_norm = vm_norm(zeta_m)
     study.clamping_effect = vm_norm(zeta_m - membrane["free"].zeta)
     study.distance_from_edge = d
@@ -216,7 +223,7 @@ def koiter_limit(
         FREE: zeta3_profile(membrane["free"], points, tree),
         CLAMPED: zeta3_profile(membrane["clamped"], points, tree),
     }
-    say(
+    log.info(
         f"koiter-limit: membrane solutions ({study.dofs} dofs), contact area {area_m:.6g}, "
         f"clamping ζ_3 changes ζ_M by {study.clamping_effect:.3e} in V_M"
     )
@@ -265,7 +272,7 @@ def koiter_limit(
         study.rows.append(record["row"])
         study.profiles[f"Koiter, ε = {value:.3g}"] = np.asarray(record["profile"], dtype=float)
         r = record["row"]
-        say(
+        log.info(
             f"koiter-limit: ε = {value:.3g}: ‖ζ_K − ζ_M‖ = {r['distance_VM']:.4e}, contact area "
             f"{r['contact_area_koiter']:.6g}, layer width {r['layer_width']:.3g}{tag}"
         )
@@ -331,23 +338,18 @@ def run_koiter_limit(
     folder: Path,
     domain: DomainSpec,
     epsilons: Sequence[float],
-    say: Say,
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
 ) -> str:
     """The experiment on ``cfg``'s shell and ``domain`` (graded towards γ); the report section."""
-    mesh = make_mesh(domain, ghosted=True, progress=say)
+    mesh = make_mesh(domain, ghosted=True)
     kappas = cfg.penalty.ladder(mesh_size(mesh))
     cp = (checkpoint or Checkpoint(None)).scope("koiter_limit")
-    picture = SolutionPicture(cfg, folder / "koiter_limit_shell_3d.png", say)
+    picture = SolutionPicture(cfg, folder / "koiter_limit_shell_3d.png")
 
     def draw(post: Postprocessor, value: float) -> None:
         picture.draw(post, f"Koiter's model: the deformed shell over the plane at ε = {value:.3g}")
 
-    s = koiter_limit(
-        cfg.shell, mesh, epsilons, kappas, cfg.solver, say, cp, newton_progress, draw,
-        cfg.discretization,
-    )  # fmt: skip
+    s = koiter_limit(cfg.shell, mesh, epsilons, kappas, cfg.solver, cp, draw, cfg.discretization)
     s.edge_h = domain.edge_h or s.h
     write_csv(folder / "koiter_limit.csv", s.rows, COLUMNS)
     png_d, png_l = folder / "koiter_limit.png", folder / "koiter_limit_layer.png"

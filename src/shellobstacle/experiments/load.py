@@ -7,6 +7,7 @@ docs/model.md §7), the paper's measure, whatever points the penalty acts at.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -20,27 +21,21 @@ import numpy as np
 
 from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import Config
-from shellobstacle.experiments.common import (
-    NewtonProgress,
-    Say,
-    finish_figure,
-    penalty_at,
-    write_csv,
-)
+from shellobstacle.experiments.common import finish_figure, on_its_mesh, solve_by, write_csv
 from shellobstacle.experiments.markdown import table
 from shellobstacle.experiments.picture import SolutionPicture
 from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
-from shellobstacle.penalty.spec import PenaltySpec
+from shellobstacle.penalty.spec import PenaltySpec, at_exponent
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.plotting import plot_cross_section
 from shellobstacle.post.sections import CrossSection
 from shellobstacle.post.validity import assess
 from shellobstacle.progress import phase
-from shellobstacle.solvers.newton.continuation import continuation
-from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.options import NewtonOptions
+from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import Discretization, Load, Shell
 
 __all__ = [
@@ -51,6 +46,8 @@ __all__ = [
     "plot_contact_area",
     "write_load_study",
 ]
+
+log = logging.getLogger(__name__)
 
 #: The paper's g_ℓ (docs/model.md §7, batch 3) with ℓ as the load parameter ``ell``.
 PAPER_BATCH3_LOAD = (
@@ -93,19 +90,17 @@ def load_study(
     values: Sequence[float],
     parameter: str = "ell",
     newton: NewtonOptions | None = None,
-    progress: Callable[[str], Any] | None = None,
     checkpoint: Checkpoint | None = None,
-    newton_progress: Callable[[int, float], Any] | None = None,
     last: Callable[[Postprocessor], Any] | None = None,
 ) -> LoadStudy:
-    """Solve for each value of the load parameter (one compiled problem, warm starts).
+    """Solve for each value of the load parameter (one compiled problem, warm starts) by
+    ``METHODS["newton"]``, its solver kept from value to value.
 
     With ``checkpoint`` every finished value is recorded (its row, its cross-section and its
     solution, from which the next value starts); recorded values are not solved again.
     ``last(post)`` is called once the last value is solved (not when it is recorded), with
     its solution in ``post.problem.zeta`` (e.g. to draw it).
     """
-    say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
     if parameter not in shell.load.parameters:
         raise ValueError(
@@ -115,7 +110,7 @@ def load_study(
     h = mesh_size(mesh)
     cp.check_mesh(mesh)
     problem = PenalizedProblem(shell, mesh, discretization)
-    solver = NewtonSolver(problem, newton)
+    method, options = METHODS["newton"], on_its_mesh(newton)
     post = Postprocessor(problem)
     ladder = penalty.ladder(h)
     study = LoadStudy(parameter, h, ladder[-1], problem.num_dofs)
@@ -123,59 +118,57 @@ def load_study(
     recorded_seconds = 0.0
     restore: str | None = None  # the recorded solution not yet loaded into problem.zeta
     saved: str | None = None  # the newest saved solution
-    for k, value in enumerate(values):
-        key = f"{parameter}{value:.10g}"
-        record = cp.load(key)
-        tag = ""
-        if record is None:
-            if restore is not None:
-                cp.restore_vector(restore, problem.zeta)
-                cp.restore_solver(restore, solver)
-                restore = None
-            ts = time.perf_counter()
-            problem.set_parameter(parameter, value)
-            with phase(f"batch 3: {parameter} = {value:g} ({k + 1}/{len(values)})"):
-                steps = continuation(
-                    problem,
-                    solver,
-                    ladder if k == 0 else ladder[-1:],
-                    newton_progress=newton_progress,
-                )
-            c = post.contact()
-            validity = assess(post, float(problem.kappa.value))
-            row = {
-                parameter: value,
-                "ell": value,
-                "contact_area_nodal": c["contact_area_nodal"],
-                "contact_area_nodal_projected": c["contact_area_nodal_projected"],
-                "max_violation_nodal": c["max_violation_nodal"],
-                "zeta3_min": post.zeta3_range()[0],
-                "newton": sum(s.newton.iterations for s in steps),
-                "violations": validity.violations,
+    with method.keeping(problem):
+        for k, value in enumerate(values):
+            key = f"{parameter}{value:.10g}"
+            record = cp.load(key)
+            tag = ""
+            if record is None:
+                if restore is not None:
+                    solver = method.kept_solver(problem, options)
+                    cp.restore_vector(restore, problem.zeta)
+                    cp.restore_solver(restore, solver)
+                    restore = None
+                ts = time.perf_counter()
+                problem.set_parameter(parameter, value)
+                with phase(f"batch 3: {parameter} = {value:g} ({k + 1}/{len(values)})"):
+                    kappas = ladder if k == 0 else ladder[-1:]
+                    steps = solve_by("newton", problem, h, kappas, options).steps
+                c = post.contact()
+                validity = assess(post, float(problem.kappa.value))
+                row = {
+                    parameter: value,
+                    "ell": value,
+                    "contact_area_nodal": c["contact_area_nodal"],
+                    "contact_area_nodal_projected": c["contact_area_nodal_projected"],
+                    "max_violation_nodal": c["max_violation_nodal"],
+                    "zeta3_min": post.zeta3_range()[0],
+                    "newton": sum(s.newton.iterations for s in steps),
+                    "violations": validity.violations,
+                }
+                for line in validity.warnings():
+                    log.warning(f"{parameter} = {value:g}: {line}")
+                section = dataclasses.asdict(post.cross_section())
+                record = {"row": row, "section": section, "seconds": time.perf_counter() - ts}
+                cp.save_vector(key, problem.zeta)
+                cp.save_solver(key, method.kept_solver(problem, options))
+                cp.save(key, record)
+                cp.drop_vector(saved)
+                saved = key
+                if last is not None and k == len(values) - 1:
+                    last(post)
+            else:
+                restore = saved = key
+                recorded_seconds += record["seconds"]
+                tag = " (recorded)"
+            study.rows.append(record["row"])
+            section = {
+                name: np.asarray(v) if isinstance(v, list) else v
+                for name, v in record["section"].items()
             }
-            for line in validity.warnings():
-                say(f"warning: {parameter} = {value:g}: {line}")
-            section = dataclasses.asdict(post.cross_section())
-            record = {"row": row, "section": section, "seconds": time.perf_counter() - ts}
-            cp.save_vector(key, problem.zeta)
-            cp.save_solver(key, solver)
-            cp.save(key, record)
-            cp.drop_vector(saved)
-            saved = key
-            if last is not None and k == len(values) - 1:
-                last(post)
-        else:
-            restore = saved = key
-            recorded_seconds += record["seconds"]
-            tag = " (recorded)"
-        study.rows.append(record["row"])
-        section = {
-            name: np.asarray(v) if isinstance(v, list) else v
-            for name, v in record["section"].items()
-        }
-        study.sections.append((f"{parameter} = {value:g}", CrossSection(**section)))
-        area = record["row"]["contact_area_nodal"]
-        say(f"batch 3: {parameter} = {value:g}: contact area {area:.6g} (nodal){tag}")
+            study.sections.append((f"{parameter} = {value:g}", CrossSection(**section)))
+            area = record["row"]["contact_area_nodal"]
+            log.info(f"batch 3: {parameter} = {value:g}: contact area {area:.6g} (nodal){tag}")
     cp.drop_vector(saved)  # the sweep is complete
     study.seconds = time.perf_counter() - t0 + recorded_seconds
     return study
@@ -221,10 +214,8 @@ def run_load(
     domain: DomainSpec,
     values: Sequence[float],
     exponent: float,
-    say: Say,
     parameter: str = "ell",
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
 ) -> str:
     """Batch 3 (load sweep); returns the report section.
 
@@ -232,7 +223,7 @@ def run_load(
     The largest load's solution is drawn in 3D (``batch3_shell_3d.png``, when
     ``output.pictures``; a resumed run keeps the drawing of the run that solved it).
     """
-    picture = SolutionPicture(cfg, folder / "batch3_shell_3d.png", say)
+    picture = SolutionPicture(cfg, folder / "batch3_shell_3d.png")
     paper_load = is_paper_load(cfg.shell.load)
     name = "ℓ" if paper_load and parameter == "ell" else parameter
 
@@ -241,15 +232,13 @@ def run_load(
 
     s = load_study(
         cfg.shell,
-        make_mesh(domain, progress=say),
+        make_mesh(domain),
         cfg.discretization,
-        penalty_at(cfg.penalty, exponent),
+        at_exponent(cfg.penalty, exponent),
         values,
         parameter,
         cfg.solver,
-        say,
         (checkpoint or Checkpoint(None)).scope("batch3"),
-        newton_progress,
         draw,
     )
     write_load_study(s, folder)

@@ -3,8 +3,10 @@ on consecutive meshes ‖ζ^{h_1}_{h_1^q} − ζ^{h_2}_{h_2^q}‖ (the coarse on
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,11 +20,11 @@ from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import (
     LazyReference,
-    NewtonProgress,
-    Say,
     finish_figure,
     fit_rate,
+    on_its_mesh,
     reference_of,
+    solve_by,
     transfer,
     write_csv,
 )
@@ -38,30 +40,34 @@ from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.progress import phase
-from shellobstacle.solvers.newton.continuation import continuation
-from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.options import NewtonOptions
+from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
     "MeshLevel",
     "MeshStudy",
+    "keeping_levels",
     "mesh_levels",
     "mesh_study",
     "plot_mesh_study",
     "write_mesh_study",
 ]
 
+log = logging.getLogger(__name__)
+
 COLUMNS = ("h_1", "h_2", "error_VM", "error_H1")
 
 
 @dataclass
 class MeshLevel:
-    """One mesh of the nested sequence with its compiled problem and solver (reused over q)."""
+    """One mesh of the nested sequence with its compiled problem (reused over q) and Newton's
+    options (its solver is the method's, kept over q inside :func:`keeping_levels`)."""
 
     mesh: dolfinx.mesh.Mesh
     h: float
     problem: PenalizedProblem
-    solver: NewtonSolver
+    options: NewtonOptions
     norms: DifferenceNorms
     #: interpolation into ``problem.V`` (the previous level's solutions, located once)
     interpolation: Interpolation
@@ -99,15 +105,14 @@ def mesh_levels(
     refinements: int,
     discretization: Discretization,
     newton: NewtonOptions | None = None,
-    progress: Callable[[str], Any] | None = None,
     checkpoint: Checkpoint | None = None,
 ) -> list[MeshLevel]:
     """The base mesh and its uniform refinements, each with a compiled problem.
 
     With ``checkpoint`` each level's mesh is fingerprinted (and compared on resume).
     """
-    say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
+    options = on_its_mesh(newton)
     levels = []
     mesh = base
     for k in range(refinements + 1):
@@ -120,24 +125,32 @@ def mesh_levels(
                 mesh,
                 mesh_size(mesh),
                 problem,
-                NewtonSolver(problem, newton),
+                options,
                 DifferenceNorms(problem.V, discretization.qdegree),
                 Interpolation(problem.V),
             )
         )
-        say(f"batch 2: mesh level {k}: h = {levels[-1].h:.4g}, {problem.num_dofs} dofs")
+        log.info(f"batch 2: mesh level {k}: h = {levels[-1].h:.4g}, {problem.num_dofs} dofs")
     return levels
+
+
+@contextlib.contextmanager
+def keeping_levels(levels: Sequence[MeshLevel]) -> Iterator[None]:
+    """Inside, Newton's solver of each level is kept from one solve to the next (its contact
+    zone carried over q, as a checkpoint records it)."""
+    with contextlib.ExitStack() as stack:
+        for level in levels:
+            stack.enter_context(METHODS["newton"].keeping(level.problem))
+        yield
 
 
 def mesh_study(
     levels: Sequence[MeshLevel],
     q: float,
     tol: float = 2e-6,
-    progress: Callable[[str], Any] | None = None,
     reference: dolfinx.fem.Function | LazyReference | None = None,
     warm: bool = True,
     checkpoint: Checkpoint | None = None,
-    newton_progress: Callable[[int, float], Any] | None = None,
     draw: Callable[[PenalizedProblem], Any] | None = None,
 ) -> MeshStudy:
     """Solve with κ = h^q on each level (continuation in κ from ζ = 0) and difference them.
@@ -151,52 +164,53 @@ def mesh_study(
     ``draw(problem)`` is called after the sweep with the last level's problem, if that level
     was solved in this run.
     """
-    say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
     study = MeshStudy(q)
     t0 = time.perf_counter()
     recorded_seconds = 0.0
     previous = None
     last: MeshLevel | None = None  # the sweep's last level, if solved in this run
-    for k, level in enumerate(levels):
-        key = f"q{q:.10g}_level{k}"
-        record = cp.load(key)
-        tag = ""
-        last = level if record is None else None
-        if record is None:
-            for lv in (level, previous):
-                if lv is not None and lv.restore is not None:
-                    cp.restore_vector(lv.restore, lv.problem.zeta)
-                    cp.restore_solver(lv.restore, lv.solver)
-                    lv.restore = None
-            with phase(f"batch 2 [q = {q:g}]: level {k + 1}/{len(levels)}, h = {level.h:.4g}"):
-                record = _solve_level(levels, k, q, previous, reference, warm, newton_progress)
-            cp.save_vector(key, level.problem.zeta)
-            cp.save_solver(key, level.solver)
-            cp.save(key, record)
-            cp.drop_vector(level.saved)
-            level.saved = key
-        else:
-            level.saved = level.restore = key
-            recorded_seconds += record["seconds"]
-            tag = " (recorded)"
-        study.newton.append(record["newton"])
-        if record["reference_row"] is not None:
-            study.reference_rows.append(record["reference_row"])
-        row = record["row"]
-        if row is not None:
-            study.rows.append(row)
-            say(
-                f"batch 2 [q = {q:g}]: h {previous.h:.4g}→{level.h:.4g}: "
-                f"‖Δζ‖_VM = {row['error_VM']:.3e}{tag}"
-            )
-            if row["error_VM"] < tol and study.stop_h is None:
-                study.stop_h = level.h
-                if reference is None:
-                    break
-        else:
-            say(f"batch 2 [q = {q:g}]: h = {level.h:.4g} solved{tag}")
-        previous = levels[k]
+    with keeping_levels(levels):
+        for k, level in enumerate(levels):
+            key = f"q{q:.10g}_level{k}"
+            record = cp.load(key)
+            tag = ""
+            last = level if record is None else None
+            if record is None:
+                for lv in (level, previous):
+                    if lv is not None and lv.restore is not None:
+                        solver = METHODS["newton"].kept_solver(lv.problem, lv.options)
+                        cp.restore_vector(lv.restore, lv.problem.zeta)
+                        cp.restore_solver(lv.restore, solver)
+                        lv.restore = None
+                with phase(f"batch 2 [q = {q:g}]: level {k + 1}/{len(levels)}, h = {level.h:.4g}"):
+                    record = _solve_level(levels, k, q, previous, reference, warm)
+                cp.save_vector(key, level.problem.zeta)
+                cp.save_solver(key, METHODS["newton"].kept_solver(level.problem, level.options))
+                cp.save(key, record)
+                cp.drop_vector(level.saved)
+                level.saved = key
+            else:
+                level.saved = level.restore = key
+                recorded_seconds += record["seconds"]
+                tag = " (recorded)"
+            study.newton.append(record["newton"])
+            if record["reference_row"] is not None:
+                study.reference_rows.append(record["reference_row"])
+            row = record["row"]
+            if row is not None:
+                study.rows.append(row)
+                log.info(
+                    f"batch 2 [q = {q:g}]: h {previous.h:.4g}→{level.h:.4g}: "
+                    f"‖Δζ‖_VM = {row['error_VM']:.3e}{tag}"
+                )
+                if row["error_VM"] < tol and study.stop_h is None:
+                    study.stop_h = level.h
+                    if reference is None:
+                        break
+            else:
+                log.info(f"batch 2 [q = {q:g}]: h = {level.h:.4g} solved{tag}")
+            previous = levels[k]
     if draw is not None and last is not None:
         draw(last.problem)
     study.seconds = time.perf_counter() - t0 + recorded_seconds
@@ -210,21 +224,17 @@ def _solve_level(
     previous: MeshLevel | None,
     reference: Any,
     warm: bool,
-    newton_progress: Callable[[int, float], Any] | None,
 ) -> dict[str, Any]:
-    """Solve level ``k`` for κ = h^q; the step's record (Newton steps, rows, seconds)."""
+    """Solve level ``k`` for κ = h^q by ``METHODS["newton"]``; the step's record (Newton
+    steps, rows, seconds)."""
     t0 = time.perf_counter()
     level = levels[k]
     ladder = PenaltySpec(exponent=q).ladder(level.h)
     solved_before = warm and bool(np.any(level.problem.zeta.x.array))
     if not warm:
         level.problem.zeta.x.array[:] = 0.0
-    steps = continuation(
-        level.problem,
-        level.solver,
-        ladder[-1:] if solved_before else ladder,
-        newton_progress=newton_progress,
-    )
+    kappas = ladder[-1:] if solved_before else ladder
+    steps = solve_by("newton", level.problem, level.h, kappas, level.options).steps
     reference_row = None
     ref = reference_of(reference)
     if ref is not None:
@@ -290,11 +300,9 @@ def run_mesh(
     base: DomainSpec,
     refinements: int,
     q_values: Sequence[float],
-    say: Say,
     tol: float = 2e-6,
     batch4: list[dict[str, Any]] | None = None,
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
 ) -> str:
     """Batch 2 on nested meshes for each q; returns the report section.
 
@@ -311,51 +319,50 @@ def run_mesh(
         "C h (1 + 1/√κ) = O(h^{1 − q/2}).",
         "",
     ]
-    coarsest = make_mesh(base, progress=say)
-    levels = mesh_levels(cfg.shell, coarsest, refinements, cfg.discretization, cfg.solver, say, cp)
+    coarsest = make_mesh(base)
+    levels = mesh_levels(cfg.shell, coarsest, refinements, cfg.discretization, cfg.solver, cp)
     reference = None
     if batch4 is not None:
         where = f"the finest mesh (h = {levels[-1].h:.4g})"
-        make = exact_reference(cfg, levels[-1].mesh, cfg.discretization, say, where)
+        make = exact_reference(cfg, levels[-1].mesh, cfg.discretization, where)
         reference = LazyReference(make)
     summary = []
-    picture = SolutionPicture(cfg, folder / "batch2_shell_3d.png", say)
+    picture = SolutionPicture(cfg, folder / "batch2_shell_3d.png")
     draw = picture.drawer(f"Batch 2, κ = h^{q_values[-1]:g}")
-    for q in q_values:
-        s = mesh_study(
-            levels,
-            q,
-            tol,
-            say,
-            reference,
-            checkpoint=cp,
-            newton_progress=newton_progress,
-            draw=draw if q == q_values[-1] else None,
-        )
-        if batch4 is not None:
-            batch4.extend(s.reference_rows)
-        write_mesh_study(s, folder)
-        png = folder / f"batch2_q{q:g}.png"
-        if MPI.COMM_WORLD.rank == 0:
-            plot_mesh_study(s, png, tol)
-        summary.append(
-            {
-                "q": q,
-                "fitted rate": s.rate(),
-                "theory 1 − q/2": 1 - q / 2,
-                "stops at h": s.stop_h if s.stop_h else "not reached",
-                "Newton (per mesh)": "/".join(map(str, s.newton)),
-                "seconds": s.seconds,
-            }
-        )
-        text += [
-            f"### q = {q:g}",
-            "",
-            table(s.rows, ("h_1", "h_2", "error_VM", "error_H1")),
-            "",
-            f"![batch 2, q = {q:g}]({png.name})",
-            "",
-        ]
+    with keeping_levels(levels):  # each level's solver carried over q
+        for q in q_values:
+            s = mesh_study(
+                levels,
+                q,
+                tol,
+                reference,
+                checkpoint=cp,
+                draw=draw if q == q_values[-1] else None,
+            )
+            if batch4 is not None:
+                batch4.extend(s.reference_rows)
+            write_mesh_study(s, folder)
+            png = folder / f"batch2_q{q:g}.png"
+            if MPI.COMM_WORLD.rank == 0:
+                plot_mesh_study(s, png, tol)
+            summary.append(
+                {
+                    "q": q,
+                    "fitted rate": s.rate(),
+                    "theory 1 − q/2": 1 - q / 2,
+                    "stops at h": s.stop_h if s.stop_h else "not reached",
+                    "Newton (per mesh)": "/".join(map(str, s.newton)),
+                    "seconds": s.seconds,
+                }
+            )
+            text += [
+                f"### q = {q:g}",
+                "",
+                table(s.rows, ("h_1", "h_2", "error_VM", "error_H1")),
+                "",
+                f"![batch 2, q = {q:g}]({png.name})",
+                "",
+            ]
     for level in levels:  # the sweep is complete: no later step starts from these
         cp.drop_vector(level.saved)
     text += picture.markdown(f"the shell in 3D on the last mesh solved for q = {q_values[-1]:g}")

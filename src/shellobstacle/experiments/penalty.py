@@ -4,6 +4,7 @@ Cauchy differences ‖ζ^h_{h^{q_n}} − ζ^h_{h^{q_{n+1}}}‖ until they fall b
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -19,12 +20,11 @@ from shellobstacle.api import make_mesh
 from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import (
     LazyReference,
-    NewtonProgress,
-    Say,
     finish_figure,
     fit_rate,
-    newton_finished,
+    on_its_mesh,
     reference_of,
+    solve_by,
     write_csv,
 )
 from shellobstacle.experiments.exact import exact_reference
@@ -34,10 +34,11 @@ from shellobstacle.io.checkpoint import Checkpoint
 from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.spec import kappa_at
 from shellobstacle.post.norms import DifferenceNorms
 from shellobstacle.progress import phase
-from shellobstacle.solvers.newton.continuation import predict
-from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
+from shellobstacle.solvers.newton.options import NewtonOptions
+from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
@@ -47,6 +48,8 @@ __all__ = [
     "plot_penalty_study",
     "write_penalty_study",
 ]
+
+log = logging.getLogger(__name__)
 
 COLUMNS = ("iteration", "q_n", "q_m", "error_VM", "error_H1", "reference")
 
@@ -85,7 +88,7 @@ class PenaltyStudy:
 
     def decay_rate(self) -> float:
         """Fitted slope of log error_VM against log κ_n over the differences above the tol."""
-        k = [self.h ** r["q_n"] for r in self.rows]
+        k = [kappa_at(self.h, r["q_n"]) for r in self.rows]
         return fit_rate(k, [r["error_VM"] for r in self.rows])
 
     def mean_newton(self) -> float:
@@ -100,29 +103,26 @@ def penalty_study(
     discretization: Discretization,
     options: PenaltyStudyOptions | None = None,
     newton: NewtonOptions | None = None,
-    progress: Callable[[str], Any] | None = None,
     reference: dolfinx.fem.Function | LazyReference | None = None,
     checkpoint: Checkpoint | None = None,
-    newton_progress: Callable[[int, float], Any] | None = None,
     draw: Callable[[PenalizedProblem], Any] | None = None,
 ) -> PenaltyStudy:
-    """Run batch 1 on ``mesh`` (each κ warm-started from the previous one).
+    """Run batch 1 on ``mesh``: Newton's method (``METHODS["newton"]``) at each κ, its solver
+    kept and each κ warm-started from the previous one's Euler prediction (one continuation).
 
     With ``reference`` (the exact discrete solution ζ^h on the same space, possibly computed
     on first use) every ζ_κ is also compared with it (batch 4, the error the paper could only
     bound). With ``checkpoint`` (scoped to this mesh and quadrature) every finished κ is
     recorded with its solution, and κ already recorded are not solved again: the sweep
-    continues from the last recorded solution. ``newton_progress(it, relative_residual)`` is
-    called after every Newton iteration; ``draw(problem)`` after the sweep, if its last κ
-    was solved in this run (e.g. to draw that solution).
+    continues from the last recorded solution. ``draw(problem)`` is called after the sweep,
+    if its last κ was solved in this run (e.g. to draw that solution).
     """
     opts = options or PenaltyStudyOptions()
-    say = progress or (lambda _m: None)
     cp = checkpoint or Checkpoint(None)
     h = mesh_size(mesh)
     cp.check_mesh(mesh)
     problem = PenalizedProblem(shell, mesh, discretization)
-    solver = NewtonSolver(problem, newton)
+    method, newton_options = METHODS["newton"], on_its_mesh(newton)
     norms = DifferenceNorms(problem.V, discretization.qdegree)
     study = PenaltyStudy(h, problem.num_dofs, discretization.penalty_quadrature)
     previous: dolfinx.fem.Function | None = None
@@ -134,91 +134,89 @@ def penalty_study(
     q = opts.start
     n = 0
     solved = False  # the last κ was solved in this run (not read back)
-    while q <= opts.q_max + 1e-12:
-        key = f"q{q:.10g}"
-        record = cp.load(key)
-        solved = record is None
-        if record is None:
-            if restore is not None:  # continue from the last recorded step
-                cp.restore_vector(restore, problem.zeta)
-                cp.restore_solver(restore, solver)
-                previous = dolfinx.fem.Function(problem.V)
+    with method.keeping(problem, go_on=True):
+        while q <= opts.q_max + 1e-12:
+            key = f"q{q:.10g}"
+            record = cp.load(key)
+            solved = record is None
+            if record is None:
+                if restore is not None:  # continue from the last recorded step
+                    solver = method.kept_solver(problem, newton_options)
+                    cp.restore_vector(restore, problem.zeta)
+                    cp.restore_solver(restore, solver)
+                    previous = dolfinx.fem.Function(problem.V)
+                    previous.x.array[:] = problem.zeta.x.array
+                    restore = None
+                with phase(f"batch 1 [{study.quadrature}, h = {h:.4g}]: κ = h^{q:g}"):
+                    record = _solve_step(
+                        problem, newton_options, norms, h, (q, q_prev, n + 1), previous, reference
+                    )
+                cp.save_vector(key, problem.zeta)
+                cp.save_solver(key, method.kept_solver(problem, newton_options))
+                cp.save(key, record)
+                cp.drop_vector(saved)
+                saved, tag = key, ""
+                if previous is None:
+                    previous = dolfinx.fem.Function(problem.V)
                 previous.x.array[:] = problem.zeta.x.array
-                restore = None
-            with phase(f"batch 1 [{study.quadrature}, h = {h:.4g}]: κ = h^{q:g}"):
-                record = _solve_step(
-                    problem, solver, norms, h, (q, q_prev, n + 1), previous, reference,
-                    newton_progress,
-                )  # fmt: skip
-            cp.save_vector(key, problem.zeta)
-            cp.save_solver(key, solver)
-            cp.save(key, record)
-            cp.drop_vector(saved)
-            saved, tag = key, ""
-            if previous is None:
-                previous = dolfinx.fem.Function(problem.V)
-            previous.x.array[:] = problem.zeta.x.array
-        else:
-            restore = saved = key
-            recorded_seconds += record["seconds"]
-            tag = " (recorded)"
-        study.solves.append(record["solve"])
-        if record["reference_row"] is not None:
-            study.reference_rows.append(record["reference_row"])
-        newton_steps = record["solve"]["newton"]
-        row = record["row"]
-        if row is not None:
-            n += 1
-            study.rows.append(row)
-            say(
-                f"batch 1 [{study.quadrature}, h = {h:.4g}]: q {q_prev:g}→{q:g}: "
-                f"‖Δζ‖_VM = {row['error_VM']:.3e} ({newton_steps} Newton steps){tag}"
-            )
-            if row["error_VM"] < opts.tol:
-                study.reached_tol = True
-                break
-        else:
-            say(
-                f"batch 1 [{study.quadrature}, h = {h:.4g}]: q = {q:g} "
-                f"({newton_steps} Newton steps){tag}"
-            )
-        q_prev = q
-        q += opts.step
+            else:
+                restore = saved = key
+                recorded_seconds += record["seconds"]
+                tag = " (recorded)"
+            study.solves.append(record["solve"])
+            if record["reference_row"] is not None:
+                study.reference_rows.append(record["reference_row"])
+            newton_steps = record["solve"]["newton"]
+            row = record["row"]
+            if row is not None:
+                n += 1
+                study.rows.append(row)
+                log.info(
+                    f"batch 1 [{study.quadrature}, h = {h:.4g}]: q {q_prev:g}→{q:g}: "
+                    f"‖Δζ‖_VM = {row['error_VM']:.3e} ({newton_steps} Newton steps){tag}"
+                )
+                if row["error_VM"] < opts.tol:
+                    study.reached_tol = True
+                    break
+            else:
+                log.info(
+                    f"batch 1 [{study.quadrature}, h = {h:.4g}]: q = {q:g} "
+                    f"({newton_steps} Newton steps){tag}"
+                )
+            q_prev = q
+            q += opts.step
+        timings = dict(method.kept_solver(problem, newton_options).timings)
     cp.drop_vector(saved)  # the sweep is complete: no later step starts from it
     if draw is not None and solved:
         draw(problem)
     study.seconds = time.perf_counter() - t_start + recorded_seconds
-    study.timings = dict(solver.timings)
+    study.timings = timings
     return study
 
 
 def _solve_step(
     problem: PenalizedProblem,
-    solver: NewtonSolver,
+    options: NewtonOptions,
     norms: DifferenceNorms,
     h: float,
     step: tuple[float, float | None, int],
     previous: dolfinx.fem.Function | None,
     reference: Any,
-    newton_progress: Callable[[int, float], Any] | None,
 ) -> dict[str, Any]:
-    """Solve for κ = h^q from ``problem.zeta``; the step's record (solve, rows, seconds).
+    """Solve for κ = h^q from ``problem.zeta`` (inside ``keeping``: the Euler prediction from
+    the previous κ where the linear strategy keeps a factorization for one; after a resume
+    there is none and ζ is left as it is); the step's record (solve, rows, seconds).
 
     ``step`` is ``(q, q_prev, iteration)``: the exponent, the previous one (None for the first
     κ) and the number of the difference row.
     """
     q, q_prev, iteration = step
+    kappa = kappa_at(h, q)
     t0 = time.perf_counter()
-    if q_prev is not None:
-        # the Euler prediction where the linear strategy keeps a factorization for one, as a
-        # continuation does; after a resume there is none and ζ is left as it is
-        predict(solver, h**q)
-    problem.set_kappa(h**q)
-    r = solver.solve(newton_progress)
-    newton_finished(newton_progress, r)
+    r = solve_by("newton", problem, h, [kappa], options).steps[-1].record
     solve = {
         "q": q,
-        "kappa": h**q,
+        "kappa": kappa,
         "newton": r.iterations,
         "reason": r.reason,
         "relative_residual": r.relative_residual,
@@ -230,7 +228,7 @@ def _solve_step(
     ref = reference_of(reference)
     if ref is not None:
         e = norms(problem.zeta, ref)
-        reference_row = {"h": h, "kappa": h**q, "q": q, "error_VM": e["vm"], "error_H1": e["h1"]}
+        reference_row = {"h": h, "kappa": kappa, "q": q, "error_VM": e["vm"], "error_H1": e["h1"]}
     row = None
     if q_prev is not None:
         assert previous is not None
@@ -241,7 +239,7 @@ def _solve_step(
             "q_m": q,
             "error_VM": d["vm"],
             "error_H1": d["h1"],
-            "reference": np.sqrt(h**q_prev) / 10,
+            "reference": np.sqrt(kappa_at(h, q_prev)) / 10,
         }
     return {
         "q": q,
@@ -293,12 +291,10 @@ def run_penalty(
     cfg: Config,
     folder: Path,
     meshes: Sequence[DomainSpec],
-    say: Say,
     options: PenaltyStudyOptions | None = None,
     quadratures: Sequence[str] = ("gauss", "vertex"),
     batch4: list[dict[str, Any]] | None = None,
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
 ) -> str:
     """Batch 1 on each mesh, for each penalty quadrature; returns the report section.
 
@@ -319,9 +315,9 @@ def run_penalty(
     )
     text.append("")
     summary = []
-    picture = SolutionPicture(cfg, folder / "batch1_shell_3d.png", say)
+    picture = SolutionPicture(cfg, folder / "batch1_shell_3d.png")
     for i, spec in enumerate(meshes):
-        mesh = make_mesh(spec, progress=say)
+        mesh = make_mesh(spec)
         studies = []
         for quadrature in quadratures:
             last = i == len(meshes) - 1 and quadrature == quadratures[0]
@@ -329,17 +325,15 @@ def run_penalty(
             disc = dataclasses.replace(cfg.discretization, penalty_quadrature=quadrature)
             reference = None
             if batch4 is not None and quadrature == "vertex":
-                reference = LazyReference(exact_reference(cfg, mesh, disc, say, "the h-mesh"))
+                reference = LazyReference(exact_reference(cfg, mesh, disc, "the h-mesh"))
             s = penalty_study(
                 cfg.shell,
                 mesh,
                 disc,
                 opts,
                 cfg.solver,
-                say,
                 reference,
                 cp.scope(f"batch1_mesh{i}_h{spec.h:.10g}_{quadrature}"),
-                newton_progress,
                 draw,
             )
             if batch4 is not None:

@@ -9,19 +9,21 @@ before it drew it, the report and the log say that the picture is missing and ho
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from pathlib import Path
 
 from mpi4py import MPI
 
 from shellobstacle.config.loader import Config
-from shellobstacle.experiments.common import Say
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.progress import phase
 
 __all__ = ["SolutionPicture"]
+
+log = logging.getLogger(__name__)
 
 
 class SolutionPicture:
@@ -30,12 +32,13 @@ class SolutionPicture:
     Args:
         cfg: the experiment's config (``output.pictures`` switches the drawing off).
         path: the PNG file.
-        say: where the first drawing failure of the run is reported.
+
+    A drawing that fails, or a picture that is missing, is logged as a warning.
     """
 
-    def __init__(self, cfg: Config, path: Path, say: Say) -> None:
+    def __init__(self, cfg: Config, path: Path) -> None:
         self.enabled = bool(cfg.output.get("pictures", True))
-        self.path, self.say = path, say
+        self.path = path
         #: whether this run has drawn (or tried to draw) the solution
         self.attempted = False
 
@@ -50,7 +53,7 @@ class SolutionPicture:
         with phase("drawing the 3D picture"):
             picture = write_picture(post, self.path, title)
         if picture.warning is not None:
-            self.say(f"warning: {picture.warning}")
+            log.warning(picture.warning)
 
     def drawer(self, label: str) -> Callable[[PenalizedProblem], None]:
         """A function drawing a problem's solution with the title ``label``, h and κ."""
@@ -83,5 +86,5 @@ class SolutionPicture:
             "of an interrupted run (steps/) and does not draw it again; to draw it, run the "
             "command with --overwrite instead of --resume"
         )
-        self.say(f"warning: the {missing}")
+        log.warning(f"the {missing}")
         return [f"*The {missing}.*", ""]

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 import time
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -24,8 +24,7 @@ from shellobstacle.progress import phase
 
 __all__ = ["PAPER_CONFIG", "SIZES", "Sizes", "reproduce"]
 
-Say = Callable[[str], Any]
-NewtonProgress = Callable[[int, float], Any] | None
+log = logging.getLogger(__name__)
 PAPER_CONFIG = Path(__file__).parents[1] / "configs" / "paper.toml"
 #: gmsh targets ≈ h / 1.34 give largest cell diameters h ≈ 0.0312, 0.0156, 0.0078, 0.0039
 GMSH_TARGET = {0.0312: 0.0233, 0.0156: 0.0116, 0.0078: 0.0058, 0.0039: 0.0029}
@@ -104,9 +103,7 @@ def _resumed_note(cp: Checkpoint) -> list[str]:
 def reproduce(
     folder: Path,
     mode: str,
-    say: Say,
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
 ) -> Path:
     """All batches of the paper's section 10 with ``report.md``; returns the report path.
 
@@ -115,7 +112,7 @@ def reproduce(
     """
     sizes = SIZES[mode]
     cp = checkpoint or Checkpoint(None)
-    kw: dict[str, Any] = {"checkpoint": cp, "newton_progress": newton_progress}
+    kw: dict[str, Any] = {"checkpoint": cp}
     cfg = load_config(PAPER_CONFIG)
     t0 = time.perf_counter()
     sections, times = [], {}
@@ -128,7 +125,7 @@ def reproduce(
     t = time.perf_counter()
     batch1_meshes = [disk(h) for h in sizes.batch1_h]
     with phase("batch 1 (1/5): κ → 0 on fixed meshes"):
-        sections.append(run_penalty(cfg, folder, batch1_meshes, say, batch4=penalty_rows, **kw))
+        sections.append(run_penalty(cfg, folder, batch1_meshes, batch4=penalty_rows, **kw))
     times["batch 1"] = time.perf_counter() - t
     t = time.perf_counter()
     base = disk(sizes.batch2_base_h)
@@ -140,7 +137,6 @@ def reproduce(
                 base,
                 sizes.batch2_refinements,
                 sizes.batch2_q,
-                say,
                 batch4=mesh_rows,
                 **kw,
             )
@@ -155,7 +151,6 @@ def reproduce(
                 disk(sizes.batch3_h, central_h=sizes.batch3_central_h, central_radius=0.1),
                 sizes.batch3_ell,
                 sizes.batch3_exponent,
-                say,
                 **kw,
             )
         )
@@ -164,7 +159,7 @@ def reproduce(
     t = time.perf_counter()
     with phase("Newton against Brezis–Sibony (4/5)"):
         solver_meshes = [disk(h) for h in sizes.solver_h]
-        sections.append(run_solvers(cfg, folder, solver_meshes, 1.5, say, **kw))
+        sections.append(run_solvers(cfg, folder, solver_meshes, 1.5, **kw))
     times["solvers"] = time.perf_counter() - t
     t = time.perf_counter()
     h, central_h, edge_h, edge_width = sizes.koiter_h
@@ -177,13 +172,13 @@ def reproduce(
         edge_width=edge_width,
     )
     with phase("Koiter's model as ε → 0 (5/5)"):
-        sections.append(run_koiter_limit(cfg, folder, graded, sizes.koiter_epsilons, say, **kw))
+        sections.append(run_koiter_limit(cfg, folder, graded, sizes.koiter_epsilons, **kw))
     times["koiter"] = time.perf_counter() - t
     t = time.perf_counter()
     study = AdaptiveStudyOptions(
         sizes.adaptive_refinements, sizes.adaptive_reference_dofs, sizes.adaptive_dofs
     )
-    sections.append(run_adaptive(cfg, folder, disk(sizes.adaptive_h), study, say, **kw))
+    sections.append(run_adaptive(cfg, folder, disk(sizes.adaptive_h), study, **kw))
     times["adaptive"] = time.perf_counter() - t
     total = time.perf_counter() - t0
     v = versions()
@@ -208,5 +203,5 @@ def reproduce(
     ]
     path = folder / "report.md"
     atomic_write(path, "\n".join(head + sections))
-    say(f"report written: {path}")
+    log.info(f"report written: {path}")
     return path

@@ -1,8 +1,9 @@
 """Newton against the Brezis–Sibony iteration on the paper's problem (docs/model.md §6–7).
 
-For each mesh, ``κ = h^q`` is solved twice on one compiled problem: by Newton with the usual
-continuation ``κ = h^{0.5}, h^{1.0}, …, h^q`` (:func:`~shellobstacle.api.continuation`)
-and by the iteration (38) from the linearized start with the automatic step. Each row records
+For each mesh, ``κ = h^q`` is solved twice on one compiled problem, both through the method
+registry (:data:`~shellobstacle.solvers.registry.METHODS`): by Newton with the usual
+continuation ``κ = h^{0.5}, h^{1.0}, …, h^q`` (``"newton"``) and by the iteration (38) from
+the linearized start with the automatic step (``"brezis-sibony"``). Each row records
 the cost of both, the estimated contraction bound against the observed contraction factor,
 and the L² distance of the two solutions relative to Newton's. A Brezis–Sibony run that hits
 its iteration cap is recorded as such (``bs_converged = False``, with its last increment and
@@ -12,6 +13,7 @@ the a posteriori error bound); nothing is hidden or extrapolated.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -25,11 +27,10 @@ import numpy as np
 
 from shellobstacle.config.loader import Config
 from shellobstacle.experiments.common import (
-    NewtonProgress,
-    Say,
     fit_rate,
-    penalty_at,
+    on_its_mesh,
     readable_log_ticks,
+    solve_by,
     write_csv,
 )
 from shellobstacle.experiments.markdown import table
@@ -39,15 +40,18 @@ from shellobstacle.mesh.domains import DomainSpec
 from shellobstacle.mesh.measures import mesh_size
 from shellobstacle.mesh.meshing import create_mesh
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.penalty.spec import at_exponent
 from shellobstacle.post.contact import Postprocessor
 from shellobstacle.post.norms import l2_norm
-from shellobstacle.progress import note, phase
-from shellobstacle.solvers.brezis_sibony.iteration import BrezisSibonyOptions, BrezisSibonySolver
-from shellobstacle.solvers.newton.continuation import continuation
-from shellobstacle.solvers.newton.solver import NewtonOptions, NewtonSolver
+from shellobstacle.progress import phase
+from shellobstacle.solvers.brezis_sibony.options import BrezisSibonyOptions
+from shellobstacle.solvers.newton.options import NewtonOptions
+from shellobstacle.solvers.registry import METHODS
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = ["COLUMNS", "DEFAULT_SIZES", "compare_solvers", "write_solver_comparison"]
+
+log = logging.getLogger(__name__)
 
 DEFAULT_SIZES = (0.1, 0.07)  # gmsh targets of the paper's disk: small, a minute in all
 COLUMNS = (
@@ -82,9 +86,7 @@ def compare_solvers(
     discretization: Discretization | None = None,
     newton_options: NewtonOptions | None = None,
     bs_options: BrezisSibonyOptions | None = None,
-    progress: Callable[[str], Any] | None = None,
     checkpoint: Checkpoint | None = None,
-    newton_progress: Callable[[int, float], Any] | None = None,
     draw: Callable[[PenalizedProblem], Any] | None = None,
 ) -> list[dict[str, Any]]:
     """Solve ``κ = h^q`` with Newton and with Brezis–Sibony on each mesh; one row per mesh.
@@ -99,29 +101,25 @@ def compare_solvers(
         newton_options: overrides the config's Newton options.
         bs_options: overrides the config's Brezis–Sibony options (default: linearized start,
             automatic step, at most 200 000 iterations, its own stopping rules).
-        progress: called with one-line messages.
         checkpoint: records each mesh's row (keyed by the gmsh target size); a recorded mesh
             is not meshed or solved again. Ready meshes are not recorded.
-        newton_progress: called as ``(iteration, relative residual)`` after every Newton
-            iteration.
         draw: called with the problem holding the last mesh's Newton solution (if that mesh
             is solved in this run, not read back).
 
     Returns:
         One dict per mesh with the keys of :data:`COLUMNS` (identical on every rank).
     """
-    say = progress or (lambda _msg: None)
     cp = checkpoint or Checkpoint(None)
     if isinstance(source, Config):
         shell, domain = source.shell, source.domain
         disc = discretization or source.discretization
-        nopts = newton_options or source.solver
+        nopts = on_its_mesh(newton_options or source.solver)
         bopts = bs_options or source.options_of("brezis-sibony")
         penalty = source.penalty
     else:
         shell, domain, penalty = source, None, None
         disc = discretization or Discretization()
-        nopts = newton_options or NewtonOptions()
+        nopts = on_its_mesh(newton_options)
         bopts = bs_options or BrezisSibonyOptions()
 
     rows: list[dict[str, Any]] = []
@@ -133,23 +131,23 @@ def compare_solvers(
             if record is not None:
                 rows.append(record["row"])
                 r = record["row"]
-                say(
+                log.info(
                     f"h = {r['h']:.4g}: Newton {r['newton_iterations']} steps; Brezis–Sibony "
                     f"{r['bs_iterations']} steps ({r['bs_reason']}) (recorded)"
                 )
                 continue
         mesh, target = _mesh(item, domain)
         h = mesh_size(mesh)
-        kappas = penalty_at(penalty, q).ladder(h)
+        kappas = at_exponent(penalty, q).ladder(h)
         problem = PenalizedProblem(shell, mesh, disc, kappa=kappas[0])
         asked = "" if target is None else f" (target {target:g})"
-        say(f"h = {h:.4g}{asked}, {problem.num_dofs} dofs, κ = h^{q:g} = {kappas[-1]:.3e}: Newton")
+        log.info(
+            f"h = {h:.4g}{asked}, {problem.num_dofs} dofs, κ = h^{q:g} = {kappas[-1]:.3e}: Newton"
+        )
 
         t0 = time.perf_counter()
         with phase(f"h = {h:.4g}: Newton"):
-            steps = continuation(
-                problem, NewtonSolver(problem, nopts), kappas, newton_progress=newton_progress
-            )
+            steps = solve_by("newton", problem, h, kappas, nopts).steps
         newton_seconds = time.perf_counter() - t0
         newton = dolfinx.fem.Function(problem.V, name="newton")
         newton.x.array[:] = problem.zeta.x.array
@@ -157,10 +155,9 @@ def compare_solvers(
         if draw is not None and i == len(meshes) - 1:
             draw(problem)
 
-        say(f"h = {h:.4g}: Brezis–Sibony")
-        with phase(f"h = {h:.4g}: Brezis–Sibony"):
-            solver = BrezisSibonySolver(problem, h, bopts)
-            r = solver.solve(lambda k, inc: note(f"step {k}, ‖ψ_k − ψ_(k−1)‖ = {inc:.1e}"))
+        log.info(f"h = {h:.4g}: Brezis–Sibony")
+        with phase(f"h = {h:.4g}: Brezis–Sibony"):  # at κ = kappas[-1], a failure recorded
+            r = METHODS["brezis-sibony"].solve(problem, h, kappas, bopts).steps[0].record
         reference = l2_norm(newton)
         scale = reference if reference > 0 else 1.0
         rows.append(
@@ -195,7 +192,7 @@ def compare_solvers(
                 "relative_l2_difference": l2_norm(problem.zeta - newton) / scale,
             }
         )
-        say(
+        log.info(
             f"h = {h:.4g}: Newton {rows[-1]['newton_iterations']} steps "
             f"{newton_seconds:.2f} s; Brezis–Sibony {r.iterations} steps {r.seconds:.1f} s "
             f"({r.reason}); relative L² difference {rows[-1]['relative_l2_difference']:.2e}"
@@ -275,9 +272,7 @@ def run_solvers(
     folder: Path,
     meshes: Sequence[Any],
     q: float,
-    say: Say,
     checkpoint: Checkpoint | None = None,
-    newton_progress: NewtonProgress = None,
 ) -> str:
     """Newton against Brezis–Sibony (the paper's section 9); returns the report section.
 
@@ -285,14 +280,12 @@ def run_solvers(
     """
     from shellobstacle.experiments.solvers import compare_solvers, write_solver_comparison
 
-    picture = SolutionPicture(cfg, folder / "solvers_shell_3d.png", say)
+    picture = SolutionPicture(cfg, folder / "solvers_shell_3d.png")
     rows = compare_solvers(
         cfg,
         meshes,
         q,
-        progress=say,
         checkpoint=(checkpoint or Checkpoint(None)).scope("solvers"),
-        newton_progress=newton_progress,
         draw=picture.drawer(f"Newton's solution on the finest mesh, κ = h^{q:g}"),
     )
     out = write_solver_comparison(rows, folder)

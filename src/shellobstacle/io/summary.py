@@ -3,8 +3,8 @@ the 3D picture."""
 
 from __future__ import annotations
 
+import logging
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -20,16 +20,17 @@ if TYPE_CHECKING:
 
 __all__ = ["write_solution"]
 
+log = logging.getLogger(__name__)
+
 
 def write_solution(
     result: SolveResult,
     cfg: Any,
     folder: Path,
-    say: Callable[[str], Any],
     warnings_seen: list[str] | None = None,
 ) -> dict[str, Any]:
     """Write ``summary.json`` (always, also after a failure), ParaView files and figures;
-    the validity measures (:mod:`shellobstacle.post.validity`) are reported through ``say``.
+    the validity measures (:mod:`shellobstacle.post.validity`) are logged as warnings.
 
     ``summary.json`` is written first, with ``outputs_complete`` false, and again once the
     other files are written: a run stopped in between (Ctrl-C: also ``interrupted``) leaves
@@ -38,18 +39,17 @@ def write_solution(
     Returns:
         The summary dictionary.
     """
-    from shellobstacle.post.contact import Postprocessor
     from shellobstacle.post.resolution import unresolved_obstacle
 
     problem = result.problem
     t = time.perf_counter()
-    post = Postprocessor(problem, result.constraint)
+    post = result.post
     quantities = post.summary()
-    validity = result.validity(post)
+    validity = result.validity
     unresolved = unresolved_obstacle(post.points, post.tolerance())
     solution_warnings = [*validity.warnings(), *([unresolved] if unresolved else [])]
     for line in solution_warnings:
-        say(f"warning: {line}")
+        log.warning(line)
     timings = dict(result.timings)
     timings["postprocess"] = time.perf_counter() - t
     last = result.steps[-1] if result.steps else None
@@ -95,7 +95,7 @@ def write_solution(
         (folder / "checks.txt").write_text(format_checks(result.checks) + "\n")
     t = time.perf_counter()
     try:
-        _write_outputs(result, cfg, post, summary, folder, say)
+        _write_outputs(result, cfg, post, summary, folder)
     except KeyboardInterrupt:
         summary["interrupted"] = "while writing the outputs (those written are in 'files')"
         write_json(folder / "summary.json", summary)
@@ -103,7 +103,7 @@ def write_solution(
     timings["output"] = time.perf_counter() - t
     summary["outputs_complete"] = True
     write_json(folder / "summary.json", summary)
-    say(f"wrote summary.json and {len(files)} other file(s)")
+    log.info(f"wrote summary.json and {len(files)} other file(s)")
     return summary
 
 
@@ -113,7 +113,6 @@ def _write_outputs(
     post: Postprocessor,
     summary: dict[str, Any],
     folder: Path,
-    say: Callable[[str], Any],
 ) -> None:
     """The ParaView files, the cross-section and the 3D picture, each added to
     ``summary["files"]`` once written (``summary["warnings"]``: a picture not drawn)."""
@@ -158,5 +157,5 @@ def _write_outputs(
         if picture.path is not None:
             files.append(picture.path.name)
         if picture.warning is not None:
-            say(f"warning: {picture.warning}")
+            log.warning(picture.warning)
             summary["warnings"].append(picture.warning)

@@ -1,6 +1,13 @@
-"""Global measures of a distributed triangle mesh: size, cell count, area, boundary."""
+"""Global measures of a distributed triangle mesh: size, cell count, area, boundary.
+
+The mesh sizes (:func:`mesh_size`, :func:`mesh_size_min`) are collectives computed once per
+mesh and kept with it (a mesh's nodes do not move): later calls on the same mesh reduce
+nothing.
+"""
 
 from __future__ import annotations
+
+import weakref
 
 from mpi4py import MPI
 
@@ -13,6 +20,10 @@ import ufl
 __all__ = ["boundary_facets", "domain_area", "mesh_size", "mesh_size_min", "num_cells_global"]
 
 
+#: mesh → its sizes computed so far ("max", "min": the global cell diameters), while it lives
+_SIZES: weakref.WeakKeyDictionary[dolfinx.mesh.Mesh, dict[str, float]] = weakref.WeakKeyDictionary()
+
+
 def _cell_diameters(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
     """Diameters (longest edges) of the locally owned cells."""
     tdim = mesh.topology.dim
@@ -23,18 +34,25 @@ def _cell_diameters(mesh: dolfinx.mesh.Mesh) -> np.ndarray:
 def mesh_size(mesh: dolfinx.mesh.Mesh) -> float:
     """Largest cell diameter (longest triangle edge) of the whole distributed mesh.
 
+    Collective on the first call for ``mesh``; later calls return the kept value.
+
     Args:
         mesh: Triangle mesh.
 
     Returns:
         The global mesh size h.
     """
-    local = _cell_diameters(mesh)
-    return mesh.comm.allreduce(float(local.max(initial=0.0)), op=MPI.MAX)
+    sizes = _SIZES.setdefault(mesh, {})
+    if "max" not in sizes:
+        local = _cell_diameters(mesh)
+        sizes["max"] = mesh.comm.allreduce(float(local.max(initial=0.0)), op=MPI.MAX)
+    return sizes["max"]
 
 
 def mesh_size_min(mesh: dolfinx.mesh.Mesh) -> float:
     """Smallest cell diameter of the whole distributed mesh.
+
+    Collective on the first call for ``mesh``; later calls return the kept value.
 
     Args:
         mesh: Triangle mesh.
@@ -42,8 +60,11 @@ def mesh_size_min(mesh: dolfinx.mesh.Mesh) -> float:
     Returns:
         The global minimum of the cell diameters.
     """
-    local = _cell_diameters(mesh)
-    return mesh.comm.allreduce(float(local.min(initial=np.inf)), op=MPI.MIN)
+    sizes = _SIZES.setdefault(mesh, {})
+    if "min" not in sizes:
+        local = _cell_diameters(mesh)
+        sizes["min"] = mesh.comm.allreduce(float(local.min(initial=np.inf)), op=MPI.MIN)
+    return sizes["min"]
 
 
 def num_cells_global(mesh: dolfinx.mesh.Mesh) -> int:

@@ -23,6 +23,7 @@ import dolfinx.mesh
 import numpy as np
 
 from shellobstacle.mesh.domains import DomainSpec, coarsening_steps, validate
+from shellobstacle.mesh.facet_tags import read_segments, remember
 from shellobstacle.mesh.refinement import prepare, red_refinement, refine_uniformly
 from shellobstacle.progress import phase
 
@@ -130,8 +131,9 @@ def _gmsh_options(spec: DomainSpec) -> dict[str, float]:
     return options
 
 
-def _check_file(model, path: str) -> str:
-    """Merge a .msh file into ``model``; return an error message ("" if it is usable)."""
+def _check_file(model, path: str, segments: dict[int, np.ndarray]) -> str:
+    """Merge a .msh file into ``model``, its physical curves into ``segments``
+    (:mod:`~shellobstacle.mesh.facet_tags`); return an error message ("" if it is usable)."""
     import gmsh
 
     fix = "set domain.path to a gmsh .msh file of linear triangles"
@@ -147,6 +149,7 @@ def _check_file(model, path: str) -> str:
     if types != {_TRIANGLE}:
         found = ", ".join(model.mesh.getElementProperties(t)[0] for t in sorted(types))
         return f"mesh file {path!r} is not made of linear triangles (found: {found or 'none'})"
+    segments.update(read_segments(model))
     _only_the_domain(model)
     return ""
 
@@ -201,12 +204,13 @@ def _tagged_triangles(model) -> int:
     return sum(len(tags) for e in entities for tags in model.mesh.getElements(2, e)[1])
 
 
-def _fill_model(model, spec: DomainSpec, steps: int) -> str:
-    """Mesh ``spec`` at ``2^steps`` times its sizes (or read its file) into ``model``; return
-    an error message ("" if the model holds a mesh for :func:`dolfinx.io.gmsh.model_to_mesh`)."""
+def _fill_model(model, spec: DomainSpec, steps: int, segments: dict[int, np.ndarray]) -> str:
+    """Mesh ``spec`` at ``2^steps`` times its sizes (or read its file, its physical curves
+    into ``segments``) into ``model``; return an error message ("" if the model holds a mesh
+    for :func:`dolfinx.io.gmsh.model_to_mesh`)."""
     try:
         if spec.kind == "file":
-            error = _check_file(model, str(spec.path))
+            error = _check_file(model, str(spec.path), segments)
             if error:
                 return error
         else:
@@ -220,22 +224,22 @@ def _fill_model(model, spec: DomainSpec, steps: int) -> str:
 
 def _gmsh_on_rank0(
     spec: DomainSpec, comm: MPI.Comm, steps: int, stack: contextlib.ExitStack
-) -> object | None:
+) -> tuple[object | None, dict[int, np.ndarray]]:
     """The gmsh model of ``spec`` on rank 0 (None on the other ranks), open until ``stack``
-    closes.
+    closes, and a file's tagged boundary segments (on every rank).
 
     Raises:
         ValueError: On every rank, if gmsh fails or the file is unusable.
     """
-    model, error = None, ""
+    model, error, segments = None, "", {}
     if comm.rank == 0:
         options = _gmsh_options(_coarsened(spec, steps))
         model = stack.enter_context(_gmsh_model("shellobstacle-domain", options))
-        error = _fill_model(model, spec, steps)
-    error = comm.bcast(error, root=0)
+        error = _fill_model(model, spec, steps, segments)
+    error, segments = comm.bcast((error, segments), root=0)
     if error:
         raise ValueError(error)
-    return model
+    return model, segments
 
 
 def _gmsh_mesh(
@@ -245,9 +249,11 @@ def _gmsh_mesh(
     (:func:`dolfinx.io.gmsh.model_to_mesh`), refine it ``steps`` times."""
     with contextlib.ExitStack() as stack:
         with phase("gmsh"):
-            model = _gmsh_on_rank0(spec, comm, steps, stack)
+            model, segments = _gmsh_on_rank0(spec, comm, steps, stack)
         with phase("distributing the mesh"):
             mesh = dolfinx.io.gmsh.model_to_mesh(model, comm, 0, 2, _partitioner()).mesh
+    if segments:
+        remember(mesh, segments)
     for k in range(steps):
         with phase(f"refining {k + 1}/{steps}"):
             mesh = red_refinement(mesh, spec, ghosted)  # (it remembers mesh)

@@ -13,6 +13,7 @@ import dolfinx.mesh
 import numpy as np
 import ufl
 
+from shellobstacle.mesh.facet_tags import inherit
 from shellobstacle.mesh.hierarchy import record
 from shellobstacle.mesh.measures import boundary_facets
 
@@ -70,6 +71,7 @@ def refine_marked(mesh: dolfinx.mesh.Mesh, edges: np.ndarray) -> dolfinx.mesh.Me
         mesh, np.asarray(edges, dtype=np.int32), option=dolfinx.mesh.RefinementOption.parent_cell
     )
     prepare(fine)
+    inherit(fine, mesh)
     return fine
 
 
@@ -109,6 +111,7 @@ def red_refinement(
         ufl.Mesh(mesh.ufl_domain().ufl_coordinate_element()),
     )
     record(refined, mesh)
+    inherit(refined, mesh)
     return refined
 
 

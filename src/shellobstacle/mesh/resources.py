@@ -5,19 +5,14 @@ would run for hours and exhaust the memory. :func:`require_fits` estimates the c
 domain's area and ``h`` (:func:`~shellobstacle.mesh.domains.estimated_vertices`) and refuses, in one
 line with the estimate, what cannot fit in this machine's memory.
 
-The memory per dof was measured on the paper's problem with the direct solver (peak resident
-memory, ``docs/perf/koiter/`` and the 1.93 M-dof runs of ``docs/performance.md``): 3.0–3.4 kB
-per dof for the membrane model with P1, 3.4 kB with P2, 9.1 kB for Koiter's model with P2
-(whose factor fills more; 12.4 kB on the cylindrical panel at 0.92 M dofs); a mesh alone costs
-0.6–0.7 kB per vertex. The figures below round them up; they are estimates within a factor of
-about 1.5, good for refusing what is far out of reach, not for planning a run to the last
-gigabyte (``--force`` proceeds anyway). Multigrid (``solver.linear_solver = "multigrid"``)
-factorizes only the coarsest mesh: 2.0–2.1 kB per dof for the membrane P1 from 1.3 M to 7.7 M
-dofs, 3.9–4.7 kB for Koiter's model at 0.23–0.92 M (``docs/perf/multigrid/``), so a mesh
-refused for the direct solver may fit with it: ``solver.linear_solver = "auto"`` (the
-default) then takes multigrid (:func:`~shellobstacle.mesh.memory.linear_solver_for`), and a
-refusal of ``"direct"`` asked for by name says so. Messages give memory in GiB (2³⁰ bytes),
-the unit ``free -g`` and the documentation use.
+The memory per dof (:mod:`~shellobstacle.mesh.memory`) was measured on the paper's problem with
+the direct solver and with multigrid, which factorizes only the coarsest mesh; the figures are
+estimates within a factor of about 1.5, good for refusing what is far out of reach, not for
+planning a run to the last gigabyte (``--force`` proceeds anyway). A refusal for the direct
+solver names multigrid when its estimate fits. The estimate never chooses the solver:
+``solver.linear_solver = "auto"`` is resolved from the problem alone
+(:mod:`~shellobstacle.solvers.auto`). Messages give memory in GiB (2³⁰ bytes), the unit
+``free -g`` and the documentation use.
 """
 
 from __future__ import annotations
@@ -26,7 +21,6 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from mpi4py import MPI
 
@@ -37,11 +31,10 @@ from shellobstacle.mesh.memory import (
     GIB,
     MEMORY_SHARE,
     bytes_per_dof,
-    linear_solver_for,
 )
 from shellobstacle.messages import ConfigError
 
-__all__ = ["Estimate", "ResourceError", "estimate", "linear_solver_of", "require_fits"]
+__all__ = ["Estimate", "ResourceError", "estimate", "require_fits"]
 
 
 class ResourceError(ConfigError):
@@ -79,12 +72,6 @@ def _points_along(length: float, h: float) -> float:
     return float(math.ceil(cells)) + 1.0 if math.isfinite(cells) else math.inf
 
 
-def linear_solver_of(method: str, options: Any) -> str:
-    """The linear solver whose memory a solve needs: Newton's ``options.linear_solver``
-    (perhaps ``"auto"``), a factorization (``"direct"``) for every other method."""
-    return getattr(options, "linear_solver", "auto") if method == "newton" else "direct"
-
-
 def estimate(
     spec: DomainSpec, model: str = "membrane", degree: int = 1, linear_solver: str = "direct"
 ) -> Estimate | None:
@@ -114,16 +101,12 @@ def require_fits(
     machine's memory.
 
     The ranks on this machine need their share of the whole run's memory (the mesh is
-    distributed evenly), plus :data:`BASE_BYTES` each. ``"auto"`` is estimated as the solver
-    it stands for (:func:`linear_solver_for`).
+    distributed evenly), plus :data:`BASE_BYTES` each. ``linear_solver`` is the one the solve
+    will use (``"auto"`` resolved: :func:`~shellobstacle.solvers.auto.estimated_linear_solver`).
     """
-    est = estimate(spec, model, degree, "direct")
+    est = estimate(spec, model, degree, linear_solver)
     if est is None:
         return None
-    levels = coarsening_steps(spec) + spec.refinements > 0
-    if linear_solver == "auto" and math.isfinite(est.dofs):
-        linear_solver = linear_solver_for("auto", est.dofs, model, degree, comm, levels)
-    est = estimate(spec, model, degree, linear_solver)
 
     def need_with(bytes_solve: float) -> float:
         return memory.need(bytes_solve if solve else est.bytes_mesh, comm)
@@ -139,6 +122,7 @@ def require_fits(
                 "use a larger h"
             )
         multigrid = need_with(est.dofs * bytes_per_dof(model, degree, "multigrid"))
+        levels = coarsening_steps(spec) + spec.refinements > 0
         needs = memory.multigrid_needs_levels(model) and not levels
         refine = " with domain.refinements >= 1" if needs else ""
         instead = (

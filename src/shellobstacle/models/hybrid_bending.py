@@ -10,9 +10,10 @@ function, single-valued there), and the facet terms are taken at the midpoints
                 + Σ_T Σ_{F ⊂ ∂T} |F| ( −M_nn(η) e_T + ½ (σ / h_T) C_F e_T² )(m_F),
     e_T = ∂_{n_T} η_3 − (n_T · n_F) t_F,
 
-with ``t_F = 0`` on the clamped boundary (where ``e_T = ∂_n η_3``). It penalizes the jump of
-the normal derivative's mean over each facet, a stable choice for P2 (a continuous P2
-function with zero broken Hessian and zero mean jumps is affine).
+with ``t_F = 0`` on the clamped boundary (where ``e_T = ∂_n η_3``) and no term on the
+facets of a simply supported or free edge (:mod:`~shellobstacle.models.edges`). It
+penalizes the jump of the normal derivative's mean over each facet, a stable choice for P2
+(a continuous P2 function with zero broken Hessian and zero mean jumps is affine).
 
 The method is consistent to O(h), not exactly (docs/model.md §8, :eq:`hybrid-consistency`).
 For the exact solution and ``t_F = ∂_{n_F} ζ_3(m_F)`` every ``e_T`` vanishes and the
@@ -104,12 +105,15 @@ class FacetMidpoints(NamedTuple):
     length: dolfinx.fem.Function  #: ``|F|``, a broken Crouzeix–Raviart function
 
 
-def facet_midpoints(mesh: dolfinx.mesh.Mesh) -> FacetMidpoints:
+def facet_midpoints(mesh: dolfinx.mesh.Mesh, dropped: np.ndarray | None = None) -> FacetMidpoints:
     """:class:`FacetMidpoints` of an affine triangle mesh.
 
     Each cell integrates its facet terms in its own kernel (one matrix insertion per cell,
     where a facet measure inserts once per facet of each cell). Broken Crouzeix–Raviart
-    functions hold a value per cell and facet, exact at the facet's midpoint."""
+    functions hold a value per cell and facet, exact at the facet's midpoint. ``dropped``:
+    boundary facets (local, owned and ghost) whose rotation is free (simply supported or free
+    edges, :func:`~shellobstacle.models.edges.free_rotation_facets`): their ``|F|`` is 0, so
+    the form has no facet term there."""
     if mesh.topology.cell_type != dolfinx.mesh.CellType.triangle:
         raise ValueError("the hybrid bending form needs a triangle mesh")
     if mesh.geometry.cmaps[0].degree != 1:
@@ -126,6 +130,10 @@ def facet_midpoints(mesh: dolfinx.mesh.Mesh) -> FacetMidpoints:
     normal = np.stack([tangent[..., 1], -tangent[..., 0]], axis=2) / length[..., None]
     inward = x[:, [0, 1, 2]] - x[:, ends[:, 0]]  # from the facet to the opposite vertex
     normal[np.einsum("cfi,cfi->cf", normal, inward) > 0] *= -1
+    if dropped is not None and len(dropped):
+        mesh.topology.create_connectivity(tdim, tdim - 1)
+        c2f = mesh.topology.connectivity(tdim, tdim - 1).array.reshape(-1, 3)[:num_cells]
+        length[np.isin(c2f, dropped)] = 0.0
     out = []
     for shape, values in (((2,), normal), ((), length)):
         element = basix.ufl.element("CR", mesh.basix_cell(), 1, shape=shape, discontinuous=True)

@@ -22,6 +22,13 @@ import ufl
 
 from shellobstacle.geometry.expressions import y1, y2
 from shellobstacle.geometry.translation import to_ufl
+from shellobstacle.models.edges import (
+    boundary_parts,
+    dirichlet_bcs,
+    dirichlet_dofs,
+    free_rotation_facets,
+    rotation_measure,
+)
 from shellobstacle.models.hybrid_bending import (
     DEFAULT_HYBRID_PENALTY,
     CondensedStiffness,
@@ -93,6 +100,8 @@ class PenalizedProblem:
         self.disc = disc = discretization or Discretization()
         if shell.model == "koiter":
             require_koiter_discretization(disc, mesh)
+        #: the facets of γ by condition (docs/model.md §8.1)
+        self.parts = boundary_parts(shell, mesh, disc.transverse)
         self.obstacle: Obstacle = from_spec(shell.obstacle, shell.material.epsilon)
         self.q = np.asarray(shell.obstacle.q, dtype=float)
         mat = shell.material
@@ -136,12 +145,13 @@ class PenalizedProblem:
                 dx_bending = ufl.Measure(
                     "dx", domain=mesh, metadata={"quadrature_degree": disc.bending_qdegree}
                 )
+                dropped = free_rotation_facets(mesh, self.parts) if self.parts.given else None
                 bending = hybrid_bending_energy(
                     G, eps, lam, mu, zeta, self.t, facet_normals(mesh), dx_bending,
-                    facet_midpoints(mesh), self.sigma,
+                    facet_midpoints(mesh, dropped), self.sigma,
                 )  # fmt: skip
             else:
-                ds = ufl.Measure("ds", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
+                ds = rotation_measure(mesh, self.parts, {"quadrature_degree": disc.qdegree})
                 bending = bending_energy(G, eps, lam, mu, zeta, self.dx, self.sigma, ds)
             elastic += self.bending_scale * bending
         work = sum(self.p[i] * zeta[i] for i in range(3)) * sqrt_a * self.dx
@@ -255,29 +265,25 @@ class PenalizedProblem:
 
     @property
     def dirichlet_components(self) -> list[int]:
-        """The components of ζ fixed on γ: ζ_α, and ζ_3 if clamped."""
+        """The components of ζ fixed on a clamped part of γ: ζ_α, and ζ_3 if clamped."""
         return [0, 1] + ([2] if self.disc.transverse == "clamped" else [])
 
     def dirichlet_rows(self, V: dolfinx.fem.FunctionSpace) -> np.ndarray:
-        """The owned scalar dofs (``bs · node + component``, local) that the Dirichlet
+        """The owned scalar dofs (``bs · node + component``, local, sorted) that the Dirichlet
         conditions fix in ``V``, a space of ζ's element on this mesh or any other mesh of ω
         (the levels of a refinement hierarchy)."""
-        tdim = V.mesh.topology.dim
-        nodes = dolfinx.fem.locate_dofs_topological(V, tdim - 1, boundary_facets(V.mesh))
-        nodes = nodes[nodes < V.dofmap.index_map.size_local]
-        bs = V.dofmap.index_map_bs
-        return (bs * nodes[:, None] + np.array(self.dirichlet_components)).ravel()
+        parts = self.parts
+        if V.mesh is not self.mesh:
+            parts = boundary_parts(self.shell, V.mesh, self.disc.transverse, check=False)
+        owned = V.dofmap.index_map.size_local * V.dofmap.index_map_bs
+        rows = [dofs[dofs < owned] for dofs in dirichlet_dofs(V, parts).values()]
+        return np.unique(np.concatenate(rows)) if rows else np.zeros(0, dtype=np.int32)
 
     def _boundary_conditions(self) -> list[dolfinx.fem.DirichletBC]:
-        """Homogeneous Dirichlet conditions: ζ_α = 0 on γ, and ζ_3 = 0 if clamped."""
-        tdim = self.mesh.topology.dim
-        facets = boundary_facets(self.mesh)
-        bcs = []
-        for i in self.dirichlet_components:
-            Vi = self.V.sub(i)
-            dofs = dolfinx.fem.locate_dofs_topological(Vi, tdim - 1, facets)
-            bcs.append(dolfinx.fem.dirichletbc(PETSc.ScalarType(0), dofs, Vi))
-        return bcs
+        """Homogeneous Dirichlet conditions of the parts of γ (docs/model.md §8.1): ζ = 0 on
+        the clamped (membrane: ζ_α, and ζ_3 if ``transverse = "clamped"``) and simply
+        supported parts, ζ_α = 0 on a symmetry line y_α = c."""
+        return dirichlet_bcs(self.V, self.parts)
 
     @property
     def num_dofs(self) -> int:
@@ -393,7 +399,8 @@ def load_ufl(
 
 
 def require_koiter_discretization(disc: Discretization, mesh: dolfinx.mesh.Mesh) -> None:
-    """Koiter's ζ_3 ∈ H²₀ needs P2 with interior penalties, clamped, and (in parallel) the
+    """Koiter's ζ_3 ∈ H² needs P2 with interior penalties, ``transverse = "clamped"`` (the
+    edge conditions are the shell's :class:`~shellobstacle.spec.Edge`), and (in parallel) the
     ghost cells across process boundaries that the facet integrals read."""
     if disc.degree < 2:
         raise ValueError(

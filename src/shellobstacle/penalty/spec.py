@@ -8,15 +8,21 @@ mesh: :mod:`~shellobstacle.penalty.kappa`).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 from shellobstacle.spec import boolean, finite  # the config's checks of a value
 
-__all__ = ["KAPPA_MODES", "PenaltySpec"]
+__all__ = ["KAPPA_MODES", "PenaltySpec", "at_exponent", "kappa_at"]
 
 #: how κ = h^exponent follows an adapted mesh (:mod:`~shellobstacle.penalty.kappa`): the
 #: largest cell (h as everywhere else), the local cell size, or the smallest cell
 KAPPA_MODES = ("largest", "local", "finest")
+
+
+def kappa_at(h: float, exponent: float) -> float:
+    """``κ = h^exponent`` (the paper's coupling of κ to the mesh size ``h``)."""
+    return h ** float(exponent)
 
 
 @dataclass(frozen=True)
@@ -50,7 +56,7 @@ class PenaltySpec:
 
     def target(self, h: float) -> float:
         """The κ to solve for on a mesh of size ``h``."""
-        return self.kappa if self.kappa is not None else h ** float(self.exponent)  # type: ignore[arg-type]
+        return self.kappa if self.kappa is not None else kappa_at(h, self.exponent)  # type: ignore[arg-type]
 
     def ladder(self, h: float) -> list[float]:
         """The continuation path ending at :meth:`target` (just the target if disabled):
@@ -60,7 +66,15 @@ class PenaltySpec:
             return [target]
         if self.exponent is not None:
             qs = [0.5 * k for k in range(1, int(2 * self.exponent) + 1) if 0.5 * k < self.exponent]
-            path = [h**qq for qq in qs]
+            path = [kappa_at(h, qq) for qq in qs]
         else:
             path = [10.0**-k for k in range(0, 40) if 10.0**-k > target]
         return [k for k in path if k > 0] + [target]
+
+
+def at_exponent(penalty: PenaltySpec | None, exponent: float) -> PenaltySpec:
+    """``κ = h^exponent`` with ``penalty``'s other choices (its ``continuation``; None: the
+    defaults): the penalty of a study that sets or sweeps the exponent."""
+    return dataclasses.replace(
+        penalty or PenaltySpec(exponent=exponent), kappa=None, exponent=exponent
+    )

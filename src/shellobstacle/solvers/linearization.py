@@ -29,6 +29,7 @@ operators assembled again in place).
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Sequence
 from typing import Any
@@ -50,6 +51,8 @@ __all__ = [
     "LinearizationError",
     "solve_with",
 ]
+
+log = logging.getLogger(__name__)
 
 DZETA_RTOL = 1e-8
 """ζ has settled when its error, estimated from the passes' contraction (the fixed-point
@@ -82,8 +85,6 @@ def solve_with(
     h: float,
     kappas: Sequence[float],
     options: Any,
-    say: Any,
-    newton_progress: Any = None,
 ) -> MethodResult:
     """``method.solve(problem, …)``, repeated on the linearized gap for a curved obstacle.
 
@@ -105,7 +106,7 @@ def solve_with(
         :data:`MAX_LINEARIZATIONS` passes is reported as a failure.
     """
     if not problem.linearized:
-        return method.solve(problem, h, kappas, options, say, newton_progress)
+        return method.solve(problem, h, kappas, options)
     total = MethodResult()
     ladder = list(kappas)
     try:
@@ -126,7 +127,7 @@ def solve_with(
     try:  # every linearization point is checked (problem.linearize)
         with keeping(method, problem):  # a method may keep its solver from pass to pass
             for k in range(1, MAX_LINEARIZATIONS + 1):
-                done = method.solve(problem, h, ladder, options, say, newton_progress)
+                done = method.solve(problem, h, ladder, options)
                 for step in done.steps:
                     step.details["linearization"] = k
                 total.steps.extend(done.steps)
@@ -142,7 +143,7 @@ def solve_with(
                 value, target = residual(done)
                 passes["residual"].append(value)
                 passes["residual_target"].append(target)
-                say(
+                log.info(
                     f"linearization {k}: ‖ζ − ζ̄‖/‖ζ‖ = {passes['dzeta'][-1]:.1e}, curved "
                     f"{residual.name} {value:.1e} (target {target:.1e}), "
                     f"max |g(ζ) − g_ζ̄(ζ)|/max |g| = {passes['change'][-1]:.1e}"
@@ -151,7 +152,7 @@ def solve_with(
                 if k > 1 and settled(dzeta[-1], dzeta[-2]) and value <= target:
                     break
                 if k > 1 and max(dzeta[-2:]) <= DZETA_RTOL and value >= residuals[-2]:
-                    say(f"linearization {k}: the curved {residual.name} is at its round-off")
+                    log.info(f"linearization {k}: the curved {residual.name} is at its round-off")
                     break
                 passes["relaxation"].append(relaxation.move())
                 ladder = list(kappas[-1:])

@@ -4,7 +4,9 @@ A method is a small class (:class:`Method`) that solves one compiled problem and
 :class:`~shellobstacle.solvers.result.MethodResult`; :data:`METHODS` maps each name to one.
 :func:`~shellobstacle.api.solve`, the adaptive loop and the experiments take the method
 from here, the configuration takes its choices, and the documentation its table
-(:func:`method_table`). Adding a method is one class and one :func:`register` call.
+(:func:`method_table`); the ``[solver]`` keys are those its options declare
+(:func:`~shellobstacle.solvers.options.option`). Adding a method is one class, its options
+dataclass and one :func:`register` call.
 
 Importing this module loads neither DOLFINx nor PETSc: the methods import their solvers when
 they solve.
@@ -12,10 +14,12 @@ they solve.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
+import dataclasses
+from collections.abc import Mapping, Sequence
 from typing import Any, Protocol, runtime_checkable
 
 from shellobstacle.solvers.methods.base import build_options, keeping
+from shellobstacle.solvers.options import config_keys, key_type
 from shellobstacle.solvers.result import MethodResult
 
 __all__ = [
@@ -28,11 +32,7 @@ __all__ = [
     "options_for",
     "options_from",
     "register",
-    "solver_fields",
 ]
-
-Say = Callable[[str], Any]
-NewtonProgress = Callable[[int, float], Any]
 
 
 @runtime_checkable
@@ -44,13 +44,13 @@ class Method(Protocol):
         penalized: it solves the penalized problem at κ > 0 (the config needs
             ``[penalty]``); False: the exact nodal problem (κ = 0, no ``[penalty]``).
         adaptive: it may solve the meshes of ``[adapt]`` (from the previous mesh's solution).
-        options_type: the dataclass of its options (None: it takes none).
+        options_type: the frozen dataclass of its options (None: it takes none); the fields
+            declared by :func:`~shellobstacle.solvers.options.option` are its ``[solver]``
+            keys.
         summary: one line on what it does (the config reference, the docs' table).
 
-    Three members are optional (a method without options needs neither of the first two):
+    Two members are optional:
 
-    * ``solver_fields``: ``[solver]`` key → the field of its options that key sets
-      (:func:`solver_fields`; none when absent).
     * ``options_from(values)``: its options from the config's ``[solver]`` values, for a
       method that checks them (:func:`options_from`; when absent,
       :func:`~shellobstacle.solvers.methods.base.build_options`).
@@ -59,7 +59,7 @@ class Method(Protocol):
       has moved in between (:func:`keeping`; the passes of
       :func:`~shellobstacle.solvers.linearization.solve_with`); when absent, nothing is kept.
 
-    :class:`~shellobstacle.solvers.methods.base.MethodBase` gives all three their defaults.
+    :class:`~shellobstacle.solvers.methods.base.MethodBase` gives both their defaults.
     """
 
     name: str
@@ -74,8 +74,6 @@ class Method(Protocol):
         h: float,
         kappas: Sequence[float],
         options: Any,
-        say: Say,
-        newton_progress: NewtonProgress | None = None,
     ) -> MethodResult:
         """Solve ``problem`` (a :class:`~shellobstacle.models.problem.PenalizedProblem`) from its
         current ``zeta``, which then holds the answer (or the last iterate).
@@ -86,9 +84,8 @@ class Method(Protocol):
             kappas: the κ ladder to go through, the target last (``[0.0]`` for a method
                 that is not ``penalized``).
             options: an instance of ``options_type``, or None for its defaults.
-            say: called with one-line progress messages.
-            newton_progress: called as ``(iteration, relative residual)`` after every Newton
-                iteration, by the methods that iterate Newton's method.
+
+        Progress goes to the ``shellobstacle`` logger (one record per line).
 
         Returns:
             The steps; a method that does not converge says so in the result (``converged``
@@ -108,18 +105,44 @@ def register(method: Method, replace: bool = False) -> Method:
     """Add ``method`` to :data:`METHODS` under ``method.name`` and return it.
 
     Raises:
-        ValueError: the name is taken (unless ``replace``), or ``method`` lacks part of the
-            :class:`Method` protocol.
+        ValueError: the name is taken (unless ``replace``), ``method`` lacks part of the
+            :class:`Method` protocol, or its options declare a key the config cannot read or
+            that another method reads with another type.
     """
     if not isinstance(method, Method):
         raise ValueError(f"{method!r} is not a Method: it needs {', '.join(_PROTOCOL)}")
     if method.name in METHODS and not replace:
         raise ValueError(f"a method named {method.name!r} is already registered")
+    problem = _options_problem(method)
+    if problem:
+        raise ValueError(f"solver.method = {method.name!r} cannot be registered: {problem}")
     METHODS[method.name] = method
     return method
 
 
 _PROTOCOL = ("name", "penalized", "adaptive", "options_type", "summary", "solve")
+
+
+def _options_problem(method: Method) -> str | None:
+    """What is wrong with the declaration of ``method``'s options (None: nothing)."""
+    kind = method.options_type
+    if kind is None:
+        return None
+    if not (dataclasses.is_dataclass(kind) and kind.__dataclass_params__.frozen):
+        return f"its options_type {kind!r} is not a frozen dataclass"
+    try:
+        types = {key: key_type(kind, f) for key, f in config_keys(kind).items()}
+    except ValueError as err:
+        return str(err)
+    for other in METHODS.values():
+        for key, f in config_keys(other.options_type).items():
+            theirs = key_type(other.options_type, f)
+            if other.name != method.name and key in types and types[key] != theirs:
+                return (
+                    f"solver.{key} is of type {theirs} for solver.method = {other.name!r}, "
+                    f"not {types[key]}: give the option another key"
+                )
+    return None
 
 
 def options_for(method: Method, given: Any, fallback: Any = None) -> Any:
@@ -140,12 +163,6 @@ def options_for(method: Method, given: Any, fallback: Any = None) -> Any:
     if kind is not None and isinstance(fallback, kind):
         return fallback
     return None
-
-
-def solver_fields(method: Method) -> Mapping[str, str]:
-    """``[solver]`` key → the field of ``method``'s options it sets (empty for a method that
-    declares none)."""
-    return getattr(method, "solver_fields", {})
 
 
 def options_from(method: Method, values: Mapping[str, Any]) -> Any:

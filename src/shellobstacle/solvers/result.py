@@ -1,25 +1,30 @@
 """What a solve returns and how it fails: one Newton solve's record, one step record, one
-method result, one solve result and one error, shared by every method of
-:mod:`~shellobstacle.solvers.registry`.
+method result, one solve result with its contact figures, and one error, shared by every
+method of :mod:`~shellobstacle.solvers.registry`.
 
 Plain data, importable without DOLFINx or PETSc (the registry and the configuration import
-it).
+it); a result's figures import the post-processing when first read.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    import dolfinx
+
     from shellobstacle.checks.assumptions import Check
     from shellobstacle.models.problem import PenalizedProblem
+    from shellobstacle.post.contact import Postprocessor
+    from shellobstacle.post.validity import Validity
 
 __all__ = [
-    "BELOW_RTOL", "ZERO_LOAD", "ConvergenceError", "MethodResult", "NewtonResult", "SolveResult",
-    "Step",
+    "BELOW_RTOL", "ZERO_LOAD", "Contact", "ConvergenceError", "MethodResult", "NewtonResult",
+    "SolveResult", "Step",
 ]  # fmt: skip
 
 
@@ -159,9 +164,58 @@ class ConvergenceError(RuntimeError):
         return ConvergenceError(str(self), self.result, [*steps, *self.steps])
 
 
+@dataclass(frozen=True)
+class Contact:
+    """A solution's contact set ``{g(ζ) ≤ tol}`` and its measures (docs/model.md §7): where
+    the constraint acts, and at the nodes (``*_nodal``); the figures of
+    :meth:`~shellobstacle.post.contact.Postprocessor.contact`, global values.
+
+    Attributes:
+        area: ``Σ w_k √a(x_k)`` over the contact points where the constraint acts.
+        area_projected: ``Σ w_k`` over them.
+        max_violation: ``max {g}^-`` there.
+        min_gap: ``min g`` there.
+        count: the number of contact points there.
+        points: where the constraint acts: ``"quadrature points"``, ``"vertices"`` or
+            ``"nodes"``.
+        area_nodal, area_nodal_projected, max_violation_nodal, min_gap_nodal, count_nodal:
+            the same at the nodes of ζ's space (P1: the lumped ``∫ φ_i √a dy``).
+        nodal_points: ``"vertices"`` or ``"nodes"``.
+        tol: the contact threshold.
+    """
+
+    area: float
+    area_projected: float
+    max_violation: float
+    min_gap: float
+    count: int
+    points: str
+    area_nodal: float
+    area_nodal_projected: float
+    max_violation_nodal: float
+    min_gap_nodal: float
+    count_nodal: int
+    nodal_points: str
+    tol: float
+
+    @classmethod
+    def from_figures(cls, figures: Mapping[str, Any]) -> Contact:
+        """From the dictionary of :meth:`~shellobstacle.post.contact.Postprocessor.contact`."""
+        return cls(
+            figures["contact_area"], figures["contact_area_projected"],
+            figures["max_violation"], figures["min_gap"], figures["num_contact_points"],
+            figures["contact_points"], figures["contact_area_nodal"],
+            figures["contact_area_nodal_projected"], figures["max_violation_nodal"],
+            figures["min_gap_nodal"], figures["num_contact_nodes"], figures["nodal_points"],
+            figures["tol"],
+        )  # fmt: skip
+
+
 @dataclass
 class SolveResult:
-    """A finished (or failed) solve: the problem holding ζ, steps, checks and timings.
+    """A finished (or failed) solve: the problem holding ζ, steps, checks and timings, and
+    the solution's figures (:attr:`contact`, :attr:`validity`), computed when first read
+    from the solution held then. Reading a figure is collective: read it on every rank.
 
     Attributes:
         problem: the compiled problem; ``problem.zeta`` is the answer (or the last iterate).
@@ -169,7 +223,8 @@ class SolveResult:
         kappa: the target κ (0 for the exact nodal problem).
         steps: the method's steps.
         checks: the assumptions checked on the mesh.
-        timings: seconds per phase.
+        timings: seconds per phase (``mesh``, ``checks``, ``compile``, ``solve`` and the
+            method's parts).
         converged: whether the method converged.
         error: its message when it did not.
         method: the method's name (a key of :data:`~shellobstacle.solvers.registry.METHODS`).
@@ -204,11 +259,38 @@ class SolveResult:
         penalized method, ``"nodes"`` for an exact nodal one (κ = 0, as :attr:`solved_kappa`)."""
         return "nodes" if self.kappa == 0.0 else "penalty"
 
-    def validity(self, post: Any = None) -> Any:
-        """The solution's :class:`~shellobstacle.post.validity.Validity` (penetration,
-        displacement, orientation against their thresholds); ``post``: the problem's
-        :class:`~shellobstacle.post.contact.Postprocessor` if one exists. Collective."""
+    @property
+    def zeta(self) -> dolfinx.fem.Function:
+        """The answer ``ζ`` (or the last iterate of a failed solve): ``problem.zeta``."""
+        return self.problem.zeta
+
+    @property
+    def mesh(self) -> dolfinx.mesh.Mesh:
+        """The mesh of ω the answer lives on (the last level's after adaptive refinement)."""
+        return self.problem.mesh
+
+    @property
+    def dofs(self) -> int:
+        """The number of degrees of freedom of ζ (global)."""
+        return self.problem.num_dofs
+
+    @cached_property
+    def post(self) -> Postprocessor:
+        """The :class:`~shellobstacle.post.contact.Postprocessor` of the problem, measuring
+        where the solution's constraint acts (:attr:`constraint`). Collective."""
         from shellobstacle.post.contact import Postprocessor
+
+        return Postprocessor(self.problem, self.constraint)
+
+    @cached_property
+    def contact(self) -> Contact:
+        """The contact set and its measures (:class:`Contact`). Collective."""
+        return Contact.from_figures(self.post.contact())
+
+    @cached_property
+    def validity(self) -> Validity:
+        """The solution's :class:`~shellobstacle.post.validity.Validity` (penetration,
+        displacement, orientation against their thresholds). Collective."""
         from shellobstacle.post.validity import assess
 
-        return assess(post or Postprocessor(self.problem, self.constraint), self.solved_kappa)
+        return assess(self.post, self.solved_kappa)

@@ -68,8 +68,8 @@ from shellobstacle.solvers.base import (
     direct_solver,
     with_user_options,
 )
+from shellobstacle.solvers.brezis_sibony.options import BrezisSibonyOptions
 from shellobstacle.solvers.brezis_sibony.result import BrezisSibonyResult
-from shellobstacle.solvers.options import BrezisSibonyOptions
 from shellobstacle.solvers.quadrature_penalty import QuadraturePenalty, penalty_hessian
 from shellobstacle.solvers.spectrum import extreme_eigenvalue
 

@@ -12,7 +12,7 @@ A strategy solves the Newton equation ``J δ = −R(ζ)`` of a
 * :class:`~.multigrid.MultigridStrategy`: inexact Newton with CG and geometric multigrid on
   the mesh hierarchy (``solver.linear_solver = "multigrid"``).
 
-:func:`make_strategy` picks one from :class:`~shellobstacle.solvers.options.NewtonOptions`;
+:func:`make_strategy` picks one from :class:`~shellobstacle.solvers.newton.options.NewtonOptions`;
 a strategy built by hand (with its own knobs) can be given to the solver instead.
 """
 
@@ -25,8 +25,8 @@ from petsc4py import PETSc
 
 import numpy as np
 
+from shellobstacle.solvers.newton.options import NewtonOptions
 from shellobstacle.solvers.newton.system import PenalizedSystem
-from shellobstacle.solvers.options import NewtonOptions
 
 __all__ = ["LinearSolveError", "LinearStrategy", "make_strategy"]
 

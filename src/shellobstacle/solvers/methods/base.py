@@ -1,25 +1,29 @@
 """What the package's methods share: their options, built from the config's ``[solver]``
-values (the optional members of :class:`~shellobstacle.solvers.registry.Method`)."""
+values by the keys their options declare (the optional members of
+:class:`~shellobstacle.solvers.registry.Method`)."""
 
 from __future__ import annotations
 
 import contextlib
 from collections.abc import Mapping
 from contextlib import AbstractContextManager
-from typing import Any, ClassVar
+from typing import Any
+
+from shellobstacle.solvers.options import config_keys
 
 __all__ = ["MethodBase", "build_options", "keeping"]
 
 
 def build_options(method: Any, values: Mapping[str, Any]) -> Any:
-    """``method``'s ``options_type`` with the fields its ``solver_fields`` name set from
-    ``values`` (``[solver]`` key → value; the fields of keys not in ``values`` keep their
-    defaults); None for a method that takes no options."""
+    """``method``'s ``options_type`` with the fields its keys set
+    (:func:`~shellobstacle.solvers.options.config_keys`) from ``values`` (``[solver]`` key →
+    value; the fields of keys not in ``values`` keep their defaults); None for a method that
+    takes no options."""
     kind = method.options_type
     if kind is None:
         return None
-    fields: Mapping[str, str] = getattr(method, "solver_fields", {})
-    return kind(**{field: values[key] for key, field in fields.items() if key in values})
+    keys = config_keys(kind)
+    return kind(**{f.name: values[key] for key, f in keys.items() if key in values})
 
 
 def keeping(method: Any, problem: Any) -> AbstractContextManager[Any]:
@@ -30,11 +34,8 @@ def keeping(method: Any, problem: Any) -> AbstractContextManager[Any]:
 
 
 class MethodBase:
-    """The defaults of a method's optional members: no ``[solver]`` key of its own, its
-    options built by :func:`build_options`, and nothing kept between solves."""
-
-    #: ``[solver]`` key → the field of the options that key sets
-    solver_fields: ClassVar[Mapping[str, str]] = {}
+    """The defaults of a method's optional members: its options built by
+    :func:`build_options`, and nothing kept between solves."""
 
     def options_from(self, values: Mapping[str, Any]) -> Any:
         """The options from the config's ``[solver]`` values (:func:`build_options`)."""

@@ -2,35 +2,29 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar
+from typing import Any
 
 from shellobstacle.messages import ConfigError
+from shellobstacle.solvers.brezis_sibony.options import BrezisSibonyOptions
 from shellobstacle.solvers.methods.base import MethodBase
-from shellobstacle.solvers.options import BrezisSibonyOptions
 from shellobstacle.solvers.result import MethodResult, Step
 
 __all__ = ["BrezisSibonyMethod"]
 
+log = logging.getLogger(__name__)
+
 
 class BrezisSibonyMethod(MethodBase):
-    """:class:`~shellobstacle.solvers.brezis_sibony.iteration.BrezisSibonySolver` at the last κ of
-    the
-    ladder (no continuation); reaching its iteration cap is reported, not raised."""
+    """:class:`~shellobstacle.solvers.brezis_sibony.iteration.BrezisSibonySolver` at the last
+    κ of the ladder (no continuation); reaching its iteration cap is reported, not raised."""
 
     name = "brezis-sibony"
     penalized = True
     adaptive = False
     options_type = BrezisSibonyOptions
     summary = "the penalized problem at the target κ by the paper's iteration (38)"
-    solver_fields: ClassVar[Mapping[str, str]] = {
-        "xi": "xi",
-        "mass": "mass",
-        "start": "start",
-        "bs_max_iterations": "max_iterations",
-        "bs_rtol": "rtol",
-        "petsc_options": "petsc_options",
-    }
 
     def options_from(self, values: Mapping[str, Any]) -> BrezisSibonyOptions:
         """Its options from ``[solver]``; a negative ``bs_rtol`` is named by its key."""
@@ -44,14 +38,12 @@ class BrezisSibonyMethod(MethodBase):
         h: float,
         kappas: Sequence[float],
         options: BrezisSibonyOptions | None,
-        say: Any,
-        newton_progress: Any = None,
     ) -> MethodResult:
         """The iteration (38) at ``kappas[-1]`` from ``options.start``."""
         from shellobstacle.solvers.brezis_sibony.iteration import BrezisSibonySolver
 
         kappa = kappas[-1]
-        say(
+        log.info(
             f"h = {h:.4g}, {problem.num_dofs} dofs; solving for 1 value of κ = {kappa:.3e} "
             "by Brezis–Sibony (no continuation)"
         )
@@ -59,7 +51,7 @@ class BrezisSibonyMethod(MethodBase):
         solver = BrezisSibonySolver(problem, h, options)
 
         def progress(k: int, increment: float) -> None:
-            say(f"Brezis–Sibony step {k}: ‖ψ_k − ψ_(k−1)‖_L² = {increment:.3e}")
+            log.info(f"Brezis–Sibony step {k}: ‖ψ_k − ψ_(k−1)‖_L² = {increment:.3e}")
 
         r = solver.solve(progress)
         details = r.as_dict()
@@ -69,7 +61,7 @@ class BrezisSibonyMethod(MethodBase):
             kappa, r.iterations, r.converged, r.reason, r.relative_residual, r.seconds, [],
             details, self.name, r,
         )  # fmt: skip
-        say(
+        log.info(
             f"Brezis–Sibony: {r.iterations} steps, {r.reason}; contraction observed "
             f"{r.contraction_factor:.6f}, bound {r.contraction_bound:.6f}"
         )

@@ -3,21 +3,24 @@ inequality (κ = 0, the constraint at the Lagrange nodes, docs/model.md §5)."""
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Mapping, Sequence
-from typing import Any, ClassVar
+from typing import Any
 
 from shellobstacle.messages import ConfigError
 from shellobstacle.solvers.methods.base import MethodBase
-from shellobstacle.solvers.options import (
+from shellobstacle.solvers.result import ConvergenceError, MethodResult, Step
+from shellobstacle.solvers.vi.options import (
     ActiveSetOptions,
     ProximalGalerkinOptions,
     SnesVIOptions,
 )
-from shellobstacle.solvers.result import ConvergenceError, MethodResult, Step
 
 __all__ = ["ActiveSetMethod", "NodalMethod", "ProximalGalerkinMethod", "SnesVIMethod"]
+
+log = logging.getLogger(__name__)
 
 
 class NodalMethod(MethodBase):
@@ -41,12 +44,12 @@ class NodalMethod(MethodBase):
         h: float,
         kappas: Sequence[float],
         options: Any,
-        say: Any,
-        newton_progress: Any = None,
     ) -> MethodResult:
         """Solve the nodal problem from ``problem.zeta``; a failure is reported in the
         result with the solver's last record."""
-        say(f"h = {h:.4g}, {problem.num_dofs} dofs; the exact nodal problem (κ = 0) by {self.name}")
+        log.info(
+            f"h = {h:.4g}, {problem.num_dofs} dofs; the exact nodal problem (κ = 0) by {self.name}"
+        )
         out = MethodResult()
         t0 = time.perf_counter()
         try:
@@ -68,7 +71,7 @@ class NodalMethod(MethodBase):
         out.extra["multiplier"] = r.multiplier
         out.extra["contact_pressure"] = r.contact_pressure
         nodes = r.active_nodes
-        say(f"{self.name}: {r.iterations} linear solves, {nodes} active nodes, KKT {r.kkt}")
+        log.info(f"{self.name}: {r.iterations} linear solves, {nodes} active nodes, KKT {r.kkt}")
         return out
 
 
@@ -79,10 +82,6 @@ class ActiveSetMethod(NodalMethod):
     adaptive = True
     options_type = ActiveSetOptions
     summary = "the exact nodal variational inequality by a primal–dual active-set method"
-    solver_fields: ClassVar[Mapping[str, str]] = {
-        "max_iterations": "max_iterations",
-        "petsc_options": "petsc_options",
-    }
 
     def solver(self, problem: Any, options: ActiveSetOptions | None = None) -> Any:
         """:class:`~shellobstacle.solvers.vi.active_set.ActiveSetSolver` on ``problem``."""
@@ -97,15 +96,6 @@ class SnesVIMethod(NodalMethod):
     name = "snes-vi"
     options_type = SnesVIOptions
     summary = "the same nodal problem by PETSc's VI Newton (reduced space or semismooth)"
-    solver_fields: ClassVar[Mapping[str, str]] = {
-        "factorization": "factorization",
-        "rtol": "rtol",
-        "stol": "stol",
-        "max_iterations": "max_iterations",
-        "vi_type": "vi_type",
-        "vi_line_search": "line_search",
-        "petsc_options": "petsc_options",
-    }
 
     def solver(self, problem: Any, options: SnesVIOptions | None = None) -> Any:
         """:class:`~shellobstacle.solvers.vi.snes_vi.SnesVISolver` on ``problem``."""
@@ -120,14 +110,6 @@ class ProximalGalerkinMethod(NodalMethod):
     name = "proximal-galerkin"
     options_type = ProximalGalerkinOptions
     summary = "the same nodal problem by Keith & Surowiec's latent-variable proximal point method"
-    solver_fields: ClassVar[Mapping[str, str]] = {
-        "factorization": "factorization",
-        "rtol": "newton_rtol",
-        "max_iterations": "max_iterations",
-        "proximal_tol": "tol",
-        "proximal_alpha_max": "alpha_max",
-        "petsc_options": "petsc_options",
-    }
 
     def options_from(self, values: Mapping[str, Any]) -> ProximalGalerkinOptions:
         """Its options from ``[solver]``; ``rtol`` (its Newton iteration's) must be > 0."""

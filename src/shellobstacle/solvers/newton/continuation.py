@@ -9,6 +9,7 @@ that makes it cheap (:class:`~shellobstacle.solvers.linear.direct.DirectStrategy
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Callable
 from typing import Any
@@ -22,7 +23,9 @@ from shellobstacle.solvers.base import ConvergenceError
 from shellobstacle.solvers.newton.solver import NewtonResult, NewtonSolver
 from shellobstacle.solvers.result import Step
 
-__all__ = ["KappaStep", "continuation", "predict"]
+__all__ = ["KappaStep", "continuation", "log_newton", "predict"]
+
+log = logging.getLogger(__name__)
 
 
 class KappaStep(Step):
@@ -82,11 +85,18 @@ def predict(solver: NewtonSolver, kappa_new: float) -> bool:
     return ok
 
 
+def log_newton(result: NewtonResult) -> None:
+    """Log (debug) how a Newton solve went: its steps' lengths (the exact line search's t)
+    and why it stopped."""
+    if log.isEnabledFor(logging.DEBUG):
+        lengths = ", ".join(f"{t:.3g}" for t in result.step_lengths) or "none"
+        log.debug(f"    Newton: {result.iterations} steps, step lengths {lengths}; {result.reason}")
+
+
 def continuation(
     problem: PenalizedProblem,
     solver: NewtonSolver,
     kappas: list[float],
-    progress: Callable[[str], Any] | None = None,
     predictor: bool = True,
     newton_progress: Callable[[int, float], Any] | None = None,
 ) -> list[KappaStep]:
@@ -95,7 +105,8 @@ def continuation(
     With ``predictor`` the warm start is the Euler prediction along κ (:func:`predict`, where
     the strategy supports it). ``newton_progress(it, relative_residual)`` is called after
     every Newton iteration; if it has a method ``finished(result)``, that is called with each
-    κ's :class:`NewtonResult`.
+    κ's :class:`NewtonResult`. Each κ solved is logged (information), with Newton's step
+    lengths (debug).
 
     Raises:
         ConvergenceError: from the first κ that fails, with the earlier κ's steps in its
@@ -114,10 +125,10 @@ def continuation(
                 raise err.after(steps) from err
         if hasattr(newton_progress, "finished"):
             newton_progress.finished(result)
+        log_newton(result)
         steps.append(KappaStep(kappa, result, time.perf_counter() - t0))
-        if progress is not None:
-            progress(
-                f"κ {k + 1}/{len(kappas)} = {kappa:.3e}: {result.iterations} Newton steps, "
-                f"relative residual {result.relative_residual:.1e}"
-            )
+        log.info(
+            f"κ {k + 1}/{len(kappas)} = {kappa:.3e}: {result.iterations} Newton steps, "
+            f"relative residual {result.relative_residual:.1e}"
+        )
     return steps

@@ -14,67 +14,32 @@ The interpolated start misses the contact zone's outer ring, where a plain Newto
 such a cut step (:mod:`~shellobstacle.solvers.newton.normal_relaxation`). The finest mesh then takes
 about half the Newton steps of the whole ladder, and the solve with multigrid is faster
 (docs/perf/multigrid.md).
-``solver.nested_iteration = "auto"`` uses it with multigrid on one rank (:func:`nested_wanted`).
+``solver.nested_iteration = "auto"`` uses it with multigrid on one rank
+(:func:`~shellobstacle.solvers.auto.resolve`); what it needs is
+:func:`~shellobstacle.solvers.auto.check_nested`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import gc
+import logging
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 from mpi4py import MPI  # noqa: F401  (MPI before dolfinx and PETSc)
 
 from shellobstacle.mesh.hierarchy import coarser_meshes, prolongation
-from shellobstacle.mesh.memory import linear_solver_for
 from shellobstacle.models.problem import PenalizedProblem
+from shellobstacle.solvers.auto import check_nested
 from shellobstacle.solvers.newton.continuation import KappaStep, continuation
-from shellobstacle.solvers.newton.normal_relaxation import require_membrane
+from shellobstacle.solvers.newton.options import NewtonOptions
 from shellobstacle.solvers.newton.solver import NewtonSolver
-from shellobstacle.solvers.options import NewtonOptions
 
-__all__ = ["check_nested", "interpolate", "nested_start", "nested_wanted"]
+__all__ = ["interpolate", "nested_start"]
 
-
-def check_nested(problem: PenalizedProblem) -> None:
-    """Raise ValueError, naming the fix, when nested iteration cannot solve ``problem``."""
-    key = "solver.nested_iteration"
-    require_membrane(problem, key)
-    if not coarser_meshes(problem.mesh):
-        raise ValueError(
-            f"{key} needs a mesh made by uniform refinement: set domain.refinements >= 1 "
-            "(or solve a mesh large enough that gmsh_max_vertices refines it)"
-        )
-    if problem.kappa_scale is not None or problem.custom_load:
-        raise ValueError(
-            f"{key} rebuilds the shell on the coarser meshes from its config: a problem with "
-            "a load or penalty scale given as functions on its mesh cannot use it"
-        )
-
-
-def nested_wanted(problem: PenalizedProblem, options: NewtonOptions) -> bool:
-    """Whether ``options.nested_iteration`` asks for nested iteration on ``problem``: ``"on"``
-    always (:func:`check_nested` then refuses what it cannot solve), ``"auto"`` on one rank
-    where the linear solver is multigrid (``"auto"`` resolved by
-    :func:`~shellobstacle.mesh.memory.linear_solver_for`) and :func:`check_nested` passes.
-
-    Not on several ranks: the coarser levels' small solves gain nothing from them, and there
-    nested iteration is slower than the plain continuation (docs/perf/multigrid.md)."""
-    if options.nested_iteration != "auto":
-        return options.nested_iteration == "on"
-    if problem.mesh.comm.size > 1:
-        return False
-    try:
-        check_nested(problem)
-    except ValueError:
-        return False
-    linear = linear_solver_for(
-        options.linear_solver, problem.num_dofs, problem.model, problem.disc.degree,
-        problem.mesh.comm, levels=True,  # (check_nested found them)
-    )  # fmt: skip
-    return linear == "multigrid" and problem.disc.degree == 1
+log = logging.getLogger(__name__)
 
 
 def interpolate(coarse: PenalizedProblem, fine: PenalizedProblem) -> None:
@@ -91,7 +56,6 @@ def nested_start(
     problem: PenalizedProblem,
     options: NewtonOptions,
     kappas: Sequence[float],
-    say: Callable[[str], Any] = lambda _: None,
 ) -> list[dict[str, Any]]:
     """Solve the coarser levels and leave the finest level's start in ``problem.zeta``.
 
@@ -131,7 +95,7 @@ def nested_start(
                 "seconds": time.perf_counter() - t0,
             }
         )
-        say(
+        log.info(
             f"nested iteration, level {k + 1}/{len(levels)}: {level.num_dofs} dofs, "
             f"{sum(records[-1]['newton'])} Newton steps"
         )

@@ -29,8 +29,8 @@ beyond double precision's range) is a failure, not a step below round-off.
 
 from __future__ import annotations
 
-import dataclasses
 import functools
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -43,10 +43,9 @@ import dolfinx
 import dolfinx.fem.petsc
 import numpy as np
 
-from shellobstacle.mesh.hierarchy import coarser_meshes
-from shellobstacle.mesh.memory import auto_choice
 from shellobstacle.models.problem import PenalizedProblem
 from shellobstacle.progress import note
+from shellobstacle.solvers.auto import resolve
 from shellobstacle.solvers.base import ConvergenceError, UserOptions, with_user_options
 from shellobstacle.solvers.linear import LinearSolveError, LinearStrategy, make_strategy
 from shellobstacle.solvers.newton.normal_relaxation import (
@@ -54,13 +53,14 @@ from shellobstacle.solvers.newton.normal_relaxation import (
     NormalRelaxation,
     require_membrane,
 )
+from shellobstacle.solvers.newton.options import NewtonOptions
 from shellobstacle.solvers.newton.system import PenalizedSystem
-from shellobstacle.solvers.options import NewtonOptions
 from shellobstacle.solvers.result import BELOW_RTOL, ZERO_LOAD, NewtonResult
 
 __all__ = ["ZERO_LOAD", "ConvergenceError", "NewtonOptions", "NewtonResult", "NewtonSolver"]
 
 Progress = Callable[[int, float], Any]
+log = logging.getLogger(__name__)
 #: the phases of a solve whose seconds :attr:`NewtonSolver.timings` adds up
 PHASES = (
     "assemble", "factorize", "solve", "line_search", "zone", "condense", "zone_newton", "relax",
@@ -111,18 +111,13 @@ class NewtonSolver:
             require_membrane(problem)
         t0 = time.perf_counter()
         self.system = PenalizedSystem(problem, opts.floor_factor)
-        #: the linear solver used: ``options.linear_solver`` (``"auto"`` resolved), or the
-        #: class name of a strategy built by hand; and why "auto" chose it ("" otherwise)
+        #: the linear solver used: ``options.linear_solver`` (``"auto"`` from a direct caller
+        #: resolved by :func:`~shellobstacle.solvers.auto.resolve`; a solve passes it
+        #: resolved), or the class name of a strategy built by hand
         self.linear_solver: str
-        self.auto_reason = ""
         if linear is None:
-            self.linear_solver = opts.linear_solver
-            if opts.linear_solver == "auto":
-                self.linear_solver, self.auto_reason = auto_choice(
-                    problem.num_dofs, problem.model, problem.disc.degree, problem.mesh.comm,
-                    levels=bool(coarser_meshes(problem.mesh)),
-                )  # fmt: skip
-            chosen = dataclasses.replace(opts, linear_solver=self.linear_solver)
+            chosen = resolve(problem, opts).options if opts.linear_solver == "auto" else opts
+            self.linear_solver = chosen.linear_solver
             linear = make_strategy(chosen, problem.mesh.comm)
         else:
             self.linear_solver = type(linear).__name__
@@ -345,6 +340,7 @@ class NewtonSolver:
         rnorm = model.residual_norm()
         result.residual_norms.append(rnorm)
         note(f"Newton step {result.iterations}, relative residual {rnorm / scale:.1e}")
+        log.debug("    Newton %d: relative residual %.3e", result.iterations, rnorm / scale)
         if progress is not None:
             progress(result.iterations, rnorm / scale)
         return Outcome.SMALL if small else Outcome.STEPPED

@@ -47,8 +47,8 @@ from shellobstacle.solvers.base import (
     with_user_options,
 )
 from shellobstacle.solvers.newton.line_search import piecewise_linear_root
-from shellobstacle.solvers.options import ActiveSetOptions
 from shellobstacle.solvers.vi.nodal_qp import NodalQP, NodalResult, factor_mb
+from shellobstacle.solvers.vi.options import ActiveSetOptions
 
 __all__ = ["ActiveSetResult", "ActiveSetSolver"]
 

@@ -21,7 +21,7 @@ positive definite matrix with ``K'``'s sparsity, one Cholesky factorization per 
 or the mixed matrix is factorized as the authors' DOLFINx examples do
 (``linear_system = "mixed"``): the same iterates. Full Newton steps, as in those examples;
 ``α_k`` follows their double-exponential rule, made dimensionless by the largest nodal load
-pressure (:class:`~shellobstacle.solvers.options.ProximalGalerkinOptions`). At the limit
+pressure (:class:`~shellobstacle.solvers.vi.options.ProximalGalerkinOptions`). At the limit
 ``λ_b = (K'u − f')_b = m_b (φ_{k−1} − φ_k)/α_k ≥ 0`` is the multiplier. The answer is
 measured by the same KKT check as the active-set solver's, with ``λ_b = (K'u − f')_b`` at
 every bound.
@@ -47,8 +47,8 @@ from shellobstacle.solvers.base import (
     unique_prefix,
     with_user_options,
 )
-from shellobstacle.solvers.options import ProximalGalerkinOptions
 from shellobstacle.solvers.vi.nodal_qp import NodalQP, NodalResult, factor_mb
+from shellobstacle.solvers.vi.options import ProximalGalerkinOptions
 
 __all__ = ["ProximalGalerkinResult", "ProximalGalerkinSolver"]
 

@@ -35,8 +35,8 @@ from shellobstacle.solvers.base import (
     unique_prefix,
     with_user_options,
 )
-from shellobstacle.solvers.options import SnesVIOptions
 from shellobstacle.solvers.vi.nodal_qp import NodalQP, NodalResult, factor_mb
+from shellobstacle.solvers.vi.options import SnesVIOptions
 
 __all__ = ["SnesVIResult", "SnesVISolver"]
 
