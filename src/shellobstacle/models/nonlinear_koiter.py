@@ -227,7 +227,8 @@ class NonlinearKoiterProblem:
         zeta: the displacement (covariant components), a P2 vector Lagrange function.
         load_factor: ``s``; parameters: the load's parameters, ``Constant`` objects by name.
         membrane, bending, work: the energy's parts (UFL forms); energy: ``J``; residual and
-            jacobian: its first and second variations (UFL forms).
+            jacobian: its first and second variations (UFL forms); load: ``f``, the load's
+            linear form at ``s = 1``.
         bcs: ``ζ = 0`` on γ (``∂_ν ζ_3 = 0`` is the bending energy's, weakly).
         dx, ds, sigma: the measures (the linear model's quadrature degree) and the penalty
             ``σ`` (a ``Constant``).
@@ -268,6 +269,7 @@ class NonlinearKoiterProblem:
         self.bending = nonlinear_bending_energy(G, eps, lam, mu, zeta, dx, self.sigma, ds)
         work = sum(p[i] * zeta[i] for i in range(3)) * G.sqrt_a * dx
         self.work = self.load_factor * work
+        self.load = ufl.derivative(work, zeta, ufl.TestFunction(self.V))
         self.energy = self.membrane + self.bending - self.work
         self.residual = ufl.derivative(self.energy, zeta, ufl.TestFunction(self.V))
         self.jacobian = ufl.derivative(self.residual, zeta, ufl.TrialFunction(self.V))
