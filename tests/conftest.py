@@ -58,6 +58,24 @@ def make_paper_shell(
     )
 
 
+#: the paper's cap and material on a coarse disk: the head of a test's TOML config
+CAP_ON_COARSE_DISK = """
+[surface]
+kind = "spherical_cap"
+radius = 1.0
+offset = 0.85
+
+[domain]
+kind = "disk"
+radius = 0.5
+h = 0.1
+
+[material]
+epsilon = 0.001
+lambda = 0.4
+mu = 0.012
+"""
+
 #: κ = h^1.5, the paper's coupling (docs/model.md §7)
 PENALTY = PenaltySpec(exponent=1.5)
 

@@ -182,6 +182,8 @@ def solve_problem(
     chosen = METHODS[method]
     require_penalty(method, penalty)
     opts = options_for(chosen, options)
+    if shell.kinematics == "nonlinear":
+        _require_nonlinear_choices(method, opts, discretization, adapt)
     timings: dict[str, float] = {}
     t = time.perf_counter()
     if isinstance(domain, DomainSpec):
@@ -218,14 +220,17 @@ def solve_problem(
         )
     t = time.perf_counter()
     kappas = kappa_on_mesh(penalty, mesh).ladder
-    problem = PenalizedProblem(
-        shell, mesh, discretization, kappa=kappas[0] if chosen.penalized else None
-    )
+    if shell.kinematics == "nonlinear":
+        problem: Any = _nonlinear_problem(shell, mesh, discretization, kappas[0])
+    else:
+        problem = PenalizedProblem(
+            shell, mesh, discretization, kappa=kappas[0] if chosen.penalized else None
+        )
     timings["compile"] = time.perf_counter() - t
     target = kappas[-1] if chosen.penalized else 0.0
     result = SolveResult(problem, h, target, [], checks, timings, method=method)
     t = time.perf_counter()
-    if takes_linear_solver(chosen):  # every "auto" resolved once, from the problem
+    if takes_linear_solver(chosen) and shell.kinematics == "linear":  # "auto" resolved once
         resolution = resolve(problem, opts or chosen.options_type())
         opts, result.extra["choices"] = resolution.options, resolution.record()
         if resolution.said():
@@ -236,6 +241,44 @@ def solve_problem(
     timings.update(done.timings)
     timings["solve"] = time.perf_counter() - t
     return result
+
+
+def _require_nonlinear_choices(
+    method: str, options: Any, discretization: Discretization | None, adapt: Any
+) -> None:
+    """Refuse, in one line, what the solver of ``kinematics = "nonlinear"`` (load stepping,
+    a direct solver, docs/model.md §11.3) cannot take."""
+    if method != "newton":
+        raise ConfigError(
+            f"model.kinematics = 'nonlinear' is solved by load stepping with Newton's method: "
+            f"set solver.method = 'newton' (got {method!r})"
+        )
+    if getattr(options, "linear_solver", "direct") not in ("auto", "direct"):
+        raise ConfigError(
+            "model.kinematics = 'nonlinear' has the direct linear solver only (its tangent is "
+            "indefinite): set solver.linear_solver = 'direct'"
+        )
+    if (discretization or Discretization()).bending != "c0ip":
+        raise ConfigError(
+            "model.kinematics = 'nonlinear' has the C⁰ interior-penalty bending form only: "
+            "set discretization.bending = 'c0ip'"
+        )
+    if adapt is not None:
+        raise ConfigError(
+            "model.kinematics = 'nonlinear' is solved on one mesh: remove the [adapt] section"
+        )
+
+
+def _nonlinear_problem(
+    shell: Shell, mesh: dolfinx.mesh.Mesh, discretization: Discretization | None, kappa: float
+) -> Any:
+    """The nonlinear Koiter problem (docs/model.md §11.3) with the obstacle's penalty at
+    ``kappa``, its forms compiled at ``-O0``."""
+    from shellobstacle.models.nonlinear_koiter import FAST_COMPILE, NonlinearKoiterProblem
+
+    disc = discretization or Discretization()
+    with phase("compiling the nonlinear forms"):
+        return NonlinearKoiterProblem(shell, mesh, disc, jit_options=FAST_COMPILE, kappa=kappa)
 
 
 def nodal_solver(problem: PenalizedProblem, method: str, options: Any = None) -> Any:

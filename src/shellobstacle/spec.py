@@ -244,6 +244,7 @@ def _parse_where(text: str) -> sp.Expr:
 
 
 MODELS = ("membrane", "koiter")
+KINEMATICS = ("linear", "nonlinear")
 
 
 @dataclass(frozen=True)
@@ -253,7 +254,8 @@ class Shell:
     membrane energy plus bending; any immersed thin shell), and the conditions on parts of γ
     (:class:`Edge`; γ is clamped where none is given). The edges are the shell's, not the
     discretization's: which edges are supported is part of the physical problem, as the load
-    is, and a mesh only locates them."""
+    is, and a mesh only locates them. ``kinematics``: ``"linear"`` (the strains linear in ζ)
+    or ``"nonlinear"`` (Koiter's model only: the strains of the deformed surface, §11)."""
 
     surface: Surface
     material: Material
@@ -261,10 +263,18 @@ class Shell:
     obstacle: Obstacle = field(default_factory=Obstacle)
     model: str = field(default="membrane", metadata={"choices": MODELS})
     edges: tuple[Edge, ...] = ()
+    kinematics: str = field(default="linear", metadata={"choices": KINEMATICS})
 
     def __post_init__(self) -> None:
         if self.model not in MODELS:
             raise ValueError(not_one_of("model.kind", self.model, MODELS))
+        if self.kinematics not in KINEMATICS:
+            raise ValueError(not_one_of("model.kinematics", self.kinematics, KINEMATICS))
+        if self.kinematics == "nonlinear" and self.model != "koiter":
+            raise ValueError(
+                "model.kinematics = 'nonlinear' is Koiter's model (a membrane has no bending "
+                "stiffness in compression): set model.kind = 'koiter' or kinematics = 'linear'"
+            )
         object.__setattr__(self, "edges", tuple(self.edges))
         for edge in self.edges:
             if not isinstance(edge, Edge):

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 import pytest
 from cli_helpers import run
+from conftest import CAP_ON_COARSE_DISK
 
 from shellobstacle.config.loader import parse_config
 from shellobstacle.config.schema import SCHEMA, reference_text
@@ -26,21 +27,9 @@ from shellobstacle.spec import Obstacle as ObstacleSpec
 DOCS = Path(__file__).parents[2] / "docs"
 
 #: the paper's cap on a coarse disk over the obstacle that :func:`_config` appends
-CONFIG = """
-[surface]
-kind = "spherical_cap"
-radius = 1.0
-offset = 0.85
-
-[domain]
-kind = "disk"
-radius = 0.5
-h = 0.1
-
-[material]
-epsilon = 0.001
-lambda = 0.4
-mu = 0.012
+CONFIG = (
+    CAP_ON_COARSE_DISK
+    + """
 
 [load]
 p = ["0", "0", "Piecewise((-(2*epsilon/25)*(-5.0*y1**2-5.0*y2**2+0.295), r < 0.15), (0, True))"]
@@ -52,6 +41,7 @@ exponent = 1.5
 paraview = false
 figures = false
 """
+)
 PARABOLOID = '[obstacle]\nkind = "paraboloid"\na = 0.2\n'
 #: the same obstacle as a formula
 FORMULA = '[obstacle]\nkind = "expression"\ng = "x3 + 0.2*(x1**2 + x2**2)"\n'

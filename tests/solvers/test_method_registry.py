@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from conftest import CAP_ON_COARSE_DISK
 
 from shellobstacle.config.loader import parse_config
 from shellobstacle.config.schema import reference_text
@@ -25,21 +26,9 @@ from shellobstacle.solvers.result import ConvergenceError, MethodResult, Step
 
 DOCS = Path(__file__).parents[2] / "docs"
 
-CONFIG = """
-[surface]
-kind = "spherical_cap"
-radius = 1.0
-offset = 0.85
-
-[domain]
-kind = "disk"
-radius = 0.5
-h = 0.1
-
-[material]
-epsilon = 0.001
-lambda = 0.4
-mu = 0.012
+CONFIG = (
+    CAP_ON_COARSE_DISK
+    + """
 
 [load]
 p = ["0", "0", "-1e-5"]
@@ -51,6 +40,7 @@ method = "zero"
 paraview = false
 figures = false
 """
+)
 
 
 class Zero:

@@ -13,6 +13,7 @@ from typing import Any
 
 import pytest
 from cli_helpers import run
+from conftest import CAP_ON_COARSE_DISK
 
 from shellobstacle.config.loader import parse_config
 from shellobstacle.config.schema import SCHEMA, reference_text
@@ -23,21 +24,9 @@ from shellobstacle.solvers.options import check_choices, option, petsc_options_f
 from shellobstacle.solvers.result import MethodResult, Step
 
 #: the paper's cap on a coarse disk, solved by the test's method
-CONFIG = """
-[surface]
-kind = "spherical_cap"
-radius = 1.0
-offset = 0.85
-
-[domain]
-kind = "disk"
-radius = 0.5
-h = 0.1
-
-[material]
-epsilon = 0.001
-lambda = 0.4
-mu = 0.012
+CONFIG = (
+    CAP_ON_COARSE_DISK
+    + """
 
 [load]
 p = ["0", "0", "-1e-5"]
@@ -46,6 +35,7 @@ p = ["0", "0", "-1e-5"]
 paraview = false
 figures = false
 """
+)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -16,7 +16,6 @@ the continuation ladder; the later ones start from the transferred solution at t
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from collections.abc import Callable
@@ -39,7 +38,7 @@ from shellobstacle.penalty.kappa import MeshKappa, kappa_on_mesh
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.linearization import solve_with
 from shellobstacle.solvers.newton.options import NewtonOptions
-from shellobstacle.solvers.registry import METHODS, Method, options_for
+from shellobstacle.solvers.registry import METHODS, Method, discretization_for, options_for
 from shellobstacle.solvers.result import MethodResult, SolveResult, Step
 from shellobstacle.spec import Discretization, Shell
 
@@ -149,9 +148,7 @@ def adaptive_solve(
     if chosen is None or not chosen.adaptive:
         adaptive = [m.name for m in METHODS.values() if m.adaptive]
         raise ValueError(f"adaptive refinement solves by one of {adaptive}, not {method!r}")
-    disc = discretization or Discretization()
-    if not chosen.penalized and disc.degree == 1:  # the exact solver's nodal constraint
-        disc = dataclasses.replace(disc, penalty_quadrature="vertex")
+    disc = discretization_for(chosen, discretization or Discretization())
     opts = options_for(chosen, method_options, options)
     comm: MPI.Comm = mesh.comm
     levels: list[AdaptLevel] = []

@@ -58,7 +58,9 @@ def build(r: dict[str, dict[str, Any]], source: str, given: set[str]) -> Config:
     load = Load(tuple(r["load"]["p"]), dict(r["load"].get("parameters", {})))
     model = r["model"]["kind"]
     edges = tuple(Edge(**e) for e in r.get("edge", []))
-    shell = Shell(surface, material, load, _obstacle(r["obstacle"]), model, edges)
+    shell = Shell(
+        surface, material, load, _obstacle(r["obstacle"]), model, edges, r["model"]["kinematics"]
+    )
     shell.load_expressions()  # parse now: errors name the key
 
     d = dict(r["domain"])

@@ -181,6 +181,13 @@ SCHEMA: dict[str, Mapping[str, Key]] = {
             "membrane: the paper's model (elliptic surfaces); koiter: membrane + bending, any "
             "immersed thin shell (P2, C⁰ interior penalty for ζ_3)",
         ),
+        "kinematics": bound(
+            Shell,
+            "kinematics",
+            "str",
+            "linear: strains linear in ζ; nonlinear: Koiter's strains of the deformed surface "
+            "(large deflections; kind = 'koiter', bending = 'c0ip', method = 'newton')",
+        ),
     },
     "obstacle": RegistryKeys(SHAPES, _obstacle_keys),
     "penalty": {

@@ -18,7 +18,7 @@ from shellobstacle.messages import ConfigError, not_one_of
 from shellobstacle.penalty.spec import PenaltySpec
 from shellobstacle.solvers.newton.options import NewtonOptions
 from shellobstacle.solvers.options import config_keys
-from shellobstacle.solvers.registry import DEFAULT, METHODS, options_for
+from shellobstacle.solvers.registry import DEFAULT, METHODS, discretization_for, options_for
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = ["Config", "default_degree", "method_of", "require_penalty"]
@@ -59,10 +59,7 @@ class Config:
         chosen = METHODS[self.method]
         require_penalty(self.method, self.penalty)
         disc = self.discretization or Discretization(degree=default_degree(self.shell.model))
-        if not chosen.penalized and disc.degree == 1:
-            # the nodal methods' constraint is the one P1's vertex penalty has
-            disc = dataclasses.replace(disc, penalty_quadrature="vertex")
-        object.__setattr__(self, "discretization", disc)
+        object.__setattr__(self, "discretization", discretization_for(chosen, disc))
         try:
             options_for(chosen, self.method_options)
         except TypeError as err:

@@ -33,9 +33,11 @@ from petsc4py import PETSc
 
 import dolfinx
 import dolfinx.fem.petsc
+import numpy as np
 import ufl
 
 from shellobstacle.geometry.surface import Geometry
+from shellobstacle.models.edges import boundary_parts, dirichlet_bcs, rotation_measure
 from shellobstacle.models.koiter import (
     DEFAULT_INTERIOR_PENALTY,
     bending_moment,
@@ -43,10 +45,13 @@ from shellobstacle.models.koiter import (
     normal_normal,
 )
 from shellobstacle.models.membrane import elastic_product
-from shellobstacle.models.problem import boundary_facets, load_ufl, require_koiter_discretization
+from shellobstacle.models.problem import load_ufl, require_koiter_discretization
+from shellobstacle.obstacle import Obstacle, from_spec
+from shellobstacle.penalty.rule import penalty_measure
 from shellobstacle.spec import Discretization, Shell
 
 __all__ = [
+    "FAST_COMPILE",
     "NonlinearKoiterProblem",
     "basis_derivatives",
     "bending_strain",
@@ -58,6 +63,10 @@ __all__ = [
 ]
 
 Tensor2 = list[list[Any]]
+
+#: DOLFINx's JIT options for the nonlinear forms: their kernels are large, and ``-O0``
+#: compiles them many times faster than the default ``-O2`` (for a slower assembly)
+FAST_COMPILE: dict[str, Any] = {"cffi_extra_compile_args": ["-O0", "-g0"], "timeout": 600}
 
 
 def basis_derivatives(G: Geometry) -> tuple[list[list[Any]], list[list[list[Any]]]]:
@@ -219,20 +228,32 @@ def nonlinear_bending_energy(
 
 
 class NonlinearKoiterProblem:
-    """The clamped nonlinear Koiter shell on one mesh, without obstacle (docs/model.md §11):
-    ``J(ζ) = E_m(ζ) + E_b(ζ) − s ∫ p^i ζ_i √a dy`` and its first and second variations as UFL
-    forms, ``s`` a load factor (a ``Constant``).
+    """The nonlinear Koiter shell on one mesh (docs/model.md §11): ``J(ζ) = E_m(ζ) + E_b(ζ)
+    − s ∫ p^i ζ_i √a dy``, plus, with a penalty parameter ``κ``, the obstacle's penalty
+    ``(ε/(2κ)) ∫ ({g(ζ)}⁻)² / |c| dy`` of :eq:`penalized-energy` (the obstacle's own gap
+    ``g(ζ)``, exact for a curved obstacle too: the energy is not convex anyway); its first and
+    second variations as UFL forms, ``s`` a load factor (a ``Constant``).
 
     Attributes:
         zeta: the displacement (covariant components), a P2 vector Lagrange function.
         load_factor: ``s``; parameters: the load's parameters, ``Constant`` objects by name.
-        membrane, bending, work: the energy's parts (UFL forms); energy: ``J``; residual and
-            jacobian: its first and second variations (UFL forms); load: ``f``, the load's
-            linear form at ``s = 1``.
-        bcs: ``ζ = 0`` on γ (``∂_ν ζ_3 = 0`` is the bending energy's, weakly).
-        dx, ds, sigma: the measures (the linear model's quadrature degree) and the penalty
-            ``σ`` (a ``Constant``).
+        membrane, bending, work: the energy's parts (UFL forms); energy: ``J`` (with the
+            penalty); residual and jacobian: its first and second variations (UFL forms);
+            load: ``f``, the load's linear form at ``s = 1``.
+        parts, bcs: the parts of γ by condition (:mod:`~shellobstacle.models.edges`) and
+            their Dirichlet conditions (the rotation's, weakly, are the bending energy's).
+        kappa: ``κ`` (a ``Constant``), or None without obstacle; obstacle, g, c_norm: the
+            obstacle and its gap, as :class:`~shellobstacle.models.problem.PenalizedProblem`'s
+            (which the post-processing reads).
+        dx, ds, dx_penalty, sigma: the measures (the linear model's quadrature degree and
+            penalty rule) and the penalty ``σ`` (a ``Constant``).
     """
+
+    #: the hybrid form's multiplier (none here), the curved obstacle's linearization (none)
+    t = None
+    zeta_lin = None
+    kappa_scale = None
+    custom_load = False
 
     def __init__(
         self,
@@ -241,9 +262,11 @@ class NonlinearKoiterProblem:
         discretization: Discretization | None = None,
         load_factor: float = 1.0,
         jit_options: dict[str, Any] | None = None,
+        kappa: float | None = None,
     ) -> None:
         """``jit_options``: DOLFINx's, for the forms (their kernels are large: ``-O0`` compiles
-        them many times faster than the default ``-O2``, for a slower assembly)."""
+        them many times faster than the default ``-O2``, for a slower assembly); ``kappa``: the
+        obstacle's penalty parameter (None: no obstacle)."""
         disc = discretization or Discretization(degree=2, bending="c0ip")
         require_koiter_discretization(disc, mesh)
         if disc.bending != "c0ip":
@@ -251,34 +274,98 @@ class NonlinearKoiterProblem:
                 "the nonlinear Koiter energy has the C⁰ interior-penalty bending form only: "
                 "set discretization.bending = 'c0ip'"
             )
-        self.shell, self.mesh = shell, mesh
+        self.shell, self.mesh, self.disc = shell, mesh, disc
+        self.parts = boundary_parts(shell, mesh, disc.transverse)
         self.V = dolfinx.fem.functionspace(mesh, ("Lagrange", disc.degree, (3,)))
         self.zeta = zeta = dolfinx.fem.Function(self.V, name="zeta")
         self.load_factor = dolfinx.fem.Constant(mesh, PETSc.ScalarType(load_factor))
-        p, self.parameters = load_ufl(shell, mesh)
+        self.p, self.parameters = load_ufl(shell, mesh)
+        p = self.p
         self.sigma = dolfinx.fem.Constant(
             mesh, PETSc.ScalarType(disc.interior_penalty or DEFAULT_INTERIOR_PENALTY)
         )
         self.G = G = shell.surface.geometry_ufl(mesh)
         mat = shell.material
         eps, lam, mu = mat.epsilon, mat.lam, mat.mu
-        self.dx = dx = ufl.Measure("dx", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
-        self.ds = ds = ufl.Measure("ds", domain=mesh, metadata={"quadrature_degree": disc.qdegree})
+        meta = {"quadrature_degree": disc.qdegree}
+        self.dx = dx = ufl.Measure("dx", domain=mesh, metadata=meta)
+        self.ds = rotation_measure(mesh, self.parts, meta)
         E = membrane_strain(G, displacement_derivatives(G, zeta)[0])
         self.membrane = 0.5 * eps * elastic_product(G, lam, mu, E, E) * G.sqrt_a * dx
-        self.bending = nonlinear_bending_energy(G, eps, lam, mu, zeta, dx, self.sigma, ds)
+        self.bending = nonlinear_bending_energy(G, eps, lam, mu, zeta, dx, self.sigma, self.ds)
         work = sum(p[i] * zeta[i] for i in range(3)) * G.sqrt_a * dx
         self.work = self.load_factor * work
         self.load = ufl.derivative(work, zeta, ufl.TestFunction(self.V))
         self.energy = self.membrane + self.bending - self.work
+        self.obstacle: Obstacle = from_spec(shell.obstacle, eps)
+        self.q = np.asarray(shell.obstacle.q, dtype=float)
+        self.kappa: dolfinx.fem.Constant | None = None
+        self.penalty: ufl.Form | None = None
+        if kappa is not None:
+            self._penalty(kappa)
+            self.energy = self.energy + self.penalty
         self.residual = ufl.derivative(self.energy, zeta, ufl.TestFunction(self.V))
         self.jacobian = ufl.derivative(self.residual, zeta, ufl.TrialFunction(self.V))
-        tdim = mesh.topology.dim
-        dofs = dolfinx.fem.locate_dofs_topological(self.V, tdim - 1, boundary_facets(mesh))
-        zero = dolfinx.fem.Function(self.V)
-        self.bcs = [dolfinx.fem.dirichletbc(zero, dofs)]
+        self.bcs = dirichlet_bcs(self.V, self.parts)
         self.jit_options = jit_options
         self._newton: dolfinx.fem.petsc.NonlinearProblem | None = None
+        self._scalars: dict[str, dolfinx.fem.Form] = {}
+
+    def _penalty(self, kappa: float) -> None:
+        """``(ε/(2κ)) ∫ ({g(ζ)}⁻)² / |c| dy`` with the obstacle owner's gap, weight and measure
+        (:eq:`penalized-energy`)."""
+        obstacle = self.obstacle.on_mesh(self.mesh)
+        self.kappa = dolfinx.fem.Constant(self.mesh, PETSc.ScalarType(kappa))
+        self.g = self.g_penalty = obstacle.gap(self.G, [self.zeta[i] for i in range(3)])
+        self.c_norm = obstacle.c_norm(self.G)
+        self.dx_penalty = penalty_measure(self.mesh, self.disc, self.dx)
+        g_minus = ufl.conditional(ufl.lt(self.g, 0), self.g, 0)
+        eps = self.shell.material.epsilon
+        self.penalty = (eps / (2 * self.kappa)) * g_minus**2 / self.c_norm * self.dx_penalty
+
+    # what the post-processing and the result read of a penalized problem
+
+    model = "koiter"
+    linearized = False
+
+    @property
+    def penalized(self) -> bool:
+        """Whether the obstacle's penalty is in the energy."""
+        return self.kappa is not None
+
+    @property
+    def num_dofs(self) -> int:
+        """Global number of degrees of freedom (all three components)."""
+        im = self.V.dofmap.index_map
+        return im.size_global * self.V.dofmap.index_map_bs
+
+    def set_kappa(self, kappa: float) -> None:
+        """Change ``κ`` without recompiling."""
+        if self.kappa is None or not kappa > 0:
+            raise ValueError(f"set_kappa needs a penalized problem and kappa > 0, got {kappa}")
+        self.kappa.value = kappa
+
+    def linearize(self) -> None:
+        """Nothing: the penalty reads the obstacle's exact gap."""
+
+    def update_multiplier(self) -> None:
+        """Nothing: the C⁰ interior-penalty form has no multiplier."""
+
+    def scalar(self, name: str) -> float:
+        """``"elastic_energy"`` (``E_m + E_b``), ``"work"`` (at the load factor),
+        ``"penalty_energy"`` or ``"energy"`` (``J``) at the current ``ζ`` (collective)."""
+        if name not in self._scalars:
+            forms = {"elastic_energy": self.membrane + self.bending, "work": self.work,
+                     "energy": self.energy, "penalty_energy": self.penalty}  # fmt: skip
+            self._scalars[name] = dolfinx.fem.form(forms[name], jit_options=self.jit_options)
+        local = dolfinx.fem.assemble_scalar(self._scalars[name])
+        return float(self.mesh.comm.allreduce(local))
+
+    def energies(self) -> dict[str, float]:
+        """``J(ζ)`` without and with the penalty term, and the term (0 without obstacle)."""
+        el, w = self.scalar("elastic_energy"), self.scalar("work")
+        pen = self.scalar("penalty_energy") if self.penalized else 0.0
+        return {"energy": el - w, "penalty_energy": pen, "penalized_energy": el - w + pen}
 
     def solve(self, rtol: float = 1e-10, max_it: int = 30) -> int:
         """Newton's method with full steps from the current ``ζ`` (SNES ``newtonls`` with the

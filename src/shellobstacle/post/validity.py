@@ -30,8 +30,8 @@ over itself. Scale-free measures, computed after every solve:
     like the load squared. Beyond :data:`NONLINEARITY` the linear kinematics are not credible:
     on the clamped plate of docs/model.md §11 (deflections of 0.3 thickness and more) the
     linear deflection is then more than 5 % too large against the Föppl–von Kármán plate's.
-    A warning, not a violation: the command line's exit status stays 0 while the
-    configuration cannot select geometrically nonlinear kinematics.
+    A warning naming ``[model] kinematics = "nonlinear"``, not a violation (the exit status
+    stays 0); 0, not computed, for a solution of the nonlinear kinematics.
 ``penalty_ratio``
     the penetration against ``κ max(√a |p|) / ε``, the penetration at which the penalty force
     ``(ε/κ) {g}^-`` balances the load at a point (docs/model.md §4): how many times the largest
@@ -100,6 +100,7 @@ class Validity:
     thresholds: dict[str, float] = field(default_factory=lambda: dict(THRESHOLDS))
     loaded: bool = True  # the load is not zero everywhere (else ζ = 0 is the solution)
     nonlinearity: float = 0.0
+    model: str = "koiter"  # the shell's model, which the nonlinearity's remedy depends on
 
     @property
     def beyond_linear_kinematics(self) -> bool:
@@ -144,7 +145,12 @@ class Validity:
                 f"{NONLINEARITY:g} (the energy of the quadratic strain ½∂U·∂U the linear model "
                 "neglects, against the solution's elastic energy; it grows like the load "
                 f"squared): the displacement is credible for loads up to about {scale:.2g} "
-                "times this one (docs/model.md §11)"
+                "times this one (docs/model.md §11); "
+                + (
+                    'set [model] kinematics = "nonlinear"'
+                    if self.model == "koiter"
+                    else "reduce the load (the membrane has linear kinematics only)"
+                )
             )
         return lines
 
@@ -205,9 +211,12 @@ def assess(post: Any, kappa: float) -> Validity:
         eps = float(problem.shell.material.epsilon)
         ratio = violation / (kappa * pmax / eps)
     displacement = umax / size if size > 0 else float("inf")
+    # the nonlinear kinematics neglect no quadratic strain
+    linear = problem.shell.kinematics == "linear"
     return Validity(
-        penetration, displacement, omin, ratio, loaded=pmax > 0, nonlinearity=nonlinearity(problem)
-    )
+        penetration, displacement, omin, ratio, loaded=pmax > 0,
+        nonlinearity=nonlinearity(problem) if linear else 0.0, model=problem.shell.model,
+    )  # fmt: skip
 
 
 def nonlinearity(problem: Any) -> float:

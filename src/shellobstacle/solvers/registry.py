@@ -21,11 +21,13 @@ from typing import Any, Protocol, runtime_checkable
 from shellobstacle.solvers.methods.base import build_options, keeping
 from shellobstacle.solvers.options import config_keys, key_type
 from shellobstacle.solvers.result import MethodResult
+from shellobstacle.spec import Discretization
 
 __all__ = [
     "DEFAULT",
     "METHODS",
     "Method",
+    "discretization_for",
     "keeping",
     "method_help",
     "method_table",
@@ -163,6 +165,15 @@ def options_for(method: Method, given: Any, fallback: Any = None) -> Any:
     if kind is not None and isinstance(fallback, kind):
         return fallback
     return None
+
+
+def discretization_for(method: Method, disc: Discretization) -> Discretization:
+    """``disc`` as ``method`` solves on it: a method of the nodal problem (not ``penalized``)
+    imposes the constraint at the nodes, which for P1 is the vertex penalty rule's set of
+    points (docs/model.md §5), so its P1 takes ``penalty_quadrature = "vertex"``."""
+    if not method.penalized and disc.degree == 1:
+        return dataclasses.replace(disc, penalty_quadrature="vertex")
+    return disc
 
 
 def options_from(method: Method, values: Mapping[str, Any]) -> Any:

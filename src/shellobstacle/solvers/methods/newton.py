@@ -118,6 +118,10 @@ class NewtonContinuation(MethodBase):
         from shellobstacle.solvers.newton.nested import nested_start
         from shellobstacle.solvers.newton.solver import NewtonResult
 
+        if problem.shell.kinematics == "nonlinear":  # docs/model.md §11.3
+            from shellobstacle.solvers.nonlinear.contact import solve_in_contact
+
+            return solve_in_contact(problem, kappas)
         asked = options or NewtonOptions()
         out = MethodResult()
         if "auto" in (asked.linear_solver, asked.nested_iteration):  # (api.solve resolves it)

@@ -11,10 +11,8 @@ most ``CORRECTOR`` = ½ of its change, ``‖ζ_{k+1} − ζ_pred‖ ≤ ½ ‖ζ
 ``O(Δs)`` of it on a smooth path; a jump to another branch, a snap-through, is almost all
 correction; on a path of square-root shape the ratio reaches ½ where the step reaches the
 limit point). A stiffening step (the plate's) falls short of its predictor and is not tested.
-A
-failed step is halved and
-retried from ``ζ_k``; below ``min_step`` the stepping stops. An easy step (at most ``easy``
-Newton steps) doubles the next, up to ``max_step``.
+A failed step is halved and retried from ``ζ_k``; below ``min_step`` the stepping stops. An
+easy step (at most ``easy`` Newton steps) doubles the next, up to ``max_step``.
 
 Bergan's current stiffness parameter ``S_k = f·t_0 / f·t_k`` (1 on the linear path, above 1
 where the shell stiffens) falls to 0 at a limit point of the load, where ``K`` turns singular
